@@ -1,0 +1,25 @@
+#pragma once
+// What every haptic-bench suite prints and stores: the machine, percentiles.
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+namespace hapticd::bench {
+
+struct Machine {
+  std::string cpu;    // model name from /proc/cpuinfo
+  int cores = 0;      // online logical cores
+  std::string blas;   // BLAS library mapped into this process
+  std::string git_revision;
+};
+Machine describe_machine();
+nlohmann::json to_json(const Machine& m);
+
+// p-th percentile (0..100) by linear interpolation; NaN for an empty sample.
+double percentile(std::vector<double> values, double p);
+double median(const std::vector<double>& values);
+
+// Writes `doc` to `path` (pretty-printed); throws std::runtime_error on failure.
+void write_json(const std::string& path, const nlohmann::json& doc);
+
+}  // namespace hapticd::bench

@@ -1,0 +1,21 @@
+// haptic-bench: the project's whole-scenario benchmarks (see README, Performance).
+#include <CLI/CLI.hpp>
+#include <cstdio>
+#include <exception>
+
+#include "hand_bench.hpp"
+
+int main(int argc, char** argv) {
+  CLI::App app{"haptic-bench: hapticd benchmarks; every figure printed with its machine and baseline"};
+  app.require_subcommand(1);
+  hapticd::bench::add_hand_suite(app);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "haptic-bench: %s\n", e.what());
+    return 1;
+  }
+  return 0;
+}

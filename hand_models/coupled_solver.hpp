@@ -1,0 +1,54 @@
+#pragma once
+// Three interchangeable solvers for the coupled step (seed 004 eq. 7):
+//  - monolithic: one sparse LU of the whole system, the reference;
+//  - schur_cg: the paper's Schur complement of A_t (eq. 12-13) with 6m + 2
+//    Jacobi-preconditioned CG solves, warm-started from the previous step;
+//  - schur_cholmod: the same Schur complement with one CHOLMOD factorization of
+//    A_t per step (symbolic analysis once per pattern) and all right-hand sides
+//    solved as one block.
+#include <Eigen/Core>
+#include <memory>
+#include <string>
+
+#include "hand_models/coupled_system.hpp"
+
+namespace hapticd {
+
+enum class SolverKind { monolithic, schur_cg, schur_cholmod };
+// Fill-reducing ordering for CHOLMOD; `automatic` lets CHOLMOD try AMD and METIS and keep the best.
+enum class Ordering { automatic, amd, metis, nesdis, natural };
+
+struct SolverOptions {
+  double cg_tolerance = 1e-10;  // relative residual of each CG solve
+  int cg_max_iterations = 0;    // 0: 3n (CG's exact-arithmetic bound)
+  Ordering ordering = Ordering::automatic;
+  bool supernodal = true;       // CHOLMOD supernodal (BLAS-3) or simplicial factorization
+};
+
+struct SolveReport {
+  double factor_ms = 0;  // numeric factorization (or preconditioner set-up)
+  double schur_ms = 0;   // A_t solves for the Schur complement and its right-hand side
+  double solve_ms = 0;   // handle solve and tool back-substitution
+  long iterations = 0;   // CG iterations summed over all solves
+};
+
+class CoupledSolver {
+ public:
+  virtual ~CoupledSolver() = default;
+  virtual SolverKind kind() const = 0;
+  // Solves eq. 7; false (outputs unspecified) when the system is not solvable
+  // as assumed (A_t not SPD, singular Schur complement, CG not converged).
+  virtual bool solve(const CoupledSystem& system, Eigen::VectorXd& v_h, Eigen::VectorXd& v_t,
+                     SolveReport& report) = 0;
+};
+
+std::unique_ptr<CoupledSolver> make_solver(SolverKind kind, const SolverOptions& options = {});
+
+// "monolithic" | "cg" | "cholmod"; throws std::invalid_argument otherwise.
+SolverKind parse_solver_kind(const std::string& name);
+const char* to_string(SolverKind kind);
+// "auto" | "amd" | "metis" | "nesdis" | "natural"; throws std::invalid_argument otherwise.
+Ordering parse_ordering(const std::string& name);
+const char* to_string(Ordering ordering);
+
+}  // namespace hapticd

@@ -1,0 +1,148 @@
+#pragma once
+// A deformable co-rotational FEM hand tied to m >= 1 rigid handles (seed 004
+// sections 4-5): the constant HandModel, the mutable HandState, and one implicit
+// Euler step (Baraff-Witkin: one linearization per step) split in named stages.
+#include <Eigen/Core>
+#include <string>
+#include <vector>
+
+#include "hand_models/corotational_fem.hpp"
+#include "hand_models/coupled_system.hpp"
+#include "hand_models/rigid_handle.hpp"
+#include "hand_models/tet_mesh.hpp"
+
+namespace hapticd {
+
+class CoupledSolver;
+
+// Zero-rest-length spring per coupled node (seed 004 eq. 4).
+struct CouplingParams {
+  double stiffness_n_m = 2000.0;
+  double damping_ns_m = 2.0;
+};
+
+// Viscoelastic drive of each handle toward its target pose (the visual loop's
+// end of the virtual coupling: the target is the haptic proxy or device pose).
+struct DriveParams {
+  double stiffness_n_m = 3000.0;
+  double damping_ns_m = 30.0;
+  double rot_stiffness_nm_rad = 30.0;
+  double rot_damping_nms_rad = 0.3;
+};
+
+// A static penalty floor z = height_m under the hand nodes (the hand demo and
+// bench scene; constraint contact with friction belongs to the world).
+struct FloorParams {
+  bool enabled = false;
+  double height_m = 0.0;
+  double stiffness_n_m = 2000.0;  // per node in contact
+  double damping_ns_m = 2.0;
+};
+
+struct HandleSpec {
+  std::string name;
+  Eigen::Vector3d seed = Eigen::Vector3d::Zero();
+  double radius_m = 0.03;
+};
+
+struct HandConfig {
+  Material material;
+  CouplingParams coupling;
+  DriveParams drive;
+  FloorParams floor;
+  Eigen::Vector3d gravity_m_s2{0, 0, -9.81};
+  double dt_s = 1.0 / 60.0;
+  // Safety: a step whose node or handle speed exceeds this is a divergence.
+  double max_speed_m_s = 50.0;
+  std::vector<HandleSpec> handles;
+};
+
+// Throws std::invalid_argument naming the offending field (e.g. "coupling.stiffness_n_m: must be > 0").
+void validate(const HandConfig& config);
+
+// Pattern data to assemble A_t in place: per element, the value index of each
+// 3x3 block's first entry; per node, its diagonal block.
+struct AssemblyMap {
+  std::vector<std::array<int, 16>> element_block;
+  std::vector<int> diagonal_block;
+  std::vector<int> column_start;  // outer index of each column
+};
+
+class HandModel {
+ public:
+  HandModel(TetMesh mesh, HandConfig config);
+
+  const TetMesh& mesh() const { return mesh_; }
+  const CorotationalFem& fem() const { return fem_; }
+  const HandConfig& config() const { return config_; }
+  const std::vector<RigidHandle>& handles() const { return handles_; }
+  int num_nodes() const { return mesh_.num_nodes(); }
+  int num_handles() const { return static_cast<int>(handles_.size()); }
+  // Sparsity of A_t (values zero) and how element blocks land in it.
+  const Eigen::SparseMatrix<double>& tool_pattern() const { return pattern_; }
+  const AssemblyMap& assembly_map() const { return map_; }
+
+ private:
+  TetMesh mesh_;
+  HandConfig config_;
+  CorotationalFem fem_;
+  std::vector<RigidHandle> handles_;
+  Eigen::SparseMatrix<double> pattern_;
+  AssemblyMap map_;
+};
+
+struct HandleTarget {
+  Eigen::Vector3d p_W = Eigen::Vector3d::Zero();
+  Eigen::Quaterniond q_W = Eigen::Quaterniond::Identity();
+  Eigen::Vector3d v_W = Eigen::Vector3d::Zero();
+  Eigen::Vector3d w_W = Eigen::Vector3d::Zero();
+};
+
+// Per-stage wall time of the last step, ms.
+struct StepTimings {
+  double assembly_ms = 0, factor_ms = 0, schur_ms = 0, solve_ms = 0, integrate_ms = 0, total_ms = 0;
+};
+
+struct HandState {
+  Eigen::VectorXd x, v;  // node positions (m) and velocities (m/s), 3n
+  std::vector<HandleState> handles;
+  std::vector<HandleTarget> targets;
+
+  // Workspace, preallocated for the model; the last step's system stays readable.
+  std::vector<Eigen::Matrix3d> R;
+  Eigen::VectorXd f_t;
+  CoupledSystem system;
+  Eigen::VectorXd v_h_next, v_t_next;
+
+  StepTimings timings;
+  int floor_contacts = 0;
+  long resets = 0;
+};
+
+// Rest shape, at rest, handles at their rest poses and targets on them.
+HandState make_rest_state(const HandModel& model);
+
+// Moves the whole hand rigidly so that handle `h` sits at `pose`, velocities zero.
+void place_hand(const HandModel& model, HandState& state, const Eigen::Vector3d& p_W, const Eigen::Quaterniond& q_W,
+                int handle = 0);
+
+// Sets handle h's drive target; a non-finite target is refused (returns false, target kept).
+bool set_target(HandState& state, int handle, const HandleTarget& target);
+
+// Stage 1: forces and the linear system of eq. 7 at the current state.
+void assemble(const HandModel& model, HandState& state);
+
+enum class StepStatus { ok, reset_solver_failed, reset_diverged };
+
+// One implicit Euler step: assemble, solve (with `solver`), integrate, check.
+// A failed solve or a diverging/non-finite result resets the hand to rest at its
+// first handle's target (state.resets counts it) instead of propagating.
+StepStatus step(const HandModel& model, HandState& state, CoupledSolver& solver);
+
+// Total mechanical energy (kinetic + elastic + coupling + drive + floor + gravity), J.
+double total_energy(const HandModel& model, const HandState& state);
+
+// Linear momentum of nodes and handles, kg m/s.
+Eigen::Vector3d linear_momentum(const HandModel& model, const HandState& state);
+
+}  // namespace hapticd

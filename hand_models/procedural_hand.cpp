@@ -1,0 +1,580 @@
+#include "hand_models/procedural_hand.hpp"
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <stdexcept>
+#include <unordered_map>
+
+namespace hapticd {
+namespace {
+
+using Eigen::Vector3d;
+using Eigen::Vector3i;
+
+constexpr double kCm = 0.01;
+constexpr double kPi = 3.14159265358979323846;
+constexpr double kHalfDiagonal = 0.86602540378443864676;  // sqrt(3)/2: centre-to-corner distance of a unit cube
+constexpr std::array<const char*, 5> kFingerNames = {"thumb", "index", "middle", "ring", "little"};
+constexpr std::array<const char*, 3> kPhalanxNames = {"proximal", "middle", "distal"};
+
+double deg(double d) { return d * kPi / 180.0; }
+double sign(double x) { return x > 0.0 ? 1.0 : (x < 0.0 ? -1.0 : 0.0); }
+
+// Tapered capsule: convex hull of a sphere (a, ra) and a sphere (b, rb); exact SDF (Quilez's round cone).
+struct RoundCone {
+  Vector3d a, b;
+  double ra, rb;
+  Vector3d ba;
+  double l2, rr, a2, il2;
+  Vector3d centre;   // of a ball containing the cone: the SDF is at least |p - centre| - bound
+  double bound;
+
+  RoundCone() = default;
+  RoundCone(const Vector3d& a_in, const Vector3d& b_in, double ra_in, double rb_in)
+      : a(a_in), b(b_in), ra(ra_in), rb(rb_in), ba(b_in - a_in) {
+    l2 = ba.squaredNorm();
+    rr = ra - rb;
+    a2 = l2 - rr * rr;
+    il2 = 1.0 / l2;
+    centre = 0.5 * (a + b);
+    bound = 0.5 * std::sqrt(l2) + std::max(ra, rb);
+  }
+
+  double sdf(const Vector3d& p) const {
+    const Vector3d pa = p - a;
+    const double y = pa.dot(ba);
+    const double z = y - l2;
+    const double x2 = (pa * l2 - ba * y).squaredNorm();
+    const double y2 = y * y * l2;
+    const double z2 = z * z * l2;
+    const double k = sign(rr) * rr * rr * x2;
+    if (sign(z) * a2 * z2 > k) return std::sqrt(x2 + z2) * il2 - rb;
+    if (sign(y) * a2 * y2 < k) return std::sqrt(x2 + y2) * il2 - ra;
+    return (std::sqrt(x2 * a2 * il2) + y * rr) * il2 - ra;
+  }
+};
+
+// Exact 2D SDF of an isosceles trapezoid: half width r1 at y = -he, r2 at y = +he.
+double sd_trapezoid(double px, double py, double r1, double r2, double he) {
+  const Eigen::Vector2d k1(r2, he);
+  const Eigen::Vector2d k2(r2 - r1, 2.0 * he);
+  const Eigen::Vector2d p(std::abs(px), py);
+  const Eigen::Vector2d ca(p.x() - std::min(p.x(), p.y() < 0.0 ? r1 : r2), std::abs(p.y()) - he);
+  const Eigen::Vector2d cb = p - k1 + k2 * std::clamp((k1 - p).dot(k2) / k2.squaredNorm(), 0.0, 1.0);
+  const double s = (cb.x() < 0.0 && ca.y() < 0.0) ? -1.0 : 1.0;
+  return s * std::sqrt(std::min(ca.squaredNorm(), cb.squaredNorm()));
+}
+
+// Quadratic smooth minimum; its gradient is a convex combination, so it stays 1-Lipschitz.
+double smooth_min(double a, double b, double k) {
+  const double h = std::max(k - std::abs(a - b), 0.0) / k;
+  return std::min(a, b) - h * h * k * 0.25;
+}
+
+struct FingerSpec {
+  Vector3d base;                 // base joint, cm
+  double yaw;                    // deg, rotation about z toward +x
+  std::array<double, 3> pitch;   // deg per phalanx, negative = toward palmar
+  double roll;                   // deg about the bone axis turning the dorsal side radially (thumb pronation)
+  std::array<double, 3> length;  // joint to joint, the last to the fingertip, cm
+  std::array<double, 4> radius;  // at base, 2nd joint, 3rd joint, fingertip, cm
+};
+
+// Palm, blend and handle sizes in cm.
+constexpr double kPalmHalfLength = 4.5;   // along y
+constexpr double kPalmHalfWidthWrist = 3.4;
+constexpr double kPalmHalfWidthKnuckles = 4.0;
+constexpr double kPalmHalfThickness = 1.25;
+constexpr double kPalmCornerRadius = 1.2;  // rounding of the outline seen from above
+constexpr double kPalmEdgeRadius = 1.0;    // rounding of the dorsal and palmar rims
+constexpr double kBlend = 1.0;             // finger-palm blend width: webs and thenar, not between fingers
+constexpr double kPalmHandleRadius = 1.0;
+constexpr double kPhalanxHandleFraction = 0.6;  // of the segment's smaller radius
+constexpr double kSkinSampling = 0.006;    // m (!), largest edge of the grid the skin is extracted on
+
+struct HandShape {
+  std::array<std::array<Vector3d, 4>, 5> joints;  // m
+  std::array<std::array<Eigen::Matrix3d, 3>, 5> frames;
+  std::array<RoundCone, 15> cones;                // m
+  Vector3d lo, hi;                                // bounding box of the shape, m
+
+  double sdf(const Vector3d& p) const {
+    const double d2 = sd_trapezoid(p.x(), p.y(), (kPalmHalfWidthWrist - kPalmCornerRadius) * kCm,
+                                   (kPalmHalfWidthKnuckles - kPalmCornerRadius) * kCm,
+                                   (kPalmHalfLength - kPalmCornerRadius) * kCm) -
+                      kPalmCornerRadius * kCm;
+    const double wx = d2 + kPalmEdgeRadius * kCm;
+    const double wy = std::abs(p.z()) - (kPalmHalfThickness - kPalmEdgeRadius) * kCm;
+    const double palm = std::min(std::max(wx, wy), 0.0) +
+                        std::hypot(std::max(wx, 0.0), std::max(wy, 0.0)) - kPalmEdgeRadius * kCm;
+    // Fingers farther than palm + blend width leave the result at palm: start there and skip
+    // every cone whose bounding ball is already farther (the result is unchanged, just faster).
+    double fingers = palm + kBlend * kCm;
+    for (const RoundCone& c : cones) {
+      if ((p - c.centre).norm() - c.bound < fingers) fingers = std::min(fingers, c.sdf(p));
+    }
+    return smooth_min(palm, fingers, kBlend * kCm);
+  }
+};
+
+HandShape build_right_shape() {
+  // Right hand, cm and degrees. Yaws spread the fingers so their gaps grow toward the tips.
+  static const std::array<FingerSpec, 5> kFingers = {{
+      {{-2.3, -2.8, -0.25}, -54.0, {-4.0, -7.0, -10.0}, 50.0, {4.5, 3.0, 2.5}, {1.15, 1.0, 0.92, 0.85}},
+      {{-2.9, 4.3, 0.15}, -9.0, {0.0, -6.0, -12.0}, 0.0, {4.0, 2.5, 2.0}, {0.95, 0.88, 0.82, 0.78}},
+      {{-0.95, 4.5, 0.15}, 0.0, {0.0, -6.0, -12.0}, 0.0, {4.5, 3.0, 2.2}, {1.0, 0.92, 0.85, 0.8}},
+      {{1.05, 4.3, 0.15}, 8.0, {0.0, -6.0, -12.0}, 0.0, {4.2, 2.8, 2.1}, {0.95, 0.87, 0.82, 0.78}},
+      {{2.95, 3.9, 0.1}, 16.0, {0.0, -6.0, -12.0}, 0.0, {3.4, 2.0, 1.8}, {0.86, 0.82, 0.8, 0.78}},
+  }};
+
+  HandShape s;
+  s.lo = Vector3d(-kPalmHalfWidthKnuckles, -kPalmHalfLength, -kPalmHalfThickness) * kCm;
+  s.hi = -s.lo;
+  for (int f = 0; f < 5; ++f) {
+    const FingerSpec& spec = kFingers[f];
+    const double yaw = deg(spec.yaw);
+    Vector3d joint = spec.base * kCm;
+    s.joints[f][0] = joint;
+    for (int k = 0; k < 3; ++k) {
+      const double pitch = deg(spec.pitch[k]);
+      const Vector3d axis(std::sin(yaw) * std::cos(pitch), std::cos(yaw) * std::cos(pitch), std::sin(pitch));
+      // The axis rotated 90 degrees further up in pitch: the dorsal direction of an unrolled finger.
+      const Vector3d dorsal0(-std::sin(yaw) * std::sin(pitch), -std::cos(yaw) * std::sin(pitch), std::cos(pitch));
+      const Vector3d side0 = axis.cross(dorsal0);
+      const double roll = deg(spec.roll);
+      const Vector3d dorsal = std::cos(roll) * dorsal0 - std::sin(roll) * side0;
+      Eigen::Matrix3d R;
+      R.col(0) = axis.cross(dorsal);
+      R.col(1) = axis;
+      R.col(2) = dorsal;
+      s.frames[f][k] = R;
+      const Vector3d next = joint + spec.length[k] * kCm * axis;
+      // The distal bone stops one tip radius short so the rounded cap ends at the fingertip.
+      const Vector3d end = k == 2 ? Vector3d(next - spec.radius[3] * kCm * axis) : next;
+      s.cones[3 * f + k] = RoundCone(joint, end, spec.radius[k] * kCm, spec.radius[k + 1] * kCm);
+      s.joints[f][k + 1] = next;
+      joint = next;
+    }
+    for (int k = 0; k < 3; ++k) {
+      const RoundCone& c = s.cones[3 * f + k];
+      const double r = std::max(c.ra, c.rb);
+      s.lo = s.lo.cwiseMin(c.a.cwiseMin(c.b) - Vector3d::Constant(r));
+      s.hi = s.hi.cwiseMax(c.a.cwiseMax(c.b) + Vector3d::Constant(r));
+    }
+  }
+  // The blend can push the surface out by up to a quarter of its width.
+  s.lo -= Vector3d::Constant(0.25 * kBlend * kCm);
+  s.hi += Vector3d::Constant(0.25 * kBlend * kCm);
+  return s;
+}
+
+const HandShape& right_shape() {
+  static const HandShape shape = build_right_shape();
+  return shape;
+}
+
+// Cell (i, j, k) spans origin + h * [i, i+1] x [j, j+1] x [k, k+1].
+struct Grid {
+  double h = 0.0;
+  Vector3d origin;
+  Vector3i n;  // cells per axis
+
+  int num_cells() const { return n.x() * n.y() * n.z(); }
+  int cell_id(const Vector3i& c) const { return (c.z() * n.y() + c.y()) * n.x() + c.x(); }
+  Vector3i cell_coords(int id) const { return Vector3i(id % n.x(), (id / n.x()) % n.y(), id / (n.x() * n.y())); }
+  Vector3d corner(const Vector3i& c) const { return origin + h * c.cast<double>(); }
+  Vector3i cell_of(const Vector3d& p) const {
+    const Vector3d u = (p - origin) / h;
+    Vector3i c;
+    for (int a = 0; a < 3; ++a) c[a] = std::clamp(static_cast<int>(std::floor(u[a])), 0, n[a] - 1);
+    return c;
+  }
+};
+
+constexpr double kMinSpacing = 0.001;  // ~2M tets already; finer grids would exhaust memory
+constexpr double kMaxSpacing = 0.1;    // a few cells hold the whole hand
+
+Grid make_grid(const HandShape& shape, double h) {
+  Grid g;
+  g.h = h;
+  // A fixed fraction of a cell: keeps the palm's flat faces off the grid planes, so the tet
+  // count changes in small steps with h and the left/right results stay comparable.
+  const Vector3d anchor = h * Vector3d(0.37, 0.21, 0.43);
+  const Vector3d lo = shape.lo - Vector3d::Constant(1.5 * h);
+  const Vector3d hi = shape.hi + Vector3d::Constant(1.5 * h);
+  for (int a = 0; a < 3; ++a) {
+    const double i0 = std::floor((lo[a] - anchor[a]) / h);
+    g.origin[a] = anchor[a] + i0 * h;
+    g.n[a] = static_cast<int>(std::ceil((hi[a] - g.origin[a]) / h));
+  }
+  return g;
+}
+
+// Conservative: false only if the cube (centre c, edge size) provably misses the shape, using
+// the SDF's Lipschitz bound at the centre and, when undecided, at sub-cubes.
+bool may_touch(const HandShape& shape, const Vector3d& c, double size, int depth) {
+  const double f = shape.sdf(c);
+  if (f < 0.0) return true;
+  if (f >= kHalfDiagonal * size) return false;
+  if (depth == 0) return true;
+  const double q = 0.25 * size;
+  for (int corner = 0; corner < 8; ++corner) {
+    const Vector3d offset((corner & 1) ? q : -q, (corner & 2) ? q : -q, (corner & 4) ? q : -q);
+    if (may_touch(shape, c + offset, 0.5 * size, depth - 1)) return true;
+  }
+  return false;
+}
+
+constexpr int kCoverDepth = 2;  // sub-cubes of h/4: kept cells come within ~h/4 of the shape, not 0.87 h
+
+// Kept cells: all that may touch the shape plus every cell a bone axis passes through, reduced
+// to the largest face-connected component.
+std::vector<char> cover_cells(const HandShape& shape, const Grid& g) {
+  std::vector<char> keep(g.num_cells(), 0);
+  for (int k = 0; k < g.n.z(); ++k) {
+    for (int j = 0; j < g.n.y(); ++j) {
+      for (int i = 0; i < g.n.x(); ++i) {
+        const Vector3i c(i, j, k);
+        const Vector3d centre = g.corner(c) + Vector3d::Constant(0.5 * g.h);
+        if (may_touch(shape, centre, g.h, kCoverDepth)) keep[g.cell_id(c)] = 1;
+      }
+    }
+  }
+  for (const RoundCone& cone : shape.cones) {
+    const int steps = static_cast<int>(std::ceil((cone.b - cone.a).norm() / (0.125 * g.h))) + 1;
+    Vector3i prev = g.cell_of(cone.a);
+    keep[g.cell_id(prev)] = 1;
+    for (int s = 1; s <= steps; ++s) {
+      const Vector3i cur = g.cell_of(cone.a + (cone.b - cone.a) * (static_cast<double>(s) / steps));
+      // Step one axis at a time so consecutive cells share a face.
+      while (cur != prev) {
+        for (int a = 0; a < 3; ++a) {
+          if (cur[a] != prev[a]) {
+            prev[a] += cur[a] > prev[a] ? 1 : -1;
+            break;
+          }
+        }
+        keep[g.cell_id(prev)] = 1;
+      }
+    }
+  }
+  std::vector<int> label(g.num_cells(), -1);
+  std::vector<int> queue;
+  int best_label = -1;
+  int best_size = 0;
+  int next_label = 0;
+  for (int start = 0; start < g.num_cells(); ++start) {
+    if (!keep[start] || label[start] >= 0) continue;
+    queue.assign(1, start);
+    label[start] = next_label;
+    for (size_t q = 0; q < queue.size(); ++q) {
+      const Vector3i c = g.cell_coords(queue[q]);
+      for (int a = 0; a < 3; ++a) {
+        for (int dir = -1; dir <= 1; dir += 2) {
+          Vector3i nb = c;
+          nb[a] += dir;
+          if (nb[a] < 0 || nb[a] >= g.n[a]) continue;
+          const int id = g.cell_id(nb);
+          if (keep[id] && label[id] < 0) {
+            label[id] = next_label;
+            queue.push_back(id);
+          }
+        }
+      }
+    }
+    if (static_cast<int>(queue.size()) > best_size) {
+      best_size = static_cast<int>(queue.size());
+      best_label = next_label;
+    }
+    ++next_label;
+  }
+  for (int id = 0; id < g.num_cells(); ++id) keep[id] = label[id] == best_label ? 1 : 0;
+  return keep;
+}
+
+int count_tets(const HandShape& shape, double h) {
+  const std::vector<char> keep = cover_cells(shape, make_grid(shape, h));
+  return 6 * static_cast<int>(std::count(keep.begin(), keep.end(), 1));
+}
+
+// Kuhn subdivision of the unit cube along its main diagonal: tet p walks 000 -> +e[p0] -> +e[p1] -> 111.
+constexpr int kPerm[6][3] = {{0, 1, 2}, {1, 2, 0}, {2, 0, 1}, {0, 2, 1}, {1, 0, 2}, {2, 1, 0}};
+
+// Cube corners (bit a = offset along axis a) of Kuhn tet p, positively oriented.
+std::array<int, 4> kuhn_corners(int p) {
+  const int c1 = 1 << kPerm[p][0];
+  const int c2 = c1 | (1 << kPerm[p][1]);
+  // The last three permutations are odd: swapping two nodes restores positive orientation.
+  return p < 3 ? std::array<int, 4>{0, c1, c2, 7} : std::array<int, 4>{0, c1, 7, c2};
+}
+
+// Kuhn tet of the unit cube containing local point u, with the weights of its corners (kuhn_corners order).
+std::pair<int, Eigen::Vector4d> locate_in_cube(const Vector3d& u_in) {
+  const Vector3d u = u_in.cwiseMax(0.0).cwiseMin(1.0);
+  int p = 0;
+  for (; p < 5; ++p) {
+    if (u[kPerm[p][0]] >= u[kPerm[p][1]] && u[kPerm[p][1]] >= u[kPerm[p][2]]) break;
+  }
+  const double w0 = 1.0 - u[kPerm[p][0]];
+  const double w1 = u[kPerm[p][0]] - u[kPerm[p][1]];
+  const double w2 = u[kPerm[p][1]] - u[kPerm[p][2]];
+  const double w3 = u[kPerm[p][2]];
+  return {p, p < 3 ? Eigen::Vector4d(w0, w1, w2, w3) : Eigen::Vector4d(w0, w1, w3, w2)};
+}
+
+// Parity of the permutation (a, b, c, d) of (0, 1, 2, 3).
+bool odd_permutation(const std::array<int, 4>& q) {
+  int inversions = 0;
+  for (int i = 0; i < 4; ++i) {
+    for (int j = i + 1; j < 4; ++j) inversions += q[i] > q[j] ? 1 : 0;
+  }
+  return inversions % 2 == 1;
+}
+
+struct Skin {
+  std::vector<Vector3d> vertices;
+  std::vector<Triangle> triangles;
+  std::vector<int> tet;
+  std::vector<Eigen::Vector4d> bary;
+};
+
+// Marching tetrahedra on the Kuhn tets of the grid refined n times inside every kept cell.
+Skin extract_skin(const HandShape& shape, const Grid& g, const std::vector<int>& kept_cells, const TetMesh& mesh) {
+  Skin skin;
+  const int n = std::max(1, static_cast<int>(std::ceil(g.h / kSkinSampling - 1e-9)));
+  const double hf = g.h / n;
+  const Vector3i nf = g.n * n + Vector3i::Ones();  // fine nodes per axis
+  auto fine_id = [&](const Vector3i& c) {
+    return (static_cast<int64_t>(c.z()) * nf.y() + c.y()) * nf.x() + c.x();
+  };
+  auto fine_pos = [&](const Vector3i& c) -> Vector3d { return g.origin + hf * c.cast<double>(); };
+  std::unordered_map<int64_t, double> value;
+  auto sdf_at = [&](const Vector3i& c) {
+    auto [it, inserted] = value.try_emplace(fine_id(c), 0.0);
+    if (inserted) it->second = shape.sdf(fine_pos(c));
+    return it->second;
+  };
+  std::unordered_map<int64_t, int> edge_vertex;
+  const int64_t num_fine = static_cast<int64_t>(nf.x()) * nf.y() * nf.z();
+
+  for (size_t kc = 0; kc < kept_cells.size(); ++kc) {
+    const Vector3i cell = g.cell_coords(kept_cells[kc]);
+    const Vector3d cell_min = g.corner(cell);
+    auto vertex_on_edge = [&](const Vector3i& fu, double f_u, const Vector3i& fv, double f_v) {
+      const int64_t iu = fine_id(fu);
+      const int64_t iv = fine_id(fv);
+      auto [it, inserted] = edge_vertex.try_emplace(std::min(iu, iv) * num_fine + std::max(iu, iv), 0);
+      if (!inserted) return it->second;
+      const double t = f_u / (f_u - f_v);
+      const Vector3d p = (1.0 - t) * fine_pos(fu) + t * fine_pos(fv);
+      const auto [perm, w] = locate_in_cube((p - cell_min) / g.h);
+      const int tet = static_cast<int>(6 * kc) + perm;
+      const std::array<int, 4> corners = kuhn_corners(perm);
+      Eigen::Vector4d bary = Eigen::Vector4d::Zero();
+      for (int q = 0; q < 4; ++q) {
+        const int c = corners[q];
+        const Vector3d xc = cell_min + g.h * Vector3d(c & 1, (c >> 1) & 1, (c >> 2) & 1);
+        // Match by position: finalize_mesh may have reordered the tet's nodes.
+        for (int m = 0; m < 4; ++m) {
+          if ((mesh.X[mesh.tets[tet][m]] - xc).squaredNorm() < 1e-6 * g.h * g.h) bary[m] = w[q];
+        }
+      }
+      it->second = static_cast<int>(skin.vertices.size());
+      skin.vertices.push_back(p);
+      skin.tet.push_back(tet);
+      skin.bary.push_back(bary);
+      return it->second;
+    };
+
+    for (int sk = 0; sk < n; ++sk) {
+      for (int sj = 0; sj < n; ++sj) {
+        for (int si = 0; si < n; ++si) {
+          const Vector3i base = cell * n + Vector3i(si, sj, sk);
+          std::array<Vector3i, 8> fc;
+          std::array<double, 8> fv;
+          int inside = 0;
+          for (int c = 0; c < 8; ++c) {
+            fc[c] = base + Vector3i(c & 1, (c >> 1) & 1, (c >> 2) & 1);
+            fv[c] = sdf_at(fc[c]);
+            inside += fv[c] < 0.0 ? 1 : 0;
+          }
+          if (inside == 0 || inside == 8) continue;
+          for (int p = 0; p < 6; ++p) {
+            const std::array<int, 4> tc = kuhn_corners(p);
+            std::array<int, 4> in{}, out{};
+            int ni = 0, no = 0;
+            for (int q = 0; q < 4; ++q) {
+              if (fv[tc[q]] < 0.0) in[ni++] = q; else out[no++] = q;
+            }
+            if (ni == 0 || ni == 4) continue;
+            auto e = [&](int q0, int q1) {
+              return vertex_on_edge(fc[tc[q0]], fv[tc[q0]], fc[tc[q1]], fv[tc[q1]]);
+            };
+            if (ni == 1 || ni == 3) {
+              // Lone node first, the rest ordered so the tet stays positive; the face opposite the
+              // lone node then points away from it.
+              const int lone = ni == 1 ? in[0] : out[0];
+              std::array<int, 4> q{lone, 0, 0, 0};
+              for (int r = 0, m = 1; r < 4; ++r) {
+                if (r != lone) q[m++] = r;
+              }
+              if (odd_permutation(q)) std::swap(q[2], q[3]);
+              const int v1 = e(q[0], q[1]), v2 = e(q[0], q[2]), v3 = e(q[0], q[3]);
+              skin.triangles.push_back(ni == 1 ? Triangle{v1, v2, v3} : Triangle{v1, v3, v2});
+            } else {
+              std::array<int, 4> q{in[0], in[1], out[0], out[1]};
+              if (odd_permutation(q)) std::swap(q[2], q[3]);
+              const int ia = e(q[0], q[2]), ib = e(q[0], q[3]), jb = e(q[1], q[3]), ja = e(q[1], q[2]);
+              // Quad ia-ib-jb-ja faces outward; split along its shorter diagonal.
+              const double d1 = (skin.vertices[ia] - skin.vertices[jb]).squaredNorm();
+              const double d2 = (skin.vertices[ib] - skin.vertices[ja]).squaredNorm();
+              if (d1 <= d2) {
+                skin.triangles.push_back({ia, ib, jb});
+                skin.triangles.push_back({ia, jb, ja});
+              } else {
+                skin.triangles.push_back({ia, ib, ja});
+                skin.triangles.push_back({ib, jb, ja});
+              }
+            }
+          }
+        }
+      }
+    }
+  }
+  return skin;
+}
+
+void mirror(ProceduralHand& hand) {
+  const Eigen::Matrix3d M = Eigen::Vector3d(-1.0, 1.0, 1.0).asDiagonal();
+  for (Vector3d& x : hand.mesh.X) x.x() = -x.x();
+  for (Tet& t : hand.mesh.tets) std::swap(t[2], t[3]);
+  for (Vector3d& x : hand.skin_vertices) x.x() = -x.x();
+  for (Eigen::Vector4d& w : hand.skin_bary) std::swap(w[2], w[3]);
+  for (Triangle& t : hand.skin_triangles) std::swap(t[1], t[2]);
+  // M R M keeps the frame right-handed: y and z mirror, x = y cross z flips with them.
+  auto mirror_frame = [&](HandFrame& f) {
+    f.p.x() = -f.p.x();
+    f.R = M * f.R * M;
+  };
+  mirror_frame(hand.palm);
+  for (HandFrame& f : hand.phalanges) mirror_frame(f);
+  for (auto& finger : hand.joints) {
+    for (Vector3d& j : finger) j.x() = -j.x();
+  }
+  finalize_mesh(hand.mesh);
+}
+
+}  // namespace
+
+double procedural_hand_sdf(const Eigen::Vector3d& p, bool left) {
+  return right_shape().sdf(left ? Vector3d(-p.x(), p.y(), p.z()) : p);
+}
+
+int finger_index(const std::string& finger) {
+  for (int f = 0; f < 5; ++f) {
+    if (finger == kFingerNames[f]) return f;
+  }
+  return -1;
+}
+
+double hand_spacing_for_tets(int target_tets) {
+  if (target_tets <= 0) {
+    throw std::invalid_argument("procedural hand: target_tets must be positive, got " + std::to_string(target_tets));
+  }
+  const HandShape& shape = right_shape();
+  const double target = target_tets;
+  double best_h = 0.0;
+  double best_err = std::numeric_limits<double>::infinity();
+  auto count = [&](double h) {
+    const int c = count_tets(shape, h);
+    const double err = std::abs(c - target);
+    if (err < best_err || (err == best_err && h > best_h)) {
+      best_err = err;
+      best_h = h;
+    }
+    return c;
+  };
+  // Volume guess (including the cover's margin) gives the first spacing; the count falls with h.
+  double lo = std::clamp(std::cbrt(6.0 * 3.5e-4 / target), kMinSpacing, kMaxSpacing);
+  double hi = lo;
+  if (count(lo) >= target) {
+    while (hi < kMaxSpacing) {
+      hi = std::min(hi * 1.3, kMaxSpacing);
+      if (count(hi) < target) break;
+      lo = hi;
+    }
+  } else {
+    while (lo > kMinSpacing) {
+      lo = std::max(lo / 1.3, kMinSpacing);
+      if (count(lo) >= target) break;
+      hi = lo;
+    }
+  }
+  for (int it = 0; it < 40 && best_err > 0.01 * target && hi / lo > 1.0 + 1e-6; ++it) {
+    const double mid = std::sqrt(lo * hi);
+    if (count(mid) >= target) lo = mid; else hi = mid;
+  }
+  return best_h;
+}
+
+ProceduralHand make_procedural_hand(const ProceduralHandOptions& options) {
+  if (!std::isfinite(options.spacing) || (options.spacing > 0.0 && options.spacing < kMinSpacing) ||
+      options.spacing > kMaxSpacing) {
+    throw std::invalid_argument("procedural hand: spacing " + std::to_string(options.spacing) +
+                                " m is outside [0.001, 0.1] (or <= 0 to use target_tets)");
+  }
+  const double h = options.spacing > 0.0 ? options.spacing : hand_spacing_for_tets(options.target_tets);
+  const HandShape& shape = right_shape();
+  const Grid g = make_grid(shape, h);
+  const std::vector<char> keep = cover_cells(shape, g);
+
+  ProceduralHand hand;
+  hand.spacing = h;
+  std::vector<int> kept_cells;
+  const Vector3i nn = g.n + Vector3i::Ones();
+  std::vector<int> node_of(static_cast<size_t>(nn.x()) * nn.y() * nn.z(), -1);
+  for (int id = 0; id < g.num_cells(); ++id) {
+    if (!keep[id]) continue;
+    kept_cells.push_back(id);
+    const Vector3i cell = g.cell_coords(id);
+    std::array<int, 8> corner_node;
+    for (int c = 0; c < 8; ++c) {
+      const Vector3i v = cell + Vector3i(c & 1, (c >> 1) & 1, (c >> 2) & 1);
+      int& node = node_of[(static_cast<size_t>(v.z()) * nn.y() + v.y()) * nn.x() + v.x()];
+      if (node < 0) {
+        node = hand.mesh.num_nodes();
+        hand.mesh.X.push_back(g.corner(v));
+      }
+      corner_node[c] = node;
+    }
+    for (int p = 0; p < 6; ++p) {
+      const std::array<int, 4> tc = kuhn_corners(p);
+      hand.mesh.tets.push_back({corner_node[tc[0]], corner_node[tc[1]], corner_node[tc[2]], corner_node[tc[3]]});
+    }
+  }
+  finalize_mesh(hand.mesh);
+
+  Skin skin = extract_skin(shape, g, kept_cells, hand.mesh);
+  hand.skin_vertices = std::move(skin.vertices);
+  hand.skin_triangles = std::move(skin.triangles);
+  hand.skin_tet = std::move(skin.tet);
+  hand.skin_bary = std::move(skin.bary);
+
+  hand.joints = shape.joints;
+  hand.palm = HandFrame{"palm", Vector3d::Zero(), Eigen::Matrix3d::Identity(), kPalmHandleRadius * kCm};
+  for (int f = 0; f < 5; ++f) {
+    for (int k = 0; k < 3; ++k) {
+      const RoundCone& c = shape.cones[3 * f + k];
+      hand.phalanges[3 * f + k] = HandFrame{std::string(kFingerNames[f]) + "_" + kPhalanxNames[k],
+                                            0.5 * (shape.joints[f][k] + shape.joints[f][k + 1]),
+                                            shape.frames[f][k], kPhalanxHandleFraction * std::min(c.ra, c.rb)};
+    }
+  }
+  if (options.left) mirror(hand);
+  return hand;
+}
+
+}  // namespace hapticd
