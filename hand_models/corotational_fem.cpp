@@ -33,6 +33,42 @@ void validate(const Material& m) {
   require(std::isfinite(m.rayleigh_beta_s) && m.rayleigh_beta_s >= 0, "rayleigh_beta_s", "must be >= 0");
 }
 
+namespace {
+
+// X^-T = cof(X) / det X, from the columns' cross products.
+Eigen::Matrix3d inverse_transpose(const Eigen::Matrix3d& X, double det) {
+  Eigen::Matrix3d C;
+  C.col(0) = X.col(1).cross(X.col(2));
+  C.col(1) = X.col(2).cross(X.col(0));
+  C.col(2) = X.col(0).cross(X.col(1));
+  return C / det;
+}
+
+// Orthogonal polar factor by Higham's scaled Newton iteration X <- (g X + X^-T / g) / 2,
+// g = |det X|^(-1/3); converges quadratically for det F > 0 (to the same R as the SVD).
+// Returns false if it did not converge in the iteration budget.
+bool newton_polar(const Eigen::Matrix3d& F, Eigen::Matrix3d& R) {
+  Eigen::Matrix3d X = F;
+  for (int k = 0; k < 12; ++k) {
+    const double det = X.col(0).dot(X.col(1).cross(X.col(2)));
+    if (!(det > 0)) return false;
+    const double g = std::cbrt(1.0 / det);
+    const Eigen::Matrix3d next = 0.5 * (g * X + inverse_transpose(X, det) / g);
+    const double change = (next - X).squaredNorm();
+    X = next;
+    if (change < 1e-28) {
+      R = X;
+      return true;
+    }
+  }
+  return false;
+}
+
+// Below this volume ratio det F, the SVD path decides (flat and inverted elements).
+constexpr double kNewtonMinDetF = 1e-2;
+
+}  // namespace
+
 Eigen::Matrix3d rotation_of(const Eigen::Matrix3d& F) {
   Eigen::JacobiSVD<Eigen::Matrix3d> svd(F, Eigen::ComputeFullU | Eigen::ComputeFullV);
   Eigen::Matrix3d U = svd.matrixU();
@@ -88,8 +124,18 @@ Eigen::Matrix3d CorotationalFem::deformation_gradient(int e, const Eigen::Vector
 }
 
 void CorotationalFem::compute_rotations(const Eigen::VectorXd& x, std::vector<Eigen::Matrix3d>& R) const {
-  R.resize(tets_.size());
-  for (size_t e = 0; e < tets_.size(); ++e) R[e] = rotation_of(deformation_gradient(static_cast<int>(e), x));
+  const bool warm = R.size() == tets_.size();
+  if (!warm) R.assign(tets_.size(), Eigen::Matrix3d::Identity());
+  for (size_t e = 0; e < tets_.size(); ++e) {
+    const Eigen::Matrix3d F = deformation_gradient(static_cast<int>(e), x);
+    // Warm start: the polar factor of R_prev^T F is near identity, so Newton takes 2-3 iterations.
+    Eigen::Matrix3d Q;
+    if (F.determinant() > kNewtonMinDetF && newton_polar(R[e].transpose() * F, Q)) {
+      R[e] = R[e] * Q;
+    } else {
+      R[e] = rotation_of(F);
+    }
+  }
 }
 
 Eigen::Matrix3d CorotationalFem::stress(const Eigen::Matrix3d& strain) const {

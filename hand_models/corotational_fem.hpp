@@ -44,7 +44,9 @@ class CorotationalFem {
 
   // Rotation of every element: polar decomposition of F, made a proper rotation
   // for inverted and flat elements (the sign of the smallest singular value is
-  // flipped instead, Irving et al. 2004), so R is always in SO(3).
+  // flipped instead, Irving et al. 2004), so R is always in SO(3). R holds the
+  // previous rotations on input when it has one per element (a warm start for
+  // the Newton polar iteration; the result does not depend on it).
   void compute_rotations(const Eigen::VectorXd& x, std::vector<Eigen::Matrix3d>& R) const;
 
   // Adds the elastic forces f_a = -R K_e (R^T x - X) to f (3n), using the

@@ -5,7 +5,10 @@
 //    Jacobi-preconditioned CG solves, warm-started from the previous step;
 //  - schur_cholmod: the same Schur complement with one CHOLMOD factorization of
 //    A_t per step (symbolic analysis once per pattern) and all right-hand sides
-//    solved as one block.
+//    solved as one block;
+//  - schur_lagged: GMRES on eq. 7 preconditioned by the exact Schur solve of an
+//    earlier step (factorization reused across steps, refactored when the
+//    iteration count grows), converged to a residual tolerance.
 #include <Eigen/Core>
 #include <memory>
 #include <string>
@@ -14,7 +17,7 @@
 
 namespace hapticd {
 
-enum class SolverKind { monolithic, schur_cg, schur_cholmod };
+enum class SolverKind { monolithic, schur_cg, schur_cholmod, schur_lagged };
 // Fill-reducing ordering for CHOLMOD; `automatic` lets CHOLMOD try AMD and METIS and keep the best.
 enum class Ordering { automatic, amd, metis, nesdis, natural };
 
@@ -23,13 +26,16 @@ struct SolverOptions {
   int cg_max_iterations = 0;    // 0: 3n (CG's exact-arithmetic bound)
   Ordering ordering = Ordering::automatic;
   bool supernodal = true;       // CHOLMOD supernodal (BLAS-3) or simplicial factorization
+  double lagged_tolerance = 1e-12;      // relative residual of eq. 7 for schur_lagged
+  int lagged_max_iterations = 30;       // beyond this, refactor and solve exactly
+  int lagged_refactor_iterations = 20;  // a solve needing more always refactors on the next step
 };
 
 struct SolveReport {
   double factor_ms = 0;  // numeric factorization (or preconditioner set-up)
   double schur_ms = 0;   // A_t solves for the Schur complement and its right-hand side
   double solve_ms = 0;   // handle solve and tool back-substitution
-  long iterations = 0;   // CG iterations summed over all solves
+  long iterations = 0;   // CG or GMRES iterations summed over all solves
 };
 
 class CoupledSolver {
@@ -44,7 +50,7 @@ class CoupledSolver {
 
 std::unique_ptr<CoupledSolver> make_solver(SolverKind kind, const SolverOptions& options = {});
 
-// "monolithic" | "cg" | "cholmod"; throws std::invalid_argument otherwise.
+// "monolithic" | "cg" | "cholmod" | "lagged"; throws std::invalid_argument otherwise.
 SolverKind parse_solver_kind(const std::string& name);
 const char* to_string(SolverKind kind);
 // "auto" | "amd" | "metis" | "nesdis" | "natural"; throws std::invalid_argument otherwise.

@@ -118,7 +118,7 @@ HandState make_rest_state(const HandModel& model) {
     s.handles[j].p_WH = model.handles()[j].p_WH_rest;
     s.targets[j].p_W = s.handles[j].p_WH;
   }
-  s.R.resize(model.mesh().tets.size());
+  s.R.assign(model.mesh().tets.size(), Eigen::Matrix3d::Identity());  // warm start of the polar iteration
   s.f_t = Eigen::VectorXd::Zero(3 * n);
   s.system.A_t = model.tool_pattern();
   s.system.A_th.resize(3 * n, 6 * m);
@@ -180,9 +180,15 @@ void assemble(const HandModel& model, HandState& s) {
   const double cK = h * cfg.material.rayleigh_beta_s + h2;
   for (int e = 0; e < fem.num_tets(); ++e) {
     const Tet& t = fem.tets()[e];
-    for (int a = 0; a < 4; ++a)
-      for (int b = 0; b < 4; ++b)
-        add_block(values, map, map.element_block[e][4 * a + b], t[b], cK * fem.warped_block(e, a, b, s.R[e]));
+    // The warped stiffness is symmetric: compute the 10 blocks with a <= b, mirror the rest.
+    for (int a = 0; a < 4; ++a) {
+      add_block(values, map, map.element_block[e][5 * a], t[a], cK * fem.warped_block(e, a, a, s.R[e]));
+      for (int b = a + 1; b < 4; ++b) {
+        const Eigen::Matrix3d B = cK * fem.warped_block(e, a, b, s.R[e]);
+        add_block(values, map, map.element_block[e][4 * a + b], t[b], B);
+        add_block(values, map, map.element_block[e][4 * b + a], t[a], B.transpose());
+      }
+    }
   }
   const double cM = 1.0 + h * cfg.material.rayleigh_alpha_per_s;
   for (int i = 0; i < n; ++i) add_block(values, map, map.diagonal_block[i], i, cM * mass[i] * Eigen::Matrix3d::Identity());
@@ -284,6 +290,7 @@ StepStatus step(const HandModel& model, HandState& s, CoupledSolver& solver) {
   s.timings.factor_ms = report.factor_ms;
   s.timings.schur_ms = report.schur_ms;
   s.timings.solve_ms = report.solve_ms;
+  s.timings.iterations = report.iterations;
   const auto t1 = Clock::now();
   StepStatus status = StepStatus::ok;
   if (!solved) {

@@ -98,9 +98,10 @@ struct HandleTarget {
   Eigen::Vector3d w_W = Eigen::Vector3d::Zero();
 };
 
-// Per-stage wall time of the last step, ms.
+// Per-stage wall time of the last step, ms, and the solver's iteration count.
 struct StepTimings {
   double assembly_ms = 0, factor_ms = 0, schur_ms = 0, solve_ms = 0, integrate_ms = 0, total_ms = 0;
+  long iterations = 0;
 };
 
 struct HandState {

@@ -93,7 +93,8 @@ constexpr double kPalmEdgeRadius = 1.0;    // rounding of the dorsal and palmar 
 constexpr double kBlend = 1.0;             // finger-palm blend width: webs and thenar, not between fingers
 constexpr double kPalmHandleRadius = 1.0;
 constexpr double kPhalanxHandleFraction = 0.6;  // of the segment's smaller radius
-constexpr double kSkinSampling = 0.006;    // m (!), largest edge of the grid the skin is extracted on
+
+constexpr double kSkinSampling = 0.006;  // m: largest edge of the grid the skin is extracted on
 
 struct HandShape {
   std::array<std::array<Vector3d, 4>, 5> joints;  // m
@@ -341,7 +342,8 @@ struct Skin {
   std::vector<Eigen::Vector4d> bary;
 };
 
-// Marching tetrahedra on the Kuhn tets of the grid refined n times inside every kept cell.
+// Marching tetrahedra on the Kuhn tets of the grid refined n times inside every kept cell. The
+// refined Kuhn tets nest in the coarse ones, so each vertex has exact weights in a mesh tet.
 Skin extract_skin(const HandShape& shape, const Grid& g, const std::vector<int>& kept_cells, const TetMesh& mesh) {
   Skin skin;
   const int n = std::max(1, static_cast<int>(std::ceil(g.h / kSkinSampling - 1e-9)));

@@ -18,19 +18,25 @@
 //  - Sizes: palm 9 x 8 x 2.5 cm (narrowing to 6.8 cm at the wrist), fingers
 //    1.5-2.3 cm thick, hand length about 18.7 cm.
 //
-// Meshing: a grid cell is kept when it may touch the shape (a conservative,
-// Lipschitz-bounded test), so the kept cells cover the whole shape and the
-// mesh is larger than the hand by up to one cell on every side. Cells are split
-// into 6 Kuhn tets. Only the largest face-connected component is kept, and
-// every cell a bone axis passes through is kept, so no finger is lost.
-// Gaps between adjacent fingers are a few mm near the knuckles growing to
-// about 1 cm at the tips: coarse meshes (cells wider than the gaps) fuse
-// neighbouring fingers into a web of tets; the skin stays separate wherever
-// its sampling resolves the gap.
+// Meshing: a grid cell is kept when it may touch the shape: SDF at its centre
+// < (sqrt(3)/2) h, refined on 2 levels of sub-cubes with the same Lipschitz
+// bound, so kept cells come within about h/4 of the shape instead of 0.87 h
+// while still covering all of it. The mesh overhangs the hand by up to one
+// cell. Cells are split into 6 Kuhn tets along the main diagonal (conforming
+// without parity tricks). Every cell a bone axis passes through is kept and
+// only the largest face-connected component survives, so no finger is lost.
+// Gaps between adjacent long fingers grow from ~4 mm halfway along the proximal
+// phalanges to ~8 mm at the 2nd joints and >1.5 cm at the distal phalanges. A
+// cell wider than the gap bridges it, so the mesh fuses neighbouring fingers:
+// at 20k tets (5 mm cells) up to about the 2nd joints, at 5k up to about the
+// 3rd joints, at 1.7k and below the four fingers form a mitten (the thumb stays
+// separate from 1.7k up). The skin keeps the fingers separate at every size.
+// Covering makes the mesh volume exceed the hand's (about 1.6x at 20k tets, 5x
+// at 350), so a density applied to the mesh overestimates the mass by as much.
 //
 // Skin: marching tetrahedra on the SDF sampled on the Kuhn tets of a uniform
-// refinement of the grid (each cell split into n^3 cells, n chosen so the
-// skin is sampled at about 5 mm; n = 1 for fine meshes, i.e. the mesh nodes
+// refinement of the grid (each cell split into n^3 cells, the smallest n that
+// samples at 6 mm or finer; n = 1 for cells up to 6 mm, i.e. the mesh nodes
 // themselves). The refined tets nest inside the mesh tets, so every skin
 // vertex has exact barycentric coordinates in one mesh tet.
 #include "hand_models/tet_mesh.hpp"
@@ -76,10 +82,10 @@ struct ProceduralHand {
 // a non-positive target. Takes ~0.1 s for 20k tets (-O2).
 ProceduralHand make_procedural_hand(const ProceduralHandOptions& options = {});
 
-// Grid spacing whose mesh has close to target_tets tets (within a few % for
-// targets above a few hundred; the count is a step function of the spacing).
-// Searches spacings between 1 mm and 10 cm. Throws std::invalid_argument if
-// target_tets <= 0.
+// Grid spacing whose mesh has close to target_tets tets: within about 1 % for
+// targets of 100 to 10^6 (the count is a step function of the spacing). Searches
+// spacings between 1 mm and 10 cm, so below ~40 tets it returns 10 cm. Throws
+// std::invalid_argument if target_tets <= 0.
 double hand_spacing_for_tets(int target_tets);
 
 // Signed distance from p (m, hand frame) to the hand's surface, negative inside;

@@ -4,12 +4,13 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <map>
 #include <numeric>
 #include <random>
-#include <set>
 #include <stdexcept>
+#include <string>
 
 namespace hapticd {
 namespace {
@@ -38,7 +39,7 @@ double sdf_volume_in(const Eigen::Vector3d& centre, double size) {
   const double reach = 0.8660254037844386 * size;
   if (f <= -reach) return size * size * size;
   if (f >= reach) return 0.0;
-  if (size <= 0.001) return f < 0.0 ? size * size * size : 0.0;
+  if (size < 0.0011) return f < 0.0 ? size * size * size : 0.0;
   double v = 0.0;
   for (int c = 0; c < 8; ++c) {
     const Eigen::Vector3d offset((c & 1) ? 1.0 : -1.0, (c & 2) ? 1.0 : -1.0, (c & 4) ? 1.0 : -1.0);
@@ -285,6 +286,12 @@ TEST(ProceduralHand, SkinIsAClosedOutwardManifold) {
     }
     EXPECT_LT(worst, 3e-3);
     EXPECT_LT(sum / static_cast<double>(hand.skin_vertices.size()), 0.3e-3);
+    // No finger is missing from the skin, however coarse the mesh.
+    for (const auto& finger : hand.joints) {
+      double nearest = 1e9;
+      for (const Eigen::Vector3d& p : hand.skin_vertices) nearest = std::min(nearest, (p - finger[3]).norm());
+      EXPECT_LT(nearest, 6e-3);
+    }
   }
   EXPECT_NEAR(skin_volume(hand_for(5000)), v_sdf, 0.1 * v_sdf);
 }
