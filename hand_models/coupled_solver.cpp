@@ -8,6 +8,9 @@
 #include <stdexcept>
 #include <vector>
 
+// libgomp (CHOLMOD's OpenMP runtime); declared here so the project itself builds without -fopenmp.
+extern "C" void omp_set_max_active_levels(int levels);
+
 namespace hapticd {
 namespace {
 
@@ -28,6 +31,9 @@ bool solve_handles(const CoupledSystem& s, const Eigen::MatrixXd& Y, const Eigen
 
 void configure_cholmod(Eigen::CholmodDecomposition<Eigen::SparseMatrix<double>, Eigen::Lower>& chol,
                        const SolverOptions& o) {
+  // Debian's CHOLMOD opens OpenMP regions with a compiled-in 4 threads; the visual
+  // loop owns one core (the haptic loop needs the other), so no region may fork.
+  omp_set_max_active_levels(0);
   chol.setMode(o.supernodal ? Eigen::CholmodSupernodalLLt : Eigen::CholmodSimplicialLLt);
   cholmod_common& c = chol.cholmod();
   const int ordering[] = {0, CHOLMOD_AMD, CHOLMOD_METIS, CHOLMOD_NESDIS, CHOLMOD_NATURAL};
@@ -74,15 +80,6 @@ class CholmodSchur {
     if (!solve_handles(s, Y_.rightCols(nh), Y_.col(0), v_h)) return false;
     v_t = Y_.col(0) - Y_.rightCols(nh) * v_h;
     return v_t.allFinite();
-  }
-
-  // A factorization's cost in preconditioned iterations: its flops over a
-  // solve's (4 lnz), divided by the ~5x higher flop rate of the BLAS-3
-  // factorization than of the memory-bound triangular solves (measured at 20k
-  // tets); small factors run BLAS-3 less efficiently, hence the floor of 10.
-  double factor_cost_in_iterations() {
-    const cholmod_common& c = chol_.cholmod();
-    return c.lnz > 0 ? std::max(10.0, c.fl / (4.0 * c.lnz) / 5.0) : 10.0;
   }
 
   // z = P^-1 r with P the factored system: one A_t solve and the small Schur solve.
@@ -216,8 +213,8 @@ class SchurCholmodSolver final : public CoupledSolver {
 // GMRES on the whole of eq. 7, right-preconditioned by the exact Schur solve of
 // an earlier step's system (its CHOLMOD factor, Y and S kept). Element rotations
 // and contacts change little between visual steps, so a handful of iterations
-// (one A_t triangular solve each) replace a factorization; when the count grows
-// past options.lagged_refactor_iterations the next step refactors.
+// (one A_t triangular solve each) replace a factorization. The refactoring
+// schedule depends on measured times, so runs agree to the tolerance, not bitwise.
 class SchurLaggedSolver final : public CoupledSolver {
  public:
   explicit SchurLaggedSolver(const SolverOptions& o) : options_(o), schur_(o) {}
@@ -230,11 +227,12 @@ class SchurLaggedSolver final : public CoupledSolver {
       factored_size_ = -1;
       if (!schur_.factor(s, report)) return false;
       factored_size_ = nh + nt;
-      steps_since_factor_ = 0;
-      iterations_since_factor_ = 0;
       const auto t0 = Clock::now();
       const bool ok = schur_.solve_factored(s, v_h, v_t);
       report.solve_ms = ms_since(t0);
+      steps_since_factor_ = 1;
+      factor_cost_ms_ = report.factor_ms + report.schur_ms + report.solve_ms;
+      ms_since_factor_ = factor_cost_ms_;
       if (ok) previous_ = (Eigen::VectorXd(nh + nt) << v_h, v_t).finished();
       return ok;
     }
@@ -248,13 +246,13 @@ class SchurLaggedSolver final : public CoupledSolver {
       refactor_ = true;
       return solve(s, v_h, v_t, report);
     }
-    // Refactor once this step's iterations cost more than the average step since
-    // the last factorization, factorization included (deterministic: counts, not clocks).
+    // Refactor once this step's solve costs more than the average step since the
+    // last factorization, factorization included: that minimises the mean cost.
+    // (Measured times: the factor/solve cost ratio varies 5x with mesh size and BLAS.)
     ++steps_since_factor_;
-    iterations_since_factor_ += iterations;
-    const double average =
-        (schur_.factor_cost_in_iterations() + iterations_since_factor_) / static_cast<double>(steps_since_factor_);
-    refactor_ = iterations > average || iterations > options_.lagged_refactor_iterations;
+    ms_since_factor_ += report.solve_ms;
+    refactor_ = report.solve_ms > ms_since_factor_ / steps_since_factor_ ||
+                iterations > options_.lagged_refactor_iterations;
     v_h = v.head(nh);
     v_t = v.tail(nt);
     previous_ = v;
@@ -262,10 +260,12 @@ class SchurLaggedSolver final : public CoupledSolver {
   }
 
  private:
-  // Right-preconditioned GMRES from x0 = P^-1 b (restarts disabled: the Krylov
-  // space stays small); returns the iteration count, or -1 if the relative
-  // residual did not reach the tolerance.
+  // Right-preconditioned GMRES (no restarts: the Krylov space stays small);
+  // returns the iteration count, or -1 if the relative residual did not reach
+  // the tolerance within the iteration budget or within the time a
+  // factorization would have cost (then refactoring is the cheaper way).
   int gmres(const CoupledSystem& s, const Eigen::VectorXd& b, Eigen::VectorXd& x) {
+    const auto t0 = Clock::now();
     const int max_it = options_.lagged_max_iterations, n = static_cast<int>(b.size());
     const double b_norm = b.norm();
     // Start from the previous step's velocities corrected by one preconditioner application.
@@ -310,7 +310,9 @@ class SchurLaggedSolver final : public CoupledSolver {
       H_(k + 1, k) = 0;
       g[k + 1] = -sn[k] * g[k];
       g[k] = cs[k] * g[k];
-      if (std::abs(g[k + 1]) <= options_.lagged_tolerance * b_norm || h_next == 0 || k + 1 == max_it) {
+      const bool out_of_time = ms_since(t0) > factor_cost_ms_;
+      if (std::abs(g[k + 1]) <= options_.lagged_tolerance * b_norm || h_next == 0 || k + 1 == max_it ||
+          out_of_time) {
         const Eigen::VectorXd y =
             H_.topLeftCorner(k + 1, k + 1).triangularView<Eigen::Upper>().solve(g.head(k + 1));
         x += Z_.leftCols(k + 1) * y;
@@ -327,7 +329,8 @@ class SchurLaggedSolver final : public CoupledSolver {
   bool refactor_ = true;
   int factored_size_ = -1;
   int steps_since_factor_ = 0;
-  long iterations_since_factor_ = 0;
+  double factor_cost_ms_ = 0;
+  double ms_since_factor_ = 0;
   Eigen::VectorXd previous_;
   Eigen::MatrixXd V_, Z_, H_;
 };
