@@ -157,6 +157,20 @@ Eigen::Matrix3d CorotationalFem::warped_block(int e, int a, int b, const Eigen::
   return R * Ke_[e].block<3, 3>(3 * a, 3 * b) * R.transpose();
 }
 
+void CorotationalFem::warped_blocks(int e, const Eigen::Matrix3d& R, double scale, Eigen::Matrix3d blocks[4][4]) const {
+  const Eigen::Matrix<double, 3, 4> g = R * grad_[e];
+  const Eigen::Matrix<double, 3, 4>& g0 = grad_[e];
+  const double s_lambda = scale * volume_[e] * lambda_, s_mu = scale * volume_[e] * mu_;
+  for (int a = 0; a < 4; ++a) {
+    for (int b = a; b < 4; ++b) {
+      Eigen::Matrix3d B = s_lambda * g.col(a) * g.col(b).transpose() + s_mu * g.col(b) * g.col(a).transpose();
+      B.diagonal().array() += s_mu * g0.col(a).dot(g0.col(b));
+      blocks[a][b] = B;
+      if (b != a) blocks[b][a] = B.transpose();
+    }
+  }
+}
+
 Vector12d CorotationalFem::element_force(int e, const Eigen::VectorXd& x) const {
   const Eigen::Matrix3d F = deformation_gradient(e, x);
   const Eigen::Matrix3d R = rotation_of(F);

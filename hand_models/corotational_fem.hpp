@@ -58,6 +58,11 @@ class CorotationalFem {
   // positive semi-definite co-rotational stiffness; df/dx ~ -this).
   Eigen::Matrix3d warped_block(int e, int a, int b, const Eigen::Matrix3d& R) const;
 
+  // All blocks R K_ab R^T of element e at once, from the rotated shape gradients
+  // R g_a: K_ab = V (lambda g_a g_b^T + mu g_b g_a^T + mu (g_a . g_b) I) makes each
+  // block two outer products (4x cheaper than two 3x3 products; same values).
+  void warped_blocks(int e, const Eigen::Matrix3d& R, double scale, Eigen::Matrix3d blocks[4][4]) const;
+
   // Elastic force of one element as a 12-vector (for tests and references).
   Vector12d element_force(int e, const Eigen::VectorXd& x) const;
   // Exact derivative of element_force, including the derivative of the polar

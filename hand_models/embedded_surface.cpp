@@ -29,7 +29,7 @@ using Eigen::Vector3i;
 constexpr double kPi = 3.14159265358979323846;
 // Cells are tested slightly enlarged so a surface lying on a grid plane touches the cells on both sides.
 constexpr double kCellSlack = 1e-9;
-constexpr long long kMaxCells = 1LL << 24;  // ~16M cells: about 100M tets, more than memory allows anyway
+constexpr long long kMaxCells = 1LL << 21;  // grid cells (kept or not): up to 12M tets, several GB to finalize
 constexpr double kWeightTolerance = 1e-9;
 
 std::string str(long long v) { return std::to_string(v); }
@@ -216,9 +216,11 @@ std::pair<Vector3d, Vector3d> bounding_box(const SurfaceMesh& s) {
   return {lo, hi};
 }
 
-// Centred on the bounding box so the overhang is the same on both sides of every axis.
+// The box's low corner sits a fixed, uneven fraction of a cell inside the grid: a symmetric
+// placement would add cells in symmetric groups, so the tet count would jump in large steps.
 Grid make_grid(const std::pair<Vector3d, Vector3d>& box, double h) {
-  const Vector3d extent = box.second - box.first;
+  const Vector3d offset = h * Vector3d(0.37, 0.21, 0.43);
+  const Vector3d extent = box.second - box.first + offset;
   Grid g;
   g.h = h;
   long long cells = 1;
@@ -232,7 +234,7 @@ Grid make_grid(const std::pair<Vector3d, Vector3d>& box, double h) {
     }
     g.n[a] = static_cast<int>(n);
   }
-  g.origin = 0.5 * (box.first + box.second) - 0.5 * h * g.n.cast<double>();
+  g.origin = box.first - offset;
   return g;
 }
 
@@ -441,9 +443,9 @@ EmbeddedBody embed_surface(const SurfaceMesh& surface, int target_tets) {
   const Vector3d extent = box.second - box.first;
   const double size = extent.maxCoeff();
   if (!(size > 0.0)) throw MeshError("surface has zero extent");
-  // Finest: ~250 cells along the longest axis stays under kMaxCells; coarsest: one cell holds everything.
-  const double h_min = size / 250.0;
-  const double h_max = size * 1.01;
+  // Finest: 120 cells along the longest axis stays under kMaxCells; coarsest: one cell holds everything.
+  const double h_min = size / 120.0;
+  const double h_max = size * 2.0;
   const double target = target_tets;
   double best_h = h_max;
   double best_err = std::numeric_limits<double>::infinity();

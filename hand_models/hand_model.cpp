@@ -178,17 +178,12 @@ void assemble(const HandModel& model, HandState& s) {
   double* values = sys.A_t.valuePtr();
   std::fill(values, values + sys.A_t.nonZeros(), 0.0);
   const double cK = h * cfg.material.rayleigh_beta_s + h2;
+  Eigen::Matrix3d blocks[4][4];
   for (int e = 0; e < fem.num_tets(); ++e) {
     const Tet& t = fem.tets()[e];
-    // The warped stiffness is symmetric: compute the 10 blocks with a <= b, mirror the rest.
-    for (int a = 0; a < 4; ++a) {
-      add_block(values, map, map.element_block[e][5 * a], t[a], cK * fem.warped_block(e, a, a, s.R[e]));
-      for (int b = a + 1; b < 4; ++b) {
-        const Eigen::Matrix3d B = cK * fem.warped_block(e, a, b, s.R[e]);
-        add_block(values, map, map.element_block[e][4 * a + b], t[b], B);
-        add_block(values, map, map.element_block[e][4 * b + a], t[a], B.transpose());
-      }
-    }
+    fem.warped_blocks(e, s.R[e], cK, blocks);
+    for (int a = 0; a < 4; ++a)
+      for (int b = 0; b < 4; ++b) add_block(values, map, map.element_block[e][4 * a + b], t[b], blocks[a][b]);
   }
   const double cM = 1.0 + h * cfg.material.rayleigh_alpha_per_s;
   for (int i = 0; i < n; ++i) add_block(values, map, map.diagonal_block[i], i, cM * mass[i] * Eigen::Matrix3d::Identity());
@@ -223,7 +218,8 @@ void assemble(const HandModel& model, HandState& s) {
     W.head<3>() = H.mass_kg * cfg.gravity_m_s2;
     // Gyroscopic torque, explicit.
     W.tail<3>() = -hs.w_WH.cross(M_h.bottomRightCorner<3, 3>() * hs.w_WH);
-    // Drive: position parts and the target-velocity part of the damping stay in b.
+    // Drive: position parts and the target-velocity part of the damping stay in b;
+    // the rotational stiffness is linearized as k_r I (exact at zero error, always SPD).
     const DriveParams& dr = cfg.drive;
     W.head<3>() += -dr.stiffness_n_m * (hs.p_WH - tg.p_W) + dr.damping_ns_m * tg.v_W;
     W.tail<3>() += -dr.rot_stiffness_nm_rad * rotation_difference(hs.q_WH, tg.q_W) + dr.rot_damping_nms_rad * tg.w_W;
@@ -233,9 +229,9 @@ void assemble(const HandModel& model, HandState& s) {
     for (size_t si = 0; si < H.nodes.size(); ++si) {
       const int a = H.nodes[si];
       const SpringTerms sp = coupling_spring(s.x.segment<3>(3 * a), s.v.segment<3>(3 * a), hs, H.r_B[si], k, d);
-      // Position-only parts of the forces (the damping part is removed by -h D v).
+      // Only the elastic part enters f: the damping part is linear in v and lives in D.
       const Eigen::Vector3d rho = hs.q_WH * H.r_B[si];
-      const Eigen::Vector3d F_A_pos = sp.F_A + d * (s.v.segment<3>(3 * a) - hs.v_WH - hs.w_WH.cross(rho));
+      const Eigen::Vector3d F_A_pos = -k * (s.x.segment<3>(3 * a) - hs.p_WH - rho);
       s.f_t.segment<3>(3 * a) += F_A_pos;
       W.head<3>() -= F_A_pos;
       W.tail<3>() += rho.cross(-F_A_pos);

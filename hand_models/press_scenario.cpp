@@ -29,6 +29,7 @@ PressScenario make_press_scenario(const PressScenarioOptions& options, HandConfi
   hand_options.target_tets = options.target_tets;
   s.hand = make_procedural_hand(hand_options);
   config.handles = procedural_handles(s.hand, options.handles);
+  config.material.density_kg_m3 = embedding_density(s.hand, config.material.density_kg_m3);
   double lowest = 1e300;
   for (const Eigen::Vector3d& X : s.hand.mesh.X) lowest = std::min(lowest, X.z());
   config.floor.enabled = true;

@@ -1,5 +1,7 @@
 #include "hand_models/procedural_hand.hpp"
 
+#include "hand_models/embedded_surface.hpp"
+
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
@@ -577,6 +579,11 @@ ProceduralHand make_procedural_hand(const ProceduralHandOptions& options) {
   }
   if (options.left) mirror(hand);
   return hand;
+}
+
+double embedding_density(const ProceduralHand& hand, double density_kg_m3) {
+  const double skin = enclosed_volume(SurfaceMesh{hand.skin_vertices, hand.skin_triangles});
+  return density_kg_m3 * skin / total_volume(hand.mesh);
 }
 
 }  // namespace hapticd

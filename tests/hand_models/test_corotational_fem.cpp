@@ -147,6 +147,22 @@ TEST_F(CorotationalFemTest, WarpedStiffnessIsSymmetricPositiveSemidefiniteAndBli
   }
 }
 
+TEST_F(CorotationalFemTest, FastWarpedBlocksEqualRotatedRestStiffness) {
+  const CorotationalFem fem(mesh, material);
+  double worst = 0;
+  for (int e = 0; e < fem.num_tets(); e += 5) {
+    const Eigen::Matrix3d R = random_rotation(rng);
+    Eigen::Matrix3d blocks[4][4];
+    fem.warped_blocks(e, R, 2.5, blocks);
+    for (int a = 0; a < 4; ++a)
+      for (int b = 0; b < 4; ++b) {
+        const Eigen::Matrix3d reference = 2.5 * fem.warped_block(e, a, b, R);
+        worst = std::max(worst, (blocks[a][b] - reference).norm() / fem.rest_stiffness(e).norm());
+      }
+  }
+  EXPECT_LT(worst, 1e-14);
+}
+
 TEST_F(CorotationalFemTest, InvertedAndFlatElementsGiveProperRotationsAndRestoringForces) {
   const CorotationalFem fem(mesh, material);
   const Eigen::Matrix3d flat = Eigen::Vector3d(1, 1, 0).asDiagonal();

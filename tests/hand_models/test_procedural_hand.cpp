@@ -1,3 +1,4 @@
+#include "hand_models/embedded_surface.hpp"
 #include "hand_models/procedural_hand.hpp"
 
 #include <gtest/gtest.h>
@@ -438,6 +439,21 @@ TEST(ProceduralHand, SdfIsOneLipschitzSoTheCoverIsConservative) {
   EXPECT_GT(procedural_hand_sdf(Eigen::Vector3d(0.0, 0.0, 0.1)), 0.08);
   EXPECT_EQ(procedural_hand_sdf(Eigen::Vector3d(0.03, 0.05, 0.001), true),
             procedural_hand_sdf(Eigen::Vector3d(-0.03, 0.05, 0.001)));
+}
+
+TEST(ProceduralHand, EmbeddingDensityGivesTheMeshTheMassOfTheHand) {
+  for (int target : {350, 1700}) {
+    ProceduralHandOptions options;
+    options.target_tets = target;
+    const ProceduralHand hand = make_procedural_hand(options);
+    const double rho = embedding_density(hand, 1070.0);
+    const double skin = enclosed_volume(SurfaceMesh{hand.skin_vertices, hand.skin_triangles});
+    EXPECT_NEAR(rho * total_volume(hand.mesh), 1070.0 * skin, 1e-9);
+    // An adult hand weighs 0.25-0.5 kg; the covering mesh at plain density would weigh 2-5x that.
+    EXPECT_GT(rho * total_volume(hand.mesh), 0.25);
+    EXPECT_LT(rho * total_volume(hand.mesh), 0.5);
+    EXPECT_LT(rho, 0.7 * 1070.0);
+  }
 }
 
 }  // namespace
