@@ -2,6 +2,7 @@
 // against the monolithic reference, conservation and convergence in dt.
 #include <gtest/gtest.h>
 
+#include "hand_models/press_scenario.hpp"
 #include "hand_test_util.hpp"
 
 namespace hapticd {
@@ -56,6 +57,33 @@ TEST_P(SolverAgreement, SchurCgAndSchurCholmodEqualTheMonolithicSolve) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Handles, SolverAgreement, ::testing::Values(1, 2, 16));
+
+TEST(CoupledStep, AllSolversAgreeOnTheProceduralHandPressedIntoTheFloor) {
+  for (int handles : {1, 6}) {
+    PressScenarioOptions options;
+    options.target_tets = 350;
+    options.handles = handles;
+    options.press_time_s = 0.2;
+    PressScenario scene = make_press_scenario(options);
+    auto mono = make_solver(SolverKind::monolithic);
+    std::vector<std::unique_ptr<CoupledSolver>> fast;
+    for (SolverKind k : {SolverKind::schur_cg, SolverKind::schur_cholmod, SolverKind::schur_lagged})
+      fast.push_back(make_solver(k));
+    double worst = 0;
+    for (int k = 0; k < 30; ++k) {
+      scene.drive((k + 1) * scene.model->config().dt_s);
+      ASSERT_EQ(step(*scene.model, scene.state, *mono), StepStatus::ok);
+      for (auto& solver : fast) {
+        Eigen::VectorXd v_h, v_t;
+        SolveReport r;
+        ASSERT_TRUE(solver->solve(scene.state.system, v_h, v_t, r)) << to_string(solver->kind());
+        worst = std::max(worst, relative_difference(v_h, v_t, scene.state.v_h_next, scene.state.v_t_next));
+      }
+    }
+    EXPECT_GE(scene.state.floor_contacts, 8) << "the hand is pressed into the floor";  // 350 tets: 142 nodes
+    EXPECT_LT(worst, 1e-8) << handles << " handles";
+  }
+}
 
 HandConfig free_floating() {
   HandConfig c;
