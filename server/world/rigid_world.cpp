@@ -1,0 +1,299 @@
+#include "server/world/rigid_world.hpp"
+
+#include <cmath>
+#include <mutex>
+#include <numbers>
+#include <stdexcept>
+
+#include "hand_models/embedded_surface.hpp"
+
+namespace hapticd {
+namespace {
+
+constexpr int kMaxContactsPerPair = 8;
+// Contacts are stiff but not rigid (ERP and CFM of a ~1e6 N/m spring at 60 Hz).
+constexpr double kContactErp = 0.2, kContactCfm = 1e-7;
+// Below this tangential speed a contact is sticking: static friction applies.
+constexpr double kStickSpeed_m_s = 1e-3;
+
+void to_ode(const Eigen::Quaterniond& q, dQuaternion out) {
+  out[0] = q.w(), out[1] = q.x(), out[2] = q.y(), out[3] = q.z();
+}
+Eigen::Vector3d from_ode(const dReal* v) { return {v[0], v[1], v[2]}; }
+
+// Mass of a shape: `mass_kg` if > 0, else density times the shape's volume.
+void set_mass(dMass& m, const ShapeDesc& s, double mass_kg, double density, dGeomID geom) {
+  const double pi = std::numbers::pi;
+  double volume = 0;
+  switch (s.type) {
+    case ShapeType::box: volume = s.size.prod(); break;
+    case ShapeType::sphere: volume = 4.0 / 3.0 * pi * std::pow(s.radius, 3); break;
+    case ShapeType::capsule: volume = pi * s.radius * s.radius * s.length + 4.0 / 3.0 * pi * std::pow(s.radius, 3); break;
+    case ShapeType::cylinder: volume = pi * s.radius * s.radius * s.length; break;
+    case ShapeType::mesh: dMassSetTrimesh(&m, density, geom); volume = m.mass / density; break;
+    default: throw std::logic_error("no rigid mass for this shape");
+  }
+  const double total = mass_kg > 0 ? mass_kg : density * volume;
+  switch (s.type) {
+    case ShapeType::box: dMassSetBoxTotal(&m, total, s.size.x(), s.size.y(), s.size.z()); break;
+    case ShapeType::sphere: dMassSetSphereTotal(&m, total, s.radius); break;
+    case ShapeType::capsule: dMassSetCapsuleTotal(&m, total, 3, s.radius, s.length); break;
+    case ShapeType::cylinder: dMassSetCylinderTotal(&m, total, 3, s.radius, s.length); break;
+    case ShapeType::mesh: dMassSetTrimeshTotal(&m, total, geom); break;
+    default: break;
+  }
+}
+
+}  // namespace
+
+void ensure_ode_for_this_thread() {
+  static std::once_flag once;
+  std::call_once(once, [] { dInitODE2(0); });
+  thread_local bool allocated = false;
+  if (!allocated) allocated = dAllocateODEDataForThread(dAllocateMaskAll) != 0;
+}
+
+RigidWorld::RigidWorld(const SceneDesc& scene) : dt_(scene.dt_s) {
+  ensure_ode_for_this_thread();
+  world_ = dWorldCreate();
+  space_ = dHashSpaceCreate(nullptr);
+  contacts_ = dJointGroupCreate(0);
+  dWorldSetGravity(world_, scene.gravity_m_s2.x(), scene.gravity_m_s2.y(), scene.gravity_m_s2.z());
+  dWorldSetERP(world_, kContactErp);
+  dWorldSetCFM(world_, kContactCfm);
+  objects_.reserve(scene.objects.size());
+  for (const ObjectDesc& o : scene.objects) {
+    if (o.kind == BodyKind::deformable) continue;
+    Object obj;
+    obj.name = o.name;
+    obj.friction = o.material.friction;
+    obj.friction_static = o.material.static_friction();
+    obj.restitution = o.material.restitution;
+    const ShapeDesc& s = o.shape;
+    switch (s.type) {
+      case ShapeType::box: obj.geom = dCreateBox(space_, s.size.x(), s.size.y(), s.size.z()); break;
+      case ShapeType::sphere: obj.geom = dCreateSphere(space_, s.radius); break;
+      case ShapeType::capsule: obj.geom = dCreateCapsule(space_, s.radius, s.length); break;
+      case ShapeType::cylinder: obj.geom = dCreateCylinder(space_, s.radius, s.length); break;
+      case ShapeType::plane:
+        obj.geom = dCreatePlane(space_, s.normal.x(), s.normal.y(), s.normal.z(), s.offset);
+        break;
+      case ShapeType::mesh: {
+        const SurfaceMesh surface = load_obj(s.file);
+        for (const Eigen::Vector3d& v : surface.vertices)
+          for (int k = 0; k < 3; ++k) obj.vertices.push_back(s.scale * v[k]);
+        for (const Triangle& t : surface.triangles)
+          for (int k = 0; k < 3; ++k) obj.indices.push_back(static_cast<dTriIndex>(t[k]));
+        obj.trimesh = dGeomTriMeshDataCreate();
+        dGeomTriMeshDataBuildDouble(obj.trimesh, obj.vertices.data(), 3 * sizeof(double),
+                                    static_cast<int>(surface.vertices.size()), obj.indices.data(),
+                                    static_cast<int>(obj.indices.size()), 3 * sizeof(dTriIndex));
+        obj.geom = dCreateTriMesh(space_, obj.trimesh, nullptr, nullptr, nullptr);
+        break;
+      }
+      case ShapeType::tet_mesh:
+        throw std::runtime_error("object '" + o.name + "': a tet_mesh shape is deformable only");
+    }
+    dQuaternion q;
+    to_ode(o.pose.q_W, q);
+    if (o.kind == BodyKind::rigid) {
+      obj.body = dBodyCreate(world_);
+      dMass m;
+      dMassSetZero(&m);
+      set_mass(m, s, o.mass_kg, o.material.density_kg_m3, obj.geom);
+      if (!(m.mass > 0) || !std::isfinite(m.mass))
+        throw std::runtime_error("object '" + o.name + "': mass is not positive (is the mesh closed and outward?)");
+      // ODE wants the centre of mass at the body origin: shift the geometry instead.
+      obj.com_O = Eigen::Vector3d(m.c[0], m.c[1], m.c[2]);
+      dMassTranslate(&m, -m.c[0], -m.c[1], -m.c[2]);
+      dBodySetMass(obj.body, &m);
+      dGeomSetBody(obj.geom, obj.body);
+      if (!obj.com_O.isZero()) dGeomSetOffsetPosition(obj.geom, -obj.com_O.x(), -obj.com_O.y(), -obj.com_O.z());
+      const Eigen::Vector3d p_com = o.pose.p_W + o.pose.q_W * obj.com_O;
+      dBodySetPosition(obj.body, p_com.x(), p_com.y(), p_com.z());
+      dBodySetQuaternion(obj.body, q);
+      dBodySetLinearVel(obj.body, o.linear_velocity.x(), o.linear_velocity.y(), o.linear_velocity.z());
+      dBodySetAngularVel(obj.body, o.angular_velocity.x(), o.angular_velocity.y(), o.angular_velocity.z());
+    } else if (s.type != ShapeType::plane) {
+      dGeomSetPosition(obj.geom, o.pose.p_W.x(), o.pose.p_W.y(), o.pose.p_W.z());
+      dGeomSetQuaternion(obj.geom, q);
+    }
+    dGeomSetData(obj.geom, reinterpret_cast<void*>(static_cast<std::intptr_t>(objects_.size())));
+    objects_.push_back(std::move(obj));
+  }
+  for (const JointDesc& j : scene.joints) {
+    auto body_of = [&](const std::string& n) -> dBodyID {
+      const int i = find(n);
+      return i >= 0 ? objects_[i].body : nullptr;
+    };
+    dJointID joint = nullptr;
+    switch (j.type) {
+      case JointType::hinge: joint = dJointCreateHinge(world_, nullptr); break;
+      case JointType::ball: joint = dJointCreateBall(world_, nullptr); break;
+      case JointType::fixed: joint = dJointCreateFixed(world_, nullptr); break;
+      case JointType::slider: joint = dJointCreateSlider(world_, nullptr); break;
+    }
+    dBodyID a = body_of(j.body_a), b = j.body_b == "world" ? nullptr : body_of(j.body_b);
+    if (a == nullptr) std::swap(a, b);  // ODE: a joint to the static environment has body 2 = 0
+    dJointAttach(joint, a, b);
+    const Eigen::Vector3d& p = j.anchor_W;
+    const Eigen::Vector3d& ax = j.axis_W;
+    switch (j.type) {
+      case JointType::hinge:
+        dJointSetHingeAnchor(joint, p.x(), p.y(), p.z());
+        dJointSetHingeAxis(joint, ax.x(), ax.y(), ax.z());
+        if (j.limited) {
+          dJointSetHingeParam(joint, dParamLoStop, j.lo);
+          dJointSetHingeParam(joint, dParamHiStop, j.hi);
+        }
+        break;
+      case JointType::ball: dJointSetBallAnchor(joint, p.x(), p.y(), p.z()); break;
+      case JointType::fixed: dJointSetFixed(joint); break;
+      case JointType::slider:
+        dJointSetSliderAxis(joint, ax.x(), ax.y(), ax.z());
+        if (j.limited) {
+          dJointSetSliderParam(joint, dParamLoStop, j.lo);
+          dJointSetSliderParam(joint, dParamHiStop, j.hi);
+        }
+        break;
+    }
+    joints_.push_back(joint);
+  }
+}
+
+RigidWorld::~RigidWorld() {
+  ensure_ode_for_this_thread();
+  for (dJointID j : joints_) dJointDestroy(j);
+  dJointGroupDestroy(contacts_);
+  for (Object& o : objects_) {
+    dGeomDestroy(o.geom);
+    if (o.trimesh) dGeomTriMeshDataDestroy(o.trimesh);
+    if (o.body) dBodyDestroy(o.body);
+  }
+  dSpaceDestroy(space_);
+  dWorldDestroy(world_);
+}
+
+int RigidWorld::find(const std::string& n) const {
+  for (size_t i = 0; i < objects_.size(); ++i)
+    if (objects_[i].name == n) return static_cast<int>(i);
+  return -1;
+}
+
+int RigidWorld::object_of(dGeomID g) const {
+  for (size_t i = 0; i < objects_.size(); ++i)
+    if (objects_[i].geom == g) return static_cast<int>(i);
+  return -1;
+}
+
+double RigidWorld::mass_kg(int i) const {
+  if (!objects_[i].body) return INFINITY;
+  dMass m;
+  dBodyGetMass(objects_[i].body, &m);
+  return m.mass;
+}
+
+RigidBodyState RigidWorld::state(int i) const {
+  const Object& o = objects_[i];
+  RigidBodyState s;
+  if (o.body == nullptr) {
+    if (dGeomGetClass(o.geom) != dPlaneClass) {
+      s.p_WO = from_ode(dGeomGetPosition(o.geom));
+      dQuaternion q;
+      dGeomGetQuaternion(o.geom, q);
+      s.q_WO = Eigen::Quaterniond(q[0], q[1], q[2], q[3]);
+    }
+    return s;
+  }
+  const dReal* q = dBodyGetQuaternion(o.body);
+  s.q_WO = Eigen::Quaterniond(q[0], q[1], q[2], q[3]);
+  s.p_WO = from_ode(dBodyGetPosition(o.body)) - s.q_WO * o.com_O;
+  s.v_WO = from_ode(dBodyGetLinearVel(o.body));
+  s.w_W = from_ode(dBodyGetAngularVel(o.body));
+  return s;
+}
+
+void RigidWorld::set_state(int i, const RigidBodyState& s) {
+  const Object& o = objects_[i];
+  if (o.body == nullptr) return;
+  const Eigen::Vector3d p = s.p_WO + s.q_WO * o.com_O;
+  dQuaternion q;
+  to_ode(s.q_WO.normalized(), q);
+  dBodySetPosition(o.body, p.x(), p.y(), p.z());
+  dBodySetQuaternion(o.body, q);
+  dBodySetLinearVel(o.body, s.v_WO.x(), s.v_WO.y(), s.v_WO.z());
+  dBodySetAngularVel(o.body, s.w_W.x(), s.w_W.y(), s.w_W.z());
+}
+
+void RigidWorld::add_force_at(int i, const Eigen::Vector3d& f, const Eigen::Vector3d& p) {
+  if (objects_[i].body) dBodyAddForceAtPos(objects_[i].body, f.x(), f.y(), f.z(), p.x(), p.y(), p.z());
+}
+
+void RigidWorld::apply_impulse_at(int i, const Eigen::Vector3d& J, const Eigen::Vector3d& p, double dt) {
+  // ODE integrates accumulated forces over the next step: an impulse J is the force J / dt.
+  add_force_at(i, J / dt, p);
+}
+
+void RigidWorld::near_callback(void* data, dGeomID a, dGeomID b) {
+  static_cast<RigidWorld*>(data)->collide(a, b);
+}
+
+void RigidWorld::collide(dGeomID a, dGeomID b) {
+  dBodyID ba = dGeomGetBody(a), bb = dGeomGetBody(b);
+  if (ba == nullptr && bb == nullptr) return;
+  if (ba && bb && dAreConnectedExcluding(ba, bb, dJointTypeContact)) return;
+  dContactGeom contacts[kMaxContactsPerPair];
+  const int n = dCollide(a, b, kMaxContactsPerPair, contacts, sizeof(dContactGeom));
+  if (n <= 0) return;
+  const Object& oa = objects_[reinterpret_cast<std::intptr_t>(dGeomGetData(a))];
+  const Object& ob = objects_[reinterpret_cast<std::intptr_t>(dGeomGetData(b))];
+  for (int k = 0; k < n; ++k) {
+    dContact c{};
+    c.geom = contacts[k];
+    const Eigen::Vector3d p = from_ode(c.geom.pos), normal = from_ode(c.geom.normal);
+    // Relative sliding velocity at the contact decides static vs kinetic friction
+    // and aligns the first friction direction with it (ODE's friction pyramid is
+    // then exact along the slide).
+    Eigen::Vector3d v_rel = Eigen::Vector3d::Zero();
+    dVector3 v;
+    if (ba) dBodyGetPointVel(ba, p.x(), p.y(), p.z(), v), v_rel += from_ode(v);
+    if (bb) dBodyGetPointVel(bb, p.x(), p.y(), p.z(), v), v_rel -= from_ode(v);
+    const Eigen::Vector3d v_t = v_rel - v_rel.dot(normal) * normal;
+    const bool sliding = v_t.norm() > kStickSpeed_m_s;
+    const double mu = sliding ? std::sqrt(oa.friction * ob.friction)
+                              : std::sqrt(oa.friction_static * ob.friction_static);
+    c.surface.mode = dContactApprox1 | dContactSoftERP | dContactSoftCFM | dContactMu2;
+    c.surface.mu = c.surface.mu2 = mu;
+    c.surface.soft_erp = kContactErp;
+    c.surface.soft_cfm = kContactCfm;
+    if (sliding) {
+      c.surface.mode |= dContactFDir1;
+      const Eigen::Vector3d dir = v_t.normalized();
+      c.fdir1[0] = dir.x(), c.fdir1[1] = dir.y(), c.fdir1[2] = dir.z();
+    }
+    const double e = std::max(oa.restitution, ob.restitution);
+    if (e > 0) {
+      c.surface.mode |= dContactBounce;
+      c.surface.bounce = e;
+      c.surface.bounce_vel = 0.05;
+    }
+    dJointAttach(dJointCreateContact(world_, contacts_, &c), ba, bb);
+    ++contacts_last_step_;
+  }
+}
+
+void RigidWorld::step(double dt) {
+  ensure_ode_for_this_thread();
+  contacts_last_step_ = 0;
+  dSpaceCollide(space_, this, &RigidWorld::near_callback);
+  int bodies = 0;
+  for (const Object& o : objects_) bodies += o.body != nullptr;
+  if (bodies <= kExactStepMaxBodies) {
+    dWorldStep(world_, dt);
+  } else {
+    dWorldQuickStep(world_, dt);
+  }
+  dJointGroupEmpty(contacts_);
+}
+
+}  // namespace hapticd

@@ -1,0 +1,84 @@
+#pragma once
+// The rigid part of the world, owned by ODE (DESIGN.md section 3): bodies and
+// static geometry of a scene, joints, rigid-rigid contact with Coulomb friction.
+// Built only when the scene has a rigid object ("model only what a scene needs").
+#include <ode/ode.h>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "server/world/scene.hpp"
+
+namespace hapticd {
+
+// Calls dInitODE2 once per process and dAllocateODEDataForThread for the calling thread.
+void ensure_ode_for_this_thread();
+
+struct RigidBodyState {
+  Eigen::Vector3d p_WO = Eigen::Vector3d::Zero();  // object frame origin (as in the scene), m
+  Eigen::Quaterniond q_WO = Eigen::Quaterniond::Identity();
+  Eigen::Vector3d v_WO = Eigen::Vector3d::Zero();  // velocity of the centre of mass, m/s
+  Eigen::Vector3d w_W = Eigen::Vector3d::Zero();   // angular velocity, rad/s
+};
+
+class RigidWorld {
+ public:
+  // ODE's exact big-matrix step up to this many bodies, its iterative QuickStep beyond.
+  static constexpr int kExactStepMaxBodies = 64;
+
+  // Builds every static and rigid object and every joint of `scene`. Throws
+  // std::runtime_error naming the object when a shape cannot be built.
+  explicit RigidWorld(const SceneDesc& scene);
+  ~RigidWorld();
+  RigidWorld(const RigidWorld&) = delete;
+  RigidWorld& operator=(const RigidWorld&) = delete;
+
+  // Collide, then integrate one step of dt seconds (ODE).
+  void step(double dt);
+
+  int num_objects() const { return static_cast<int>(objects_.size()); }
+  // Index of the object called `name`, -1 if the world does not hold it.
+  int find(const std::string& name) const;
+  const std::string& name(int i) const { return objects_[i].name; }
+  bool is_dynamic(int i) const { return objects_[i].body != nullptr; }
+  double mass_kg(int i) const;
+  RigidBodyState state(int i) const;
+  void set_state(int i, const RigidBodyState& s);
+  // Adds a force (N) at a world point to body i for the next step (rigid bodies only).
+  void add_force_at(int i, const Eigen::Vector3d& f_W, const Eigen::Vector3d& p_W);
+  // Applies an impulse (N s) at a world point to body i now (rigid bodies only).
+  void apply_impulse_at(int i, const Eigen::Vector3d& J_W, const Eigen::Vector3d& p_W, double dt);
+
+  dSpaceID space() const { return space_; }
+  dGeomID geom(int i) const { return objects_[i].geom; }
+  // Object index of an ODE geom of this world, -1 for a foreign geom.
+  int object_of(dGeomID g) const;
+  int contacts_last_step() const { return contacts_last_step_; }
+
+ private:
+  struct Object {
+    std::string name;
+    dBodyID body = nullptr;  // null for static geometry
+    dGeomID geom = nullptr;
+    Eigen::Vector3d com_O = Eigen::Vector3d::Zero();  // centre of mass in the object frame
+    double friction = 0.5, friction_static = 0.5, restitution = 0;
+    dTriMeshDataID trimesh = nullptr;
+    std::vector<double> vertices;
+    std::vector<dTriIndex> indices;
+  };
+  static void near_callback(void* data, dGeomID a, dGeomID b);
+  void collide(dGeomID a, dGeomID b);
+
+  dWorldID world_ = nullptr;
+  dSpaceID space_ = nullptr;
+  dJointGroupID contacts_ = nullptr;
+  std::vector<Object> objects_;
+  std::vector<dJointID> joints_;
+  double dt_ = 1.0 / 60.0;
+  int contacts_last_step_ = 0;
+};
+
+}  // namespace hapticd

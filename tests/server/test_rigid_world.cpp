@@ -1,0 +1,123 @@
+// The ODE rigid world against closed forms: Coulomb friction on an incline,
+// free fall, a hinge limit.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+
+#include "server/world/rigid_world.hpp"
+
+namespace hapticd {
+namespace {
+
+// A static slab tilted by theta about x, a 10 cm box resting on it, both with friction mu.
+SceneDesc incline_scene(double theta, double mu) {
+  SceneDesc scene;
+  scene.dt_s = 1.0 / 240.0;
+  MaterialDesc m;
+  m.friction = mu;
+  const Eigen::Quaterniond tilt(Eigen::AngleAxisd(theta, Eigen::Vector3d::UnitX()));
+  ObjectDesc slope;
+  slope.name = "slope";
+  slope.kind = BodyKind::static_body;
+  slope.shape.type = ShapeType::box;
+  slope.shape.size = {1.0, 4.0, 0.1};
+  slope.pose.q_W = tilt;
+  slope.material = m;
+  ObjectDesc box;
+  box.name = "box";
+  box.kind = BodyKind::rigid;
+  box.shape.type = ShapeType::box;
+  box.shape.size = {0.1, 0.1, 0.1};
+  box.mass_kg = 0.5;
+  box.pose.q_W = tilt;
+  box.pose.p_W = tilt * Eigen::Vector3d(0, 0, 0.05 + 0.05);  // resting on the slope's top face
+  box.material = m;
+  scene.objects = {slope, box};
+  return scene;
+}
+
+// Distance travelled down the slope after `seconds`, m.
+double slide_after(RigidWorld& world, double theta, double seconds, double dt) {
+  const int box = world.find("box");
+  const Eigen::Vector3d p0 = world.state(box).p_WO;
+  for (int k = 0; k < static_cast<int>(std::lround(seconds / dt)); ++k) world.step(dt);
+  const Eigen::Vector3d down_slope = Eigen::AngleAxisd(theta, Eigen::Vector3d::UnitX()) * -Eigen::Vector3d::UnitY();
+  return (world.state(box).p_WO - p0).dot(down_slope);
+}
+
+TEST(RigidWorld, BoxOnInclineSticksWhenTanThetaIsBelowMu) {
+  const double mu = 0.6, theta = std::atan(0.8 * mu);
+  const SceneDesc scene = incline_scene(theta, mu);
+  RigidWorld world(scene);
+  const double slide = slide_after(world, theta, 2.0, scene.dt_s);
+  std::printf("sticking box moved %.2e m; contacts %d\n", slide, world.contacts_last_step());
+  EXPECT_LT(std::abs(slide), 1e-3);  // m: it stays put
+  EXPECT_GT(world.contacts_last_step(), 0);
+}
+
+TEST(RigidWorld, BoxOnInclineSlidesWithCoulombAcceleration) {
+  const double g = 9.81;
+  for (double mu : {0.2, 0.5}) {
+    const double theta = std::atan(mu) + 0.25;
+    const SceneDesc scene = incline_scene(theta, mu);
+    RigidWorld world(scene);
+    const int box = world.find("box");
+    // Let the contact settle, then measure the acceleration over one second.
+    slide_after(world, theta, 0.1, scene.dt_s);
+    const double v0 = world.state(box).v_WO.norm();
+    slide_after(world, theta, 1.0, scene.dt_s);
+    const double a = world.state(box).v_WO.norm() - v0;
+    const double expected = g * (std::sin(theta) - mu * std::cos(theta));
+    std::printf("mu %.2f theta %.3f: a = %.4f m/s^2, expected %.4f\n", mu, theta, a, expected);
+    EXPECT_NEAR(a, expected, 0.02 * expected) << "mu " << mu;
+  }
+}
+
+TEST(RigidWorld, FreeFallFollowsGravityAndMassComesFromDensity) {
+  SceneDesc scene;
+  ObjectDesc ball;
+  ball.name = "ball";
+  ball.shape.type = ShapeType::sphere;
+  ball.shape.radius = 0.05;
+  ball.material.density_kg_m3 = 1000;
+  ball.pose.p_W = {0, 0, 1};
+  scene.objects = {ball};
+  RigidWorld world(scene);
+  EXPECT_NEAR(world.mass_kg(0), 1000 * 4.0 / 3.0 * M_PI * std::pow(0.05, 3), 1e-12);
+  for (int k = 0; k < 60; ++k) world.step(scene.dt_s);
+  // Semi-implicit Euler: v = g t exactly, z = 1 - g dt^2 n (n + 1) / 2.
+  EXPECT_NEAR(world.state(0).v_WO.z(), -9.81, 1e-9);
+  EXPECT_NEAR(world.state(0).p_WO.z(), 1 - 9.81 * scene.dt_s * scene.dt_s * 60 * 61 / 2, 1e-9);
+}
+
+TEST(RigidWorld, HingeLimitStopsAFallingLid) {
+  SceneDesc scene;
+  ObjectDesc lid;
+  lid.name = "lid";
+  lid.shape.type = ShapeType::box;
+  lid.shape.size = {0.2, 0.2, 0.01};
+  lid.mass_kg = 0.3;
+  lid.pose.p_W = {0.1, 0, 0};
+  JointDesc hinge;
+  hinge.name = "hinge";
+  hinge.body_a = "lid";
+  hinge.body_b = "world";
+  hinge.anchor_W = {0, 0, 0};
+  hinge.axis_W = {0, 1, 0};
+  hinge.limited = true;
+  hinge.lo = -0.5;
+  hinge.hi = 0.5;
+  scene.objects = {lid};
+  scene.joints = {hinge};
+  RigidWorld world(scene);
+  for (int k = 0; k < 240; ++k) world.step(scene.dt_s);
+  // Gravity swings the lid down about +y until the 0.5 rad stop.
+  const Eigen::Vector3d x_axis = world.state(0).q_WO * Eigen::Vector3d::UnitX();
+  const double angle = std::atan2(-x_axis.z(), x_axis.x());
+  EXPECT_NEAR(angle, 0.5, 0.02);
+  EXPECT_NEAR(world.state(0).p_WO.norm(), 0.1, 1e-3);  // its centre stays on the hinge circle
+}
+
+}  // namespace
+}  // namespace hapticd
