@@ -37,9 +37,9 @@ enum class ShapeType { box, sphere, capsule, cylinder, plane, mesh, tet_mesh };
 // One shape in its object's local frame; only the fields of `type` are meaningful.
 struct ShapeDesc {
   ShapeType type = ShapeType::box;
-  Eigen::Vector3d size{0, 0, 0};  // box: full extents along local x, y, z, m, each > 0
-  double radius = 0;              // sphere, capsule, cylinder: m, > 0
-  double length = 0;              // capsule (between the cap centres), cylinder: along local z, m, > 0
+  Eigen::Vector3d size{0, 0, 0};    // box: full extents along local x, y, z, m, each > 0
+  double radius = 0;                // sphere, capsule, cylinder: m, > 0
+  double length = 0;                // capsule (between the cap centres), cylinder: along local z, m, > 0
   Eigen::Vector3d normal{0, 0, 1};  // plane: unit normal (normalised on load); default +z
   double offset = 0;                // plane: the points x with normal . x = offset, m; default 0
   std::string file;  // mesh: OBJ surface; tet_mesh: TetGen .node (its .ele beside it) or Gmsh .msh; absolute path
@@ -57,8 +57,8 @@ struct ObjectDesc {
   std::string name;
   BodyKind kind = BodyKind::rigid;
   ShapeDesc shape;
-  Pose pose;             // initial pose; default identity
-  double mass_kg = -1;   // total mass, kg, > 0; -1 (the default): shape volume x material.density_kg_m3
+  Pose pose;              // initial pose; default identity
+  double mass_kg = -1;    // total mass, kg, > 0; -1 (the default): shape volume x material.density_kg_m3
   MaterialDesc material;  // resolved copy (a named material, an inline one, or the built-in defaults)
   Eigen::Vector3d linear_velocity{0, 0, 0};   // initial, m/s, world frame; default 0 (always 0 when static)
   Eigen::Vector3d angular_velocity{0, 0, 0};  // initial, rad/s, world frame; default 0 (always 0 when static)
@@ -69,8 +69,8 @@ enum class JointType { hinge, ball, fixed, slider };
 struct JointDesc {
   std::string name;
   JointType type = JointType::hinge;
-  std::string body_a;  // a rigid or static object
-  std::string body_b;  // a rigid or static object, or "world"; at least one of the two is rigid
+  std::string body_a;                 // a rigid or static object
+  std::string body_b;                 // a rigid or static object, or "world"; at least one of the two is rigid
   Eigen::Vector3d anchor_W{0, 0, 0};  // m, at the initial poses (required for hinge and ball); default origin
   Eigen::Vector3d axis_W{0, 0, 1};    // unit, at the initial poses (hinge, slider: required); default +z
   bool limited = false;               // hinge and slider only; default false
@@ -86,6 +86,13 @@ enum class HandModelKind {
 
 enum class HandSide { right, left };
 
+// MaterialDesc's defaults with flesh density (hand_models' Material: 1070 kg/m^3).
+inline MaterialDesc default_hand_material() {
+  MaterialDesc m;
+  m.density_kg_m3 = 1070.0;
+  return m;
+}
+
 // Which skeleton frames become rigid handles of an fem hand.
 enum class HandleSet {
   palm,        // one handle: the palm
@@ -95,12 +102,12 @@ enum class HandleSet {
 
 struct HandDesc {
   std::string name;
-  HandModelKind model = HandModelKind::fem;  // default fem
-  HandSide side = HandSide::right;           // default right
-  int resolution_tets = 1700;                // fem: target tet count, in [100, 1e6]; default 1700
-  HandleSet handles = HandleSet::palm;       // fem: default palm
-  MaterialDesc material{.density_kg_m3 = 1070.0};  // flesh; defaults as MaterialDesc but 1070 kg/m^3
-  Pose pose;                                       // initial pose of the hand frame (palm centre); default identity
+  HandModelKind model = HandModelKind::fem;         // default fem
+  HandSide side = HandSide::right;                  // default right
+  int resolution_tets = 1700;                       // fem: target tet count, in [100, 1e6]; default 1700
+  HandleSet handles = HandleSet::palm;              // fem: default palm
+  MaterialDesc material = default_hand_material();  // flesh; default: default_hand_material()
+  Pose pose;  // initial pose of the hand frame (palm centre, fingers +y, palmar side -z); default identity
   double coupling_stiffness_n_m = 2000.0;  // per coupled node, handle to flesh, N/m, > 0; default 2000
   double coupling_damping_ns_m = 2.0;      // per coupled node, N s/m, >= 0; default 2
 };
@@ -109,8 +116,8 @@ enum class DeviceKind { stylus, glove };
 
 // Device coordinates D (m) to world: x_W = offset_W + scale * (R_WD * x_D).
 struct WorkspaceMap {
-  double scale = 1.0;                                       // > 0; default 1
-  Eigen::Vector3d offset_W{0, 0, 0};                        // m; default origin
+  double scale = 1.0;                                        // > 0; default 1
+  Eigen::Vector3d offset_W{0, 0, 0};                         // m; default origin
   Eigen::Quaterniond R_WD = Eigen::Quaterniond::Identity();  // unit; default identity
 };
 
@@ -128,14 +135,14 @@ struct DeviceDesc {
 enum class ContactModel { constraint, penalty };
 
 struct SceneDesc {
-  std::string name;  // default: the file name without directory and extension
-  std::string path;  // the scene file as given to the loader (or the source name)
-  Eigen::Vector3d gravity_m_s2{0, 0, -9.81};  // m/s^2, world frame; default -9.81 z
-  double visual_rate_hz = 60.0;               // visual (simulation) loop rate, Hz, > 0; default 60
-  double dt_s = 1.0 / 60.0;                   // simulation step, s, in (0, 0.1]; default 1 / visual_rate_hz
+  std::string name;                                 // default: the file name without directory and extension
+  std::string path;                                 // the scene file as given to the loader (or the source name)
+  Eigen::Vector3d gravity_m_s2{0, 0, -9.81};        // m/s^2, world frame; default -9.81 z
+  double visual_rate_hz = 60.0;                     // visual (simulation) loop rate, Hz, > 0; default 60
+  double dt_s = 1.0 / 60.0;                         // simulation step, s, in (0, 0.1]; default 1 / visual_rate_hz
   ContactModel contact = ContactModel::constraint;  // default constraint
-  std::vector<MaterialDesc> materials;  // the named materials, sorted by name
-  std::vector<ObjectDesc> objects;      // file order
+  std::vector<MaterialDesc> materials;              // the named materials, sorted by name
+  std::vector<ObjectDesc> objects;                  // file order
   std::vector<JointDesc> joints;
   std::vector<HandDesc> hands;
   std::vector<DeviceDesc> devices;
@@ -180,8 +187,8 @@ struct EnumName {
   E value;
 };
 inline constexpr EnumName<ShapeType> kShapeTypeNames[] = {
-    {"box", ShapeType::box},   {"sphere", ShapeType::sphere}, {"capsule", ShapeType::capsule},
-    {"cylinder", ShapeType::cylinder}, {"plane", ShapeType::plane}, {"mesh", ShapeType::mesh},
+    {"box", ShapeType::box},           {"sphere", ShapeType::sphere}, {"capsule", ShapeType::capsule},
+    {"cylinder", ShapeType::cylinder}, {"plane", ShapeType::plane},   {"mesh", ShapeType::mesh},
     {"tet_mesh", ShapeType::tet_mesh}};
 inline constexpr EnumName<BodyKind> kBodyKindNames[] = {
     {"static", BodyKind::static_body}, {"rigid", BodyKind::rigid}, {"deformable", BodyKind::deformable}};

@@ -24,6 +24,7 @@
 //               | { "type": "plane", "normal": [x, y, z], "offset" }
 //               | { "type": "mesh", "file": "*.obj", "scale" }
 //               | { "type": "tet_mesh", "file": "*.node" | "*.msh", "scale", "embedding": "<file>" }
+//               (every shape key is required except "scale", default 1, and "embedding")
 //   <joint>     { "name", "type": hinge | ball | fixed | slider, "body_a", "body_b", "anchor": [x, y, z],
 //                 "axis": [x, y, z], "limits": [lo, hi] }
 //   <hand>      { "name", "model": fem | spring | soft_pad | contact_point, "side": right | left,
@@ -49,7 +50,11 @@
 //  - Joints: "name", "type", "body_a", "body_b" required; body_a an object, body_b an
 //    object or "world"; "anchor" required for hinge and ball, "axis" required for hinge
 //    and slider and rejected otherwise, "limits" for hinge (rad) and slider (m) only.
-//  - Devices: "name", "kind", "hand" required; each hand is driven by at most one device.
+//  - Hands: only "name" is required. Devices: "name", "kind", "hand" required; each hand
+//    is driven by at most one device; the workspace maps device coordinates to world:
+//    x_W = offset + scale * (orientation * x_D).
+//  - Materials: friction_static, when given, is >= friction. A named material's density
+//    is only a default, so "mass_kg" with a named material is fine.
 #include <nlohmann/json_fwd.hpp>
 #include <stdexcept>
 #include <string>
@@ -60,8 +65,10 @@ namespace hapticd {
 
 // what(): "<file>: <key path>: <problem>", e.g.
 // "stylus_bunny.json: objects[2].material.friction: must be >= 0, got -0.2". JSON syntax
-// errors carry a position: "<file>:<line>:<column>: <key path>: <problem>" (the key
-// path, where the error happened, may be empty). File-level problems have no key path.
+// errors carry a position: "<file>:<line>:<column>: <key path>: <problem>", the column
+// (in bytes) of the last byte the JSON parser read: the offending byte, or the end of an
+// overflowing number; the key path says where in the tree and may be empty. File-level
+// problems ("cannot open") have no key path.
 class SceneError : public std::runtime_error {
  public:
   SceneError(std::string file, std::string key_path, std::string problem, int line = 0, int column = 0);
