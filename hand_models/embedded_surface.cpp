@@ -9,7 +9,6 @@
 #include <charconv>
 #include <climits>
 #include <cmath>
-#include <filesystem>
 #include <fstream>
 #include <limits>
 #include <stdexcept>
@@ -18,13 +17,16 @@
 #include <utility>
 
 #include "hand_models/box_mesh.hpp"
+#include "hand_models/cell_grid.hpp"
 #include "hand_models/mesh_io.hpp"
+#include "hand_models/text_reader.hpp"
 
 namespace hapticd {
 namespace {
 
 using Eigen::Vector3d;
 using Eigen::Vector3i;
+using detail::CellGrid;
 
 constexpr double kPi = 3.14159265358979323846;
 // Cells are tested slightly enlarged so a surface lying on a grid plane touches the cells on both sides.
@@ -44,109 +46,11 @@ std::string str(double v) {
 
 std::string str(const Vector3d& p) { return "(" + str(p.x()) + ", " + str(p.y()) + ", " + str(p.z()) + ")"; }
 
-[[noreturn]] void fail_at(const std::string& path, long long line, const std::string& msg) {
-  throw MeshError(path + ":" + str(line) + ": " + msg);
-}
-
-// Keeps messages short and printable when the offending text is long or binary.
-std::string quote(std::string_view s) {
-  constexpr std::size_t kMax = 40;
-  std::string out = "'";
-  for (std::size_t i = 0; i < s.size() && i < kMax; ++i) {
-    const auto c = static_cast<unsigned char>(s[i]);
-    out += (c >= 0x20 && c < 0x7f) ? static_cast<char>(c) : '?';
-  }
-  if (s.size() > kMax) out += "...";
-  return out + "'";
-}
-
-// Token lines of a text file with '#' comments; line() stays at the last line at end of file.
-class LineReader {
- public:
-  explicit LineReader(std::string path) : path_(std::move(path)) {
-    std::error_code ec;
-    if (std::filesystem::is_directory(path_, ec)) fail_at(path_, 0, "cannot open file: it is a directory");
-    errno = 0;
-    in_.open(path_, std::ios::binary);
-    if (!in_) {
-      const std::string why = errno ? std::error_code(errno, std::generic_category()).message() : "unknown error";
-      fail_at(path_, 0, "cannot open file: " + why);
-    }
-  }
-
-  bool next() {
-    static constexpr const char* kSpace = " \t\r\v\f";
-    while (read_line()) {
-      ++line_;
-      text_.erase(std::min(text_.find('#'), text_.size()));
-      tokens_.clear();
-      for (std::size_t i = text_.find_first_not_of(kSpace); i != std::string::npos;
-           i = text_.find_first_not_of(kSpace, i)) {
-        const std::size_t j = std::min(text_.find_first_of(kSpace, i), text_.size());
-        tokens_.emplace_back(text_.data() + i, j - i);
-        i = j;
-      }
-      if (!tokens_.empty()) return true;
-    }
-    tokens_.clear();
-    return false;
-  }
-
-  const std::string& path() const { return path_; }
-  long long line() const { return line_; }
-  std::size_t size() const { return tokens_.size(); }
-  std::string_view operator[](std::size_t i) const { return tokens_[i]; }
-  std::string found() const {
-    if (tokens_.empty()) return "end of file";
-    const char* b = tokens_.front().data();
-    return quote(std::string_view(b, static_cast<std::size_t>(tokens_.back().data() + tokens_.back().size() - b)));
-  }
-  [[noreturn]] void fail(const std::string& msg) const { fail_at(path_, line_, msg); }
-
- private:
-  // Like std::getline, but a file without newlines (binary data, /dev/zero) cannot exhaust memory.
-  bool read_line() {
-    constexpr std::size_t kMaxLine = 1 << 16;
-    using Traits = std::ifstream::traits_type;
-    text_.clear();
-    std::streambuf* buf = in_.rdbuf();
-    for (auto c = buf->sbumpc(); !Traits::eq_int_type(c, Traits::eof()); c = buf->sbumpc()) {
-      if (Traits::to_char_type(c) == '\n') return true;
-      if (text_.size() == kMaxLine) fail_at(path_, line_ + 1, "expected a line, found more than 65536 characters");
-      text_.push_back(Traits::to_char_type(c));
-    }
-    return !text_.empty();
-  }
-
-  std::string path_;
-  std::ifstream in_;
-  std::string text_;
-  std::vector<std::string_view> tokens_;
-  long long line_ = 0;
-};
-
-long long parse_int(const LineReader& r, std::string_view s, const std::string& what, long long lo, long long hi) {
-  long long v = 0;
-  const auto [end, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
-  if (ec == std::errc::invalid_argument || end != s.data() + s.size())
-    r.fail(what + " " + quote(s) + " is not an integer");
-  if (ec == std::errc::result_out_of_range || v < lo || v > hi)
-    r.fail(what + " " + quote(s) + " is out of range [" + str(lo) + ", " + str(hi) + "]");
-  return v;
-}
-
-double parse_real(const LineReader& r, std::string_view s, const std::string& what) {
-  std::string_view t = s;
-  // from_chars rejects the leading '+' that printf-style writers may emit.
-  if (t.size() > 1 && t[0] == '+' && t[1] != '+' && t[1] != '-') t.remove_prefix(1);
-  double v = 0;
-  const auto [end, ec] = std::from_chars(t.data(), t.data() + t.size(), v);
-  if (ec == std::errc::invalid_argument || end != t.data() + t.size())
-    r.fail(what + " " + quote(s) + " is not a number");
-  if (ec == std::errc::result_out_of_range) r.fail(what + " " + quote(s) + " is out of the range of a double");
-  if (!std::isfinite(v)) r.fail(what + " " + quote(s) + " is not a finite number");
-  return v;
-}
+using detail::fail_at;
+using detail::parse_int;
+using detail::parse_real;
+using detail::quote;
+using detail::TextReader;
 
 std::ofstream open_for_writing(const std::string& path) {
   errno = 0;
@@ -182,28 +86,6 @@ void check_surface(const SurfaceMesh& s) {
   }
 }
 
-// Cell (i, j, k) spans origin + h * [i, i+1] x [j, j+1] x [k, k+1].
-struct Grid {
-  double h = 0.0;
-  Vector3d origin;
-  Vector3i n;  // cells per axis
-
-  int num_cells() const { return n.x() * n.y() * n.z(); }
-  int cell_id(const Vector3i& c) const { return (c.z() * n.y() + c.y()) * n.x() + c.x(); }
-  Vector3i cell_coords(int id) const { return Vector3i(id % n.x(), (id / n.x()) % n.y(), id / (n.x() * n.y())); }
-  Vector3d corner(const Vector3i& c) const { return origin + h * c.cast<double>(); }
-  Vector3d centre(const Vector3i& c) const { return corner(c) + Vector3d::Constant(0.5 * h); }
-  // Cells whose slightly enlarged closed box may contain p, per axis [first, last].
-  std::pair<Vector3i, Vector3i> cell_range(const Vector3d& lo, const Vector3d& hi) const {
-    Vector3i first, last;
-    for (int a = 0; a < 3; ++a) {
-      first[a] = std::clamp(static_cast<int>(std::floor((lo[a] - origin[a]) / h - kCellSlack)), 0, n[a] - 1);
-      last[a] = std::clamp(static_cast<int>(std::floor((hi[a] - origin[a]) / h + kCellSlack)), 0, n[a] - 1);
-    }
-    return {first, last};
-  }
-};
-
 std::pair<Vector3d, Vector3d> bounding_box(const SurfaceMesh& s) {
   Vector3d lo = Vector3d::Constant(std::numeric_limits<double>::infinity());
   Vector3d hi = -lo;
@@ -216,12 +98,11 @@ std::pair<Vector3d, Vector3d> bounding_box(const SurfaceMesh& s) {
   return {lo, hi};
 }
 
-// The box's low corner sits a fixed, uneven fraction of a cell inside the grid: a symmetric
-// placement would add cells in symmetric groups, so the tet count would jump in large steps.
-Grid make_grid(const std::pair<Vector3d, Vector3d>& box, double h) {
-  const Vector3d offset = h * Vector3d(0.37, 0.21, 0.43);
+// The box's low corner sits a fixed, uneven fraction of a cell inside the grid (grid_shift).
+CellGrid make_grid(const std::pair<Vector3d, Vector3d>& box, double h) {
+  const Vector3d offset = detail::grid_shift(h);
   const Vector3d extent = box.second - box.first + offset;
-  Grid g;
+  CellGrid g;
   g.h = h;
   long long cells = 1;
   for (int a = 0; a < 3; ++a) {
@@ -271,47 +152,16 @@ double winding_number(const SurfaceMesh& s, const Vector3d& p) {
   return sum / (4.0 * kPi);
 }
 
-// Face-connected components of the cells where mask is set; label -1 elsewhere. Returns the
-// component count; sizes[l] is the number of cells of component l.
-int label_components(const Grid& g, const std::vector<char>& mask, std::vector<int>& label, std::vector<int>& sizes) {
-  label.assign(mask.size(), -1);
-  sizes.clear();
-  std::vector<int> queue;
-  for (int start = 0; start < g.num_cells(); ++start) {
-    if (!mask[start] || label[start] >= 0) continue;
-    const int l = static_cast<int>(sizes.size());
-    queue.assign(1, start);
-    label[start] = l;
-    for (std::size_t q = 0; q < queue.size(); ++q) {
-      const Vector3i c = g.cell_coords(queue[q]);
-      for (int a = 0; a < 3; ++a) {
-        for (int dir = -1; dir <= 1; dir += 2) {
-          Vector3i nb = c;
-          nb[a] += dir;
-          if (nb[a] < 0 || nb[a] >= g.n[a]) continue;
-          const int id = g.cell_id(nb);
-          if (mask[id] && label[id] < 0) {
-            label[id] = l;
-            queue.push_back(id);
-          }
-        }
-      }
-    }
-    sizes.push_back(static_cast<int>(queue.size()));
-  }
-  return static_cast<int>(sizes.size());
-}
-
 // Kept cells: those a triangle touches plus untouched regions inside the solid, reduced to the
 // largest face-connected component.
-std::vector<char> cover_cells(const SurfaceMesh& s, const Grid& g) {
+std::vector<char> cover_cells(const SurfaceMesh& s, const CellGrid& g) {
   std::vector<char> keep(g.num_cells(), 0);
   const double r = 0.5 * g.h * (1.0 + 2.0 * kCellSlack);
   for (const Triangle& t : s.triangles) {
     const Vector3d& a = s.vertices[t[0]];
     const Vector3d& b = s.vertices[t[1]];
     const Vector3d& c = s.vertices[t[2]];
-    const auto [first, last] = g.cell_range(a.cwiseMin(b).cwiseMin(c), a.cwiseMax(b).cwiseMax(c));
+    const auto [first, last] = g.cell_range(a.cwiseMin(b).cwiseMin(c), a.cwiseMax(b).cwiseMax(c), kCellSlack);
     for (int k = first.z(); k <= last.z(); ++k) {
       for (int j = first.y(); j <= last.y(); ++j) {
         for (int i = first.x(); i <= last.x(); ++i) {
@@ -329,7 +179,7 @@ std::vector<char> cover_cells(const SurfaceMesh& s, const Grid& g) {
   std::vector<char> untouched(keep.size());
   for (std::size_t i = 0; i < keep.size(); ++i) untouched[i] = !keep[i];
   std::vector<int> label, sizes;
-  const int regions = label_components(g, untouched, label, sizes);
+  const int regions = detail::label_components(g, untouched, label, sizes);
   std::vector<char> inside(regions, 0);
   std::vector<char> decided(regions, 0);
   for (int id = 0; id < g.num_cells(); ++id) {
@@ -341,9 +191,7 @@ std::vector<char> cover_cells(const SurfaceMesh& s, const Grid& g) {
     }
     if (inside[l]) keep[id] = 1;
   }
-  label_components(g, keep, label, sizes);
-  const int best = static_cast<int>(std::max_element(sizes.begin(), sizes.end()) - sizes.begin());
-  for (int id = 0; id < g.num_cells(); ++id) keep[id] = label[id] == best ? 1 : 0;
+  detail::keep_largest_component(g, keep);
   return keep;
 }
 
@@ -356,34 +204,15 @@ Eigen::Vector4d barycentric(const TetMesh& mesh, const Tet& t, const Vector3d& p
 }
 
 EmbeddedBody build_body(const SurfaceMesh& surface, const std::pair<Vector3d, Vector3d>& box, double h) {
-  const Grid g = make_grid(box, h);
-  const std::vector<char> keep = cover_cells(surface, g);
+  const CellGrid g = make_grid(box, h);
+  detail::CellMesh cells = detail::mesh_cells(g, cover_cells(surface, g), kuhn_cube_tets());
 
   EmbeddedBody body;
   body.surface = surface;
   body.spacing = h;
-  std::vector<int> kept_index(keep.size(), -1);
-  const Vector3i nn = g.n + Vector3i::Ones();
-  std::vector<int> node_of(static_cast<std::size_t>(nn.x()) * nn.y() * nn.z(), -1);
-  for (int id = 0; id < g.num_cells(); ++id) {
-    if (!keep[id]) continue;
-    kept_index[id] = body.mesh.num_tets() / 6;
-    const Vector3i cell = g.cell_coords(id);
-    std::array<int, 8> corner_node;
-    for (int c = 0; c < 8; ++c) {
-      const Vector3i v = cell + Vector3i(c & 1, (c >> 1) & 1, (c >> 2) & 1);
-      int& node = node_of[(static_cast<std::size_t>(v.z()) * nn.y() + v.y()) * nn.x() + v.x()];
-      if (node < 0) {
-        node = body.mesh.num_nodes();
-        body.mesh.X.push_back(g.corner(v));
-      }
-      corner_node[c] = node;
-    }
-    for (const Tet& t : kuhn_cube_tets()) {
-      body.mesh.tets.push_back({corner_node[t[0]], corner_node[t[1]], corner_node[t[2]], corner_node[t[3]]});
-    }
-  }
-  finalize_mesh(body.mesh);
+  body.mesh = std::move(cells.mesh);
+  std::vector<int> kept_index(g.num_cells(), -1);
+  for (std::size_t i = 0; i < cells.cells.size(); ++i) kept_index[cells.cells[i]] = static_cast<int>(i);
 
   // A vertex on a cell face may sit in either neighbour: take the tet that contains it most deeply.
   const int nv = static_cast<int>(surface.vertices.size());
@@ -391,7 +220,7 @@ EmbeddedBody build_body(const SurfaceMesh& surface, const std::pair<Vector3d, Ve
   body.surface_bary.resize(nv);
   for (int v = 0; v < nv; ++v) {
     const Vector3d& p = surface.vertices[v];
-    const auto [first, last] = g.cell_range(p, p);
+    const auto [first, last] = g.cell_range(p, p, kCellSlack);
     double best_min = -std::numeric_limits<double>::infinity();
     for (int k = first.z(); k <= last.z(); ++k) {
       for (int j = first.y(); j <= last.y(); ++j) {
@@ -418,8 +247,7 @@ EmbeddedBody build_body(const SurfaceMesh& surface, const std::pair<Vector3d, Ve
 }
 
 int count_tets(const SurfaceMesh& surface, const std::pair<Vector3d, Vector3d>& box, double h) {
-  const std::vector<char> keep = cover_cells(surface, make_grid(box, h));
-  return 6 * static_cast<int>(std::count(keep.begin(), keep.end(), 1));
+  return detail::kept_tet_count(cover_cells(surface, make_grid(box, h)));
 }
 
 void check_spacing(double spacing) {
@@ -446,48 +274,10 @@ EmbeddedBody embed_surface(const SurfaceMesh& surface, int target_tets) {
   // Finest: 120 cells along the longest axis stays under kMaxCells; coarsest: one cell holds everything.
   const double h_min = size / 120.0;
   const double h_max = size * 2.0;
-  const double target = target_tets;
-  double best_h = h_max;
-  double best_err = std::numeric_limits<double>::infinity();
-  auto count = [&](double h) {
-    const int c = count_tets(surface, box, h);
-    const double err = std::abs(c - target);
-    if (err < best_err || (err == best_err && h > best_h)) {
-      best_err = err;
-      best_h = h;
-    }
-    return c;
-  };
-  // Volume guess for the first spacing (the cover's overhang makes it low); the count falls with h.
+  // The cover's overhang makes this volume guess low; the box-anchored grid makes the count non-monotone (scan).
   const double volume = std::max(std::abs(enclosed_volume(surface)), 1e-3 * extent.prod());
-  double lo = std::clamp(std::cbrt(6.0 * volume / target), h_min, h_max);
-  double hi = lo;
-  if (count(lo) >= target) {
-    while (hi < h_max) {
-      hi = std::min(hi * 1.3, h_max);
-      if (count(hi) < target) break;
-      lo = hi;
-    }
-  } else {
-    while (lo > h_min) {
-      lo = std::max(lo / 1.3, h_min);
-      if (count(lo) >= target) break;
-      hi = lo;
-    }
-  }
-  for (int it = 0; it < 40 && best_err > 0.01 * target && hi / lo > 1.0 + 1e-6; ++it) {
-    const double mid = std::sqrt(lo * hi);
-    if (count(mid) >= target) lo = mid; else hi = mid;
-  }
-  // The centred grid shifts with h, so the count is not monotone: scan around the best when bisection
-  // stalled on a large step.
-  if (best_err > 0.01 * target) {
-    const double centre = best_h;
-    for (int i = -24; i <= 24 && best_err > 0.01 * target; ++i) {
-      const double h = centre * std::pow(1.15, i / 24.0);
-      if (h >= h_min && h <= h_max) count(h);
-    }
-  }
+  const double best_h = detail::spacing_for_tets(target_tets, volume, h_min, h_max, true,
+                                                 [&](double h) { return count_tets(surface, box, h); });
   return build_body(surface, box, best_h);
 }
 
@@ -503,7 +293,7 @@ double enclosed_volume(const SurfaceMesh& surface) {
 }
 
 SurfaceMesh load_obj(const std::string& path) {
-  LineReader r(path);
+  TextReader r(path, true);
   SurfaceMesh s;
   std::vector<long long> triangle_line;
   std::vector<int> polygon;
@@ -579,7 +369,7 @@ void save_embedding(const std::string& path, const EmbeddedBody& body) {
 }
 
 EmbeddedBody load_embedding(const std::string& path, TetMesh mesh, SurfaceMesh surface) {
-  LineReader r(path);
+  TextReader r(path, true);
   if (!r.next() || r.size() != 2 || r[0] != "hapticd-embedding" || r[1] != "1")
     r.fail("expected header 'hapticd-embedding 1', found " + r.found());
   if (!r.next()) r.fail("expected '<surface vertices> <tets> <spacing>', found end of file");

@@ -47,6 +47,35 @@ Matrix6d handle_mass_matrix(const RigidHandle& h, const HandleState& s) {
   return M;
 }
 
+// Velocity of an embedded point.
+Eigen::Vector3d point_velocity(const Tet& t, const Eigen::Vector4d& w, const Eigen::VectorXd& v) {
+  Eigen::Vector3d u = Eigen::Vector3d::Zero();
+  for (int k = 0; k < 4; ++k) u += w[k] * v.segment<3>(3 * t[k]);
+  return u;
+}
+
+// Penalty contact (PointContact): forces into f_t, stiffness and damping blocks into A_t.
+void assemble_contact(const HandModel& model, const PointContact& c, HandState& s, double* values, double h) {
+  const Tet& t = model.mesh().tets[c.tet];
+  const AssemblyMap& map = model.assembly_map();
+  const Eigen::Vector3d& n = c.n_W;
+  const Eigen::Matrix3d nn = n * n.transpose(), T = Eigen::Matrix3d::Identity() - nn;
+  const Eigen::Vector3d u_rel = point_velocity(t, c.bary, s.v) - c.v_other_W;
+  const double f_n = c.stiffness_n_m * c.depth_m;
+  // Regularized Coulomb: viscous below the stick speed, capped at mu f_n above it.
+  const double c_t = c.friction * f_n / std::max((T * u_rel).norm(), PointContact::kStickSpeed_m_s);
+  // Velocity-independent part (the damping acts on v - v_other: v_other's share is constant).
+  const Eigen::Vector3d f = f_n * n + (c.damping_ns_m * nn + c_t * T) * c.v_other_W;
+  const Eigen::Matrix3d C = h * (c.damping_ns_m * nn + c_t * T) + h * h * c.stiffness_n_m * nn;
+  for (int a = 0; a < 4; ++a) {
+    if (c.bary[a] == 0) continue;
+    s.f_t.segment<3>(3 * t[a]) += c.bary[a] * f;
+    for (int b = 0; b < 4; ++b)
+      if (c.bary[b] != 0)
+        add_block(values, map, map.element_block[c.tet][4 * a + b], t[b], c.bary[a] * c.bary[b] * C);
+  }
+}
+
 }  // namespace
 
 void validate(const HandConfig& c) {
@@ -98,6 +127,10 @@ HandModel::HandModel(TetMesh mesh, HandConfig config)
   map_.column_start.assign(pattern_.outerIndexPtr(), pattern_.outerIndexPtr() + 3 * n + 1);
   map_.diagonal_block.resize(n);
   for (int i = 0; i < n; ++i) map_.diagonal_block[i] = find_entry(pattern_, 3 * i, 3 * i);
+  node_tet_.assign(n, {-1, -1});
+  for (size_t e = 0; e < mesh_.tets.size(); ++e)
+    for (int k = 0; k < 4; ++k)
+      if (node_tet_[mesh_.tets[e][k]].first < 0) node_tet_[mesh_.tets[e][k]] = {static_cast<int>(e), k};
   map_.element_block.resize(mesh_.tets.size());
   for (size_t e = 0; e < mesh_.tets.size(); ++e) {
     const Tet& t = mesh_.tets[e];
@@ -149,6 +182,12 @@ void place_hand(const HandModel& model, HandState& s, const Eigen::Vector3d& p_W
   }
 }
 
+bool valid_contact(const HandModel& model, const PointContact& c) {
+  return c.tet >= 0 && c.tet < model.fem().num_tets() && c.bary.allFinite() && c.n_W.allFinite() &&
+         std::abs(c.n_W.norm() - 1) < 1e-6 && std::isfinite(c.depth_m) && c.v_other_W.allFinite() &&
+         finite_nonneg(c.stiffness_n_m) && finite_nonneg(c.damping_ns_m) && finite_nonneg(c.friction);
+}
+
 bool set_target(HandState& state, int handle, const HandleTarget& t) {
   if (handle < 0 || handle >= static_cast<int>(state.targets.size())) return false;
   if (!t.p_W.allFinite() || !t.q_W.coeffs().allFinite() || !t.v_W.allFinite() || !t.w_W.allFinite()) return false;
@@ -188,19 +227,35 @@ void assemble(const HandModel& model, HandState& s) {
   const double cM = 1.0 + h * cfg.material.rayleigh_alpha_per_s;
   for (int i = 0; i < n; ++i) add_block(values, map, map.diagonal_block[i], i, cM * mass[i] * Eigen::Matrix3d::Identity());
 
+  // Contacts come from outside (the world): a malformed one is dropped, never assembled.
+  s.active_contacts.clear();
+  s.active_source.clear();
+  for (size_t i = 0; i < s.contacts.size(); ++i) {
+    s.contacts[i].f_W.setZero();
+    if (!valid_contact(model, s.contacts[i])) continue;
+    s.active_contacts.push_back(s.contacts[i]);
+    s.active_source.push_back(static_cast<int>(i));
+  }
   s.floor_contacts = 0;
   if (cfg.floor.enabled) {
-    const Eigen::Vector3d up = Eigen::Vector3d::UnitZ();
-    const Eigen::Matrix3d nn = up * up.transpose();
     for (int i = 0; i < n; ++i) {
       const double depth = cfg.floor.height_m - s.x[3 * i + 2];
       if (depth <= 0) continue;
       ++s.floor_contacts;
-      s.f_t.segment<3>(3 * i) += cfg.floor.stiffness_n_m * depth * up;
-      add_block(values, map, map.diagonal_block[i], i,
-                (h * cfg.floor.damping_ns_m + h2 * cfg.floor.stiffness_n_m) * nn);
+      PointContact c;
+      const auto [tet, local] = model.node_tet(i);
+      c.tet = tet;
+      c.bary = Eigen::Vector4d::Unit(local);
+      c.depth_m = depth;
+      c.stiffness_n_m = cfg.floor.stiffness_n_m;
+      c.damping_ns_m = cfg.floor.damping_ns_m;
+      c.friction = cfg.floor.friction;
+      s.active_contacts.push_back(c);
+      s.active_source.push_back(-1);
     }
   }
+  for (const PointContact& c : s.active_contacts) assemble_contact(model, c, s, values, h);
+
   for (int i = 0; i < n; ++i) sys.b_t.segment<3>(3 * i) = mass[i] * s.v.segment<3>(3 * i);
 
   // Handles: mass, drive, coupling springs (eq. 8, 10, 11).
@@ -265,6 +320,23 @@ void reset_to_target(const HandModel& model, HandState& s) {
   ++s.resets;
 }
 
+// The force each contact put on the body at the end of the step (its implicit
+// value), normal part clamped to push only; the world applies the reaction.
+void record_contact_forces(const HandModel& model, HandState& s) {
+  const double h = model.config().dt_s;
+  for (size_t i = 0; i < s.active_contacts.size(); ++i) {
+    PointContact& c = s.active_contacts[i];
+    const Eigen::Vector3d& n = c.n_W;
+    const Eigen::Vector3d u_rel = point_velocity(model.mesh().tets[c.tet], c.bary, s.v) - c.v_other_W;
+    const double f_n = std::max(0.0, c.stiffness_n_m * (c.depth_m - h * n.dot(u_rel)) - c.damping_ns_m * n.dot(u_rel));
+    const Eigen::Vector3d u_t = u_rel - n.dot(u_rel) * n;
+    const double c_t = c.friction * c.stiffness_n_m * c.depth_m /
+                       std::max(u_t.norm(), PointContact::kStickSpeed_m_s);
+    c.f_W = f_n * n - c_t * u_t;
+    if (s.active_source[i] >= 0) s.contacts[s.active_source[i]].f_W = c.f_W;
+  }
+}
+
 bool within_bounds(const HandState& s, double max_speed) {
   if (!s.v_t_next.allFinite() || !s.v_h_next.allFinite()) return false;
   for (int i = 0; i < s.v_t_next.size() / 3; ++i)
@@ -310,6 +382,8 @@ StepStatus step(const HandModel& model, HandState& s, CoupledSolver& solver) {
     if (!s.x.allFinite()) {
       status = StepStatus::reset_diverged;
       reset_to_target(model, s);
+    } else {
+      record_contact_forces(model, s);
     }
   }
   s.timings.integrate_ms = ms_since(t1);

@@ -37,6 +37,25 @@ struct FloorParams {
   double height_m = 0.0;
   double stiffness_n_m = 2000.0;  // per node in contact
   double damping_ns_m = 2.0;
+  double friction = 0.0;          // Coulomb coefficient (regularized, see PointContact)
+};
+
+// Penalty contact of one point embedded in the body (barycentric in a tet)
+// against another body: normal force k depth - d (relative normal speed),
+// Coulomb friction regularized below kStickSpeed_m_s into viscous friction.
+// All of it is implicit (stiffness and damping blocks in A_t), so stiff
+// contacts stay stable at visual rates. The cheap baseline of constraint contact.
+struct PointContact {
+  static constexpr double kStickSpeed_m_s = 0.01;
+  int tet = 0;
+  Eigen::Vector4d bary{1, 0, 0, 0};
+  Eigen::Vector3d n_W = Eigen::Vector3d::UnitZ();      // unit, out of the other body
+  double depth_m = 0;                                   // penetration along n_W, > 0
+  Eigen::Vector3d v_other_W = Eigen::Vector3d::Zero();  // the other body's velocity at the point
+  double stiffness_n_m = 2000.0, damping_ns_m = 2.0, friction = 0.0;
+  int other = -1;  // the caller's index of the other body (-1: static geometry)
+  // Out, after a step: the force the contact put on this body at the end of the step, N.
+  Eigen::Vector3d f_W = Eigen::Vector3d::Zero();
 };
 
 struct HandleSpec {
@@ -81,6 +100,8 @@ class HandModel {
   // Sparsity of A_t (values zero) and how element blocks land in it.
   const Eigen::SparseMatrix<double>& tool_pattern() const { return pattern_; }
   const AssemblyMap& assembly_map() const { return map_; }
+  // A tet holding node i and the node's position in it (to express a node as an embedded point).
+  std::pair<int, int> node_tet(int i) const { return node_tet_[i]; }
 
  private:
   TetMesh mesh_;
@@ -89,6 +110,7 @@ class HandModel {
   std::vector<RigidHandle> handles_;
   Eigen::SparseMatrix<double> pattern_;
   AssemblyMap map_;
+  std::vector<std::pair<int, int>> node_tet_;
 };
 
 struct HandleTarget {
@@ -115,6 +137,12 @@ struct HandState {
   CoupledSystem system;
   Eigen::VectorXd v_h_next, v_t_next;
 
+  // Contacts against other bodies for the next step, set by the world; their
+  // f_W is filled by the step. Floor contacts are added internally each step.
+  std::vector<PointContact> contacts;
+  std::vector<PointContact> active_contacts;  // valid contacts + floor, as last assembled
+  std::vector<int> active_source;            // index into contacts, -1 for the floor
+
   StepTimings timings;
   int floor_contacts = 0;
   long resets = 0;
@@ -126,6 +154,9 @@ HandState make_rest_state(const HandModel& model);
 // Moves the whole hand rigidly so that handle `h` sits at `pose`, velocities zero.
 void place_hand(const HandModel& model, HandState& state, const Eigen::Vector3d& p_W, const Eigen::Quaterniond& q_W,
                 int handle = 0);
+
+// Whether a contact is well formed for this model (tet in range, finite, unit normal).
+bool valid_contact(const HandModel& model, const PointContact& c);
 
 // Sets handle h's drive target; a non-finite target is refused (returns false, target kept).
 bool set_target(HandState& state, int handle, const HandleTarget& target);

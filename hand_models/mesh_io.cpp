@@ -1,17 +1,17 @@
 #include "hand_models/mesh_io.hpp"
 
 #include <algorithm>
-#include <cerrno>
 #include <charconv>
 #include <climits>
 #include <cmath>
 #include <filesystem>
-#include <fstream>
 #include <string_view>
 #include <system_error>
 #include <unordered_map>
 #include <utility>
 #include <vector>
+
+#include "hand_models/text_reader.hpp"
 
 namespace hapticd {
 namespace {
@@ -23,123 +23,18 @@ std::size_t capped(long long count) { return static_cast<std::size_t>(std::clamp
 
 std::string str(long long v) { return std::to_string(v); }
 
-[[noreturn]] void fail_at(const std::string& path, long long line, const std::string& msg) {
-  throw MeshError(path + ":" + str(line) + ": " + msg);
-}
+using detail::fail_at;
+using detail::parse_int;
+using detail::parse_real;
+using detail::quote;
+using detail::TextReader;
 
-// Keeps messages short and printable when the offending text is long or binary.
-std::string quote(std::string_view s) {
-  constexpr std::size_t kMax = 40;
-  std::string out = "'";
-  for (std::size_t i = 0; i < s.size() && i < kMax; ++i) {
-    const auto c = static_cast<unsigned char>(s[i]);
-    out += (c >= 0x20 && c < 0x7f) ? static_cast<char>(c) : '?';
-  }
-  if (s.size() > kMax) out += "...";
-  return out + "'";
-}
-
-class LineReader {
- public:
-  LineReader(std::string path, bool hash_comments) : path_(std::move(path)), hash_comments_(hash_comments) {
-    std::error_code ec;
-    if (std::filesystem::is_directory(path_, ec)) fail_at(path_, 0, "cannot open file: it is a directory");
-    errno = 0;
-    in_.open(path_, std::ios::binary);
-    if (!in_) {
-      const std::string why = errno ? std::error_code(errno, std::generic_category()).message() : "unknown error";
-      fail_at(path_, 0, "cannot open file: " + why);
-    }
-  }
-
-  // Advances to the next line holding any token; false at end of file, where
-  // line() stays at the last line so end-of-file errors point there.
-  bool next() {
-    static constexpr const char* kSpace = " \t\r\v\f";
-    while (read_line()) {
-      ++line_;
-      if (hash_comments_) text_.erase(std::min(text_.find('#'), text_.size()));
-      tokens_.clear();
-      for (std::size_t i = text_.find_first_not_of(kSpace); i != std::string::npos;
-           i = text_.find_first_not_of(kSpace, i)) {
-        const std::size_t j = std::min(text_.find_first_of(kSpace, i), text_.size());
-        tokens_.emplace_back(text_.data() + i, j - i);
-        i = j;
-      }
-      if (!tokens_.empty()) return true;
-    }
-    tokens_.clear();
-    return false;
-  }
-
-  void expect_more(const std::string& what) {
-    if (!next()) fail("expected " + what + ", found end of file");
-  }
-
-  const std::string& path() const { return path_; }
-  long long line() const { return line_; }
-  std::size_t size() const { return tokens_.size(); }
-  std::string_view operator[](std::size_t i) const { return tokens_[i]; }
-  std::string found() const {
-    if (tokens_.empty()) return "end of file";
-    const char* b = tokens_.front().data();
-    return quote(std::string_view(b, static_cast<std::size_t>(tokens_.back().data() + tokens_.back().size() - b)));
-  }
-  [[noreturn]] void fail(const std::string& msg) const { fail_at(path_, line_, msg); }
-
- private:
-  // Like std::getline, but a file without newlines (binary data, /dev/zero) cannot exhaust memory.
-  bool read_line() {
-    constexpr std::size_t kMaxLine = 1 << 16;
-    using Traits = std::ifstream::traits_type;
-    text_.clear();
-    std::streambuf* buf = in_.rdbuf();
-    for (auto c = buf->sbumpc(); !Traits::eq_int_type(c, Traits::eof()); c = buf->sbumpc()) {
-      if (Traits::to_char_type(c) == '\n') return true;
-      if (text_.size() == kMaxLine) fail_at(path_, line_ + 1, "expected a line, found more than 65536 characters");
-      text_.push_back(Traits::to_char_type(c));
-    }
-    return !text_.empty();
-  }
-
-  std::string path_;
-  bool hash_comments_;
-  std::ifstream in_;
-  std::string text_;
-  std::vector<std::string_view> tokens_;
-  long long line_ = 0;
-};
-
-long long parse_int(const LineReader& r, std::string_view s, const std::string& what, long long lo = LLONG_MIN,
-                    long long hi = LLONG_MAX) {
-  long long v = 0;
-  const auto [end, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
-  if (ec == std::errc::invalid_argument || end != s.data() + s.size())
-    r.fail(what + " " + quote(s) + " is not an integer");
-  if (ec == std::errc::result_out_of_range || v < lo || v > hi)
-    r.fail(what + " " + quote(s) + " is out of range [" + str(lo) + ", " + str(hi) + "]");
-  return v;
-}
-
-double parse_real(const LineReader& r, std::string_view s, const std::string& what, bool finite) {
-  std::string_view t = s;
-  // from_chars rejects the leading '+' that printf-style writers may emit.
-  if (t.size() > 1 && t[0] == '+' && t[1] != '+' && t[1] != '-') t.remove_prefix(1);
-  double v = 0;
-  const auto [end, ec] = std::from_chars(t.data(), t.data() + t.size(), v);
-  if (ec == std::errc::invalid_argument || end != t.data() + t.size())
-    r.fail(what + " " + quote(s) + " is not a number");
-  if (ec == std::errc::result_out_of_range) r.fail(what + " " + quote(s) + " is out of the range of a double");
-  if (finite && !std::isfinite(v)) r.fail(what + " " + quote(s) + " is not a finite number");
-  return v;
-}
-
-Eigen::Vector3d parse_point(const LineReader& r, std::size_t first) {
+Eigen::Vector3d parse_point(const TextReader& r, std::size_t first) {
   return {parse_real(r, r[first], "coordinate", true), parse_real(r, r[first + 1], "coordinate", true),
           parse_real(r, r[first + 2], "coordinate", true)};
 }
 
-void check_no_repeat(const LineReader& r, const Tet& t, int k, std::string_view token) {
+void check_no_repeat(const TextReader& r, const Tet& t, int k, std::string_view token) {
   for (int j = 0; j < k; ++j) {
     if (t[j] == t[k]) r.fail("tet repeats node " + quote(token));
   }
@@ -199,7 +94,7 @@ std::string attributes(long long n) { return str(n) + (n == 1 ? " attribute" : "
 std::string fields_found(std::size_t n) { return ", found " + str(static_cast<long long>(n)); }
 
 std::vector<Eigen::Vector3d> read_tetgen_nodes(const std::string& path, long long& base) {
-  LineReader r(path, true);
+  TextReader r(path, true);
   const std::string header = "header '<#points> 3 <#attributes> <0|1>'";
   if (!r.next()) r.fail("file is empty, expected " + header);
   if (r.size() != 4) r.fail("expected " + header + " (4 integers)" + fields_found(r.size()));
@@ -234,7 +129,7 @@ std::vector<Eigen::Vector3d> read_tetgen_nodes(const std::string& path, long lon
 }
 
 RawTets read_tetgen_tets(const std::string& path, long long base, long long num_nodes, long long& end_line) {
-  LineReader r(path, true);
+  TextReader r(path, true);
   const std::string header = "header '<#tets> 4 <#attributes>'";
   if (!r.next()) r.fail("file is empty, expected " + header);
   if (r.size() != 3) r.fail("expected " + header + " (3 integers)" + fields_found(r.size()));
@@ -486,7 +381,7 @@ class GmshReader {
     expect_end("$EndElements", "after " + str(blocks) + " element blocks");
   }
 
-  LineReader r_;
+  TextReader r_;
   bool v4_ = false;
   std::vector<Eigen::Vector3d> X_;
   std::unordered_map<long long, std::pair<int, long long>> tags_;  // tag -> (index, line)

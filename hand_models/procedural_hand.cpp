@@ -1,20 +1,23 @@
 #include "hand_models/procedural_hand.hpp"
 
+#include "hand_models/cell_grid.hpp"
 #include "hand_models/embedded_surface.hpp"
 
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
-#include <limits>
 #include <stdexcept>
 #include <unordered_map>
+#include <vector>
 
 namespace hapticd {
 namespace {
 
 using Eigen::Vector3d;
 using Eigen::Vector3i;
+using detail::CellGrid;
+using detail::cube_corner;
 
 constexpr double kCm = 0.01;
 constexpr double kPi = 3.14159265358979323846;
@@ -179,33 +182,14 @@ const HandShape& right_shape() {
   return shape;
 }
 
-// Cell (i, j, k) spans origin + h * [i, i+1] x [j, j+1] x [k, k+1].
-struct Grid {
-  double h = 0.0;
-  Vector3d origin;
-  Vector3i n;  // cells per axis
-
-  int num_cells() const { return n.x() * n.y() * n.z(); }
-  int cell_id(const Vector3i& c) const { return (c.z() * n.y() + c.y()) * n.x() + c.x(); }
-  Vector3i cell_coords(int id) const { return Vector3i(id % n.x(), (id / n.x()) % n.y(), id / (n.x() * n.y())); }
-  Vector3d corner(const Vector3i& c) const { return origin + h * c.cast<double>(); }
-  Vector3i cell_of(const Vector3d& p) const {
-    const Vector3d u = (p - origin) / h;
-    Vector3i c;
-    for (int a = 0; a < 3; ++a) c[a] = std::clamp(static_cast<int>(std::floor(u[a])), 0, n[a] - 1);
-    return c;
-  }
-};
-
 constexpr double kMinSpacing = 0.001;  // ~2M tets already; finer grids would exhaust memory
 constexpr double kMaxSpacing = 0.1;    // a few cells hold the whole hand
 
-Grid make_grid(const HandShape& shape, double h) {
-  Grid g;
+// Planes at anchor + i h whatever the shape's extent, so nearby spacings give comparable grids.
+CellGrid make_grid(const HandShape& shape, double h) {
+  CellGrid g;
   g.h = h;
-  // A fixed fraction of a cell: keeps the palm's flat faces off the grid planes, so the tet
-  // count changes in small steps with h and the left/right results stay comparable.
-  const Vector3d anchor = h * Vector3d(0.37, 0.21, 0.43);
+  const Vector3d anchor = detail::grid_shift(h);
   const Vector3d lo = shape.lo - Vector3d::Constant(1.5 * h);
   const Vector3d hi = shape.hi + Vector3d::Constant(1.5 * h);
   for (int a = 0; a < 3; ++a) {
@@ -235,14 +219,13 @@ constexpr int kCoverDepth = 2;  // sub-cubes of h/4: kept cells come within ~h/4
 
 // Kept cells: all that may touch the shape plus every cell a bone axis passes through, reduced
 // to the largest face-connected component.
-std::vector<char> cover_cells(const HandShape& shape, const Grid& g) {
+std::vector<char> cover_cells(const HandShape& shape, const CellGrid& g) {
   std::vector<char> keep(g.num_cells(), 0);
   for (int k = 0; k < g.n.z(); ++k) {
     for (int j = 0; j < g.n.y(); ++j) {
       for (int i = 0; i < g.n.x(); ++i) {
         const Vector3i c(i, j, k);
-        const Vector3d centre = g.corner(c) + Vector3d::Constant(0.5 * g.h);
-        if (may_touch(shape, centre, g.h, kCoverDepth)) keep[g.cell_id(c)] = 1;
+        if (may_touch(shape, g.centre(c), g.h, kCoverDepth)) keep[g.cell_id(c)] = 1;
       }
     }
   }
@@ -264,55 +247,28 @@ std::vector<char> cover_cells(const HandShape& shape, const Grid& g) {
       }
     }
   }
-  std::vector<int> label(g.num_cells(), -1);
-  std::vector<int> queue;
-  int best_label = -1;
-  int best_size = 0;
-  int next_label = 0;
-  for (int start = 0; start < g.num_cells(); ++start) {
-    if (!keep[start] || label[start] >= 0) continue;
-    queue.assign(1, start);
-    label[start] = next_label;
-    for (size_t q = 0; q < queue.size(); ++q) {
-      const Vector3i c = g.cell_coords(queue[q]);
-      for (int a = 0; a < 3; ++a) {
-        for (int dir = -1; dir <= 1; dir += 2) {
-          Vector3i nb = c;
-          nb[a] += dir;
-          if (nb[a] < 0 || nb[a] >= g.n[a]) continue;
-          const int id = g.cell_id(nb);
-          if (keep[id] && label[id] < 0) {
-            label[id] = next_label;
-            queue.push_back(id);
-          }
-        }
-      }
-    }
-    if (static_cast<int>(queue.size()) > best_size) {
-      best_size = static_cast<int>(queue.size());
-      best_label = next_label;
-    }
-    ++next_label;
-  }
-  for (int id = 0; id < g.num_cells(); ++id) keep[id] = label[id] == best_label ? 1 : 0;
+  detail::keep_largest_component(g, keep);
   return keep;
 }
 
 int count_tets(const HandShape& shape, double h) {
-  const std::vector<char> keep = cover_cells(shape, make_grid(shape, h));
-  return 6 * static_cast<int>(std::count(keep.begin(), keep.end(), 1));
+  return detail::kept_tet_count(cover_cells(shape, make_grid(shape, h)));
 }
 
 // Kuhn subdivision of the unit cube along its main diagonal: tet p walks 000 -> +e[p0] -> +e[p1] -> 111.
 constexpr int kPerm[6][3] = {{0, 1, 2}, {1, 2, 0}, {2, 0, 1}, {0, 2, 1}, {1, 0, 2}, {2, 1, 0}};
 
 // Cube corners (bit a = offset along axis a) of Kuhn tet p, positively oriented.
-std::array<int, 4> kuhn_corners(int p) {
+constexpr Tet kuhn_corners(int p) {
   const int c1 = 1 << kPerm[p][0];
   const int c2 = c1 | (1 << kPerm[p][1]);
   // The last three permutations are odd: swapping two nodes restores positive orientation.
-  return p < 3 ? std::array<int, 4>{0, c1, c2, 7} : std::array<int, 4>{0, c1, 7, c2};
+  return p < 3 ? Tet{0, c1, c2, 7} : Tet{0, c1, 7, c2};
 }
+
+// The hand's own tet order (not box_mesh's): its node numbering and skin weights depend on it.
+constexpr std::array<Tet, 6> kKuhnTets = {kuhn_corners(0), kuhn_corners(1), kuhn_corners(2),
+                                          kuhn_corners(3), kuhn_corners(4), kuhn_corners(5)};
 
 // Kuhn tet of the unit cube containing local point u, with the weights of its corners (kuhn_corners order).
 std::pair<int, Eigen::Vector4d> locate_in_cube(const Vector3d& u_in) {
@@ -346,7 +302,7 @@ struct Skin {
 
 // Marching tetrahedra on the Kuhn tets of the grid refined n times inside every kept cell. The
 // refined Kuhn tets nest in the coarse ones, so each vertex has exact weights in a mesh tet.
-Skin extract_skin(const HandShape& shape, const Grid& g, const std::vector<int>& kept_cells, const TetMesh& mesh) {
+Skin extract_skin(const HandShape& shape, const CellGrid& g, const std::vector<int>& kept_cells, const TetMesh& mesh) {
   Skin skin;
   const int n = std::max(1, static_cast<int>(std::ceil(g.h / kSkinSampling - 1e-9)));
   const double hf = g.h / n;
@@ -376,11 +332,11 @@ Skin extract_skin(const HandShape& shape, const Grid& g, const std::vector<int>&
       const Vector3d p = (1.0 - t) * fine_pos(fu) + t * fine_pos(fv);
       const auto [perm, w] = locate_in_cube((p - cell_min) / g.h);
       const int tet = static_cast<int>(6 * kc) + perm;
-      const std::array<int, 4> corners = kuhn_corners(perm);
+      const Tet& corners = kKuhnTets[perm];
       Eigen::Vector4d bary = Eigen::Vector4d::Zero();
       for (int q = 0; q < 4; ++q) {
         const int c = corners[q];
-        const Vector3d xc = cell_min + g.h * Vector3d(c & 1, (c >> 1) & 1, (c >> 2) & 1);
+        const Vector3d xc = cell_min + g.h * cube_corner(c).cast<double>();
         // Match by position: finalize_mesh may have reordered the tet's nodes.
         for (int m = 0; m < 4; ++m) {
           if ((mesh.X[mesh.tets[tet][m]] - xc).squaredNorm() < 1e-6 * g.h * g.h) bary[m] = w[q];
@@ -401,13 +357,13 @@ Skin extract_skin(const HandShape& shape, const Grid& g, const std::vector<int>&
           std::array<double, 8> fv;
           int inside = 0;
           for (int c = 0; c < 8; ++c) {
-            fc[c] = base + Vector3i(c & 1, (c >> 1) & 1, (c >> 2) & 1);
+            fc[c] = base + cube_corner(c);
             fv[c] = sdf_at(fc[c]);
             inside += fv[c] < 0.0 ? 1 : 0;
           }
           if (inside == 0 || inside == 8) continue;
           for (int p = 0; p < 6; ++p) {
-            const std::array<int, 4> tc = kuhn_corners(p);
+            const Tet& tc = kKuhnTets[p];
             std::array<int, 4> in{}, out{};
             int ni = 0, no = 0;
             for (int q = 0; q < 4; ++q) {
@@ -489,39 +445,9 @@ double hand_spacing_for_tets(int target_tets) {
     throw std::invalid_argument("procedural hand: target_tets must be positive, got " + std::to_string(target_tets));
   }
   const HandShape& shape = right_shape();
-  const double target = target_tets;
-  double best_h = 0.0;
-  double best_err = std::numeric_limits<double>::infinity();
-  auto count = [&](double h) {
-    const int c = count_tets(shape, h);
-    const double err = std::abs(c - target);
-    if (err < best_err || (err == best_err && h > best_h)) {
-      best_err = err;
-      best_h = h;
-    }
-    return c;
-  };
   // Volume guess (including the cover's margin) gives the first spacing; the count falls with h.
-  double lo = std::clamp(std::cbrt(6.0 * 3.5e-4 / target), kMinSpacing, kMaxSpacing);
-  double hi = lo;
-  if (count(lo) >= target) {
-    while (hi < kMaxSpacing) {
-      hi = std::min(hi * 1.3, kMaxSpacing);
-      if (count(hi) < target) break;
-      lo = hi;
-    }
-  } else {
-    while (lo > kMinSpacing) {
-      lo = std::max(lo / 1.3, kMinSpacing);
-      if (count(lo) >= target) break;
-      hi = lo;
-    }
-  }
-  for (int it = 0; it < 40 && best_err > 0.01 * target && hi / lo > 1.0 + 1e-6; ++it) {
-    const double mid = std::sqrt(lo * hi);
-    if (count(mid) >= target) lo = mid; else hi = mid;
-  }
-  return best_h;
+  return detail::spacing_for_tets(target_tets, 3.5e-4, kMinSpacing, kMaxSpacing, false,
+                                  [&](double h) { return count_tets(shape, h); });
 }
 
 ProceduralHand make_procedural_hand(const ProceduralHandOptions& options) {
@@ -532,36 +458,14 @@ ProceduralHand make_procedural_hand(const ProceduralHandOptions& options) {
   }
   const double h = options.spacing > 0.0 ? options.spacing : hand_spacing_for_tets(options.target_tets);
   const HandShape& shape = right_shape();
-  const Grid g = make_grid(shape, h);
-  const std::vector<char> keep = cover_cells(shape, g);
+  const CellGrid g = make_grid(shape, h);
+  detail::CellMesh cells = detail::mesh_cells(g, cover_cells(shape, g), kKuhnTets);
 
   ProceduralHand hand;
   hand.spacing = h;
-  std::vector<int> kept_cells;
-  const Vector3i nn = g.n + Vector3i::Ones();
-  std::vector<int> node_of(static_cast<size_t>(nn.x()) * nn.y() * nn.z(), -1);
-  for (int id = 0; id < g.num_cells(); ++id) {
-    if (!keep[id]) continue;
-    kept_cells.push_back(id);
-    const Vector3i cell = g.cell_coords(id);
-    std::array<int, 8> corner_node;
-    for (int c = 0; c < 8; ++c) {
-      const Vector3i v = cell + Vector3i(c & 1, (c >> 1) & 1, (c >> 2) & 1);
-      int& node = node_of[(static_cast<size_t>(v.z()) * nn.y() + v.y()) * nn.x() + v.x()];
-      if (node < 0) {
-        node = hand.mesh.num_nodes();
-        hand.mesh.X.push_back(g.corner(v));
-      }
-      corner_node[c] = node;
-    }
-    for (int p = 0; p < 6; ++p) {
-      const std::array<int, 4> tc = kuhn_corners(p);
-      hand.mesh.tets.push_back({corner_node[tc[0]], corner_node[tc[1]], corner_node[tc[2]], corner_node[tc[3]]});
-    }
-  }
-  finalize_mesh(hand.mesh);
+  hand.mesh = std::move(cells.mesh);
 
-  Skin skin = extract_skin(shape, g, kept_cells, hand.mesh);
+  Skin skin = extract_skin(shape, g, cells.cells, hand.mesh);
   hand.skin_vertices = std::move(skin.vertices);
   hand.skin_triangles = std::move(skin.triangles);
   hand.skin_tet = std::move(skin.tet);
