@@ -54,25 +54,73 @@ Eigen::Vector3d point_velocity(const Tet& t, const Eigen::Vector4d& w, const Eig
   return u;
 }
 
+Eigen::Vector3d embedded_point(const Tet& t, const Eigen::Vector4d& w, const Eigen::VectorXd& x) {
+  return point_velocity(t, w, x);  // the same barycentric sum
+}
+
+// Velocity of the other body at a contact: the known one, or for an implicit body
+// its current (or, with `next`, its just-solved) rigid velocity at the point.
+Eigen::Vector3d other_velocity(const PointContact& c, const Tet& t, const HandState& s, bool next) {
+  if (c.body < 0) return c.v_other_W;
+  const ContactBody& b = s.bodies[c.body];
+  Eigen::Vector3d v = b.v_W, w = b.w_W;
+  if (next) v += b.dv_W, w += b.dw_W;
+  return v + w.cross(embedded_point(t, c.bary, s.x) - b.p_com_W);
+}
+
+// The 3x3 block C = h D_c + h^2 K_c of a contact: what it adds to eq. 7 between
+// the two points it joins (scaled by their weights), and its friction factor.
+Eigen::Matrix3d contact_block(const PointContact& c, const Eigen::Vector3d& u_rel, double h) {
+  const Eigen::Vector3d& n = c.n_W;
+  const Eigen::Matrix3d nn = n * n.transpose(), T = Eigen::Matrix3d::Identity() - nn;
+  const double c_t = c.friction * c.stiffness_n_m * c.depth_m / std::max((T * u_rel).norm(), PointContact::kStickSpeed_m_s);
+  return h * (c.damping_ns_m * nn + c_t * T) + h * h * c.stiffness_n_m * nn;
+}
+
 // Penalty contact (PointContact): forces into f_t, stiffness and damping blocks into A_t.
 void assemble_contact(const HandModel& model, const PointContact& c, HandState& s, double* values, double h) {
   const Tet& t = model.mesh().tets[c.tet];
   const AssemblyMap& map = model.assembly_map();
   const Eigen::Vector3d& n = c.n_W;
   const Eigen::Matrix3d nn = n * n.transpose(), T = Eigen::Matrix3d::Identity() - nn;
-  const Eigen::Vector3d u_rel = point_velocity(t, c.bary, s.v) - c.v_other_W;
-  const double f_n = c.stiffness_n_m * c.depth_m;
-  // Regularized Coulomb: viscous below the stick speed, capped at mu f_n above it.
-  const double c_t = c.friction * f_n / std::max((T * u_rel).norm(), PointContact::kStickSpeed_m_s);
-  // Velocity-independent part (the damping acts on v - v_other: v_other's share is constant).
-  const Eigen::Vector3d f = f_n * n + (c.damping_ns_m * nn + c_t * T) * c.v_other_W;
-  const Eigen::Matrix3d C = h * (c.damping_ns_m * nn + c_t * T) + h * h * c.stiffness_n_m * nn;
+  const Eigen::Vector3d u_rel = point_velocity(t, c.bary, s.v) - other_velocity(c, t, s, false);
+  const Eigen::Matrix3d C = contact_block(c, u_rel, h);
+  // Velocity-independent part; an implicit body's motion enters through the
+  // coupling blocks instead of as a known velocity.
+  const Eigen::Vector3d v_known = c.body >= 0 ? Eigen::Vector3d::Zero() : c.v_other_W;
+  const Eigen::Vector3d f = c.stiffness_n_m * c.depth_m * n + (C - h * h * c.stiffness_n_m * nn) / h * v_known;
   for (int a = 0; a < 4; ++a) {
     if (c.bary[a] == 0) continue;
     s.f_t.segment<3>(3 * t[a]) += c.bary[a] * f;
     for (int b = 0; b < 4; ++b)
       if (c.bary[b] != 0)
         add_block(values, map, map.element_block[c.tet][4 * a + b], t[b], c.bary[a] * c.bary[b] * C);
+  }
+  (void)T;
+}
+
+// A contact with an implicit body: its blocks between the hand point and the
+// body's 6 DOFs (column `col`), J_B = [I, -[rho]x] mapping body velocity to the point.
+void assemble_body_contact(const HandModel& model, const PointContact& c, HandState& s, int col, double h,
+                           std::vector<Eigen::Triplet<double>>& th, std::vector<Eigen::Triplet<double>>& ht) {
+  const Tet& t = model.mesh().tets[c.tet];
+  const ContactBody& B = s.bodies[c.body];
+  const Eigen::Vector3d p = embedded_point(t, c.bary, s.x);
+  Eigen::Matrix<double, 3, 6> J;
+  J << Eigen::Matrix3d::Identity(), -skew(p - B.p_com_W);
+  const Eigen::Vector3d u_rel = point_velocity(t, c.bary, s.v) - other_velocity(c, t, s, false);
+  const Eigen::Matrix3d C = contact_block(c, u_rel, h);
+  const Eigen::Vector3d f0 = c.stiffness_n_m * c.depth_m * c.n_W;
+  s.system.A_h.block<6, 6>(col, col) += J.transpose() * C * J;
+  s.system.b_h.segment<6>(col) -= h * J.transpose() * f0;  // the reaction of the elastic part
+  for (int a = 0; a < 4; ++a) {
+    if (c.bary[a] == 0) continue;
+    const Eigen::Matrix<double, 3, 6> coupling = -c.bary[a] * C * J;
+    for (int r = 0; r < 3; ++r)
+      for (int k = 0; k < 6; ++k) {
+        th.emplace_back(3 * t[a] + r, col + k, coupling(r, k));
+        ht.emplace_back(col + k, 3 * t[a] + r, coupling(r, k));
+      }
   }
 }
 
@@ -182,8 +230,15 @@ void place_hand(const HandModel& model, HandState& s, const Eigen::Vector3d& p_W
   }
 }
 
-bool valid_contact(const HandModel& model, const PointContact& c) {
-  return c.tet >= 0 && c.tet < model.fem().num_tets() && c.bary.allFinite() && c.n_W.allFinite() &&
+bool valid_contact(const HandModel& model, const HandState& s, const PointContact& c) {
+  if (c.body >= static_cast<int>(s.bodies.size())) return false;
+  if (c.body >= 0) {
+    const ContactBody& b = s.bodies[c.body];
+    if (!(b.mass_kg > 0) || !std::isfinite(b.mass_kg) || !b.inertia_W.allFinite() || !b.p_com_W.allFinite() ||
+        !b.v_W.allFinite() || !b.w_W.allFinite())
+      return false;
+  }
+  return c.body >= -1 && c.tet >= 0 && c.tet < model.fem().num_tets() && c.bary.allFinite() && c.n_W.allFinite() &&
          std::abs(c.n_W.norm() - 1) < 1e-6 && std::isfinite(c.depth_m) && c.v_other_W.allFinite() &&
          finite_nonneg(c.stiffness_n_m) && finite_nonneg(c.damping_ns_m) && finite_nonneg(c.friction);
 }
@@ -232,7 +287,7 @@ void assemble(const HandModel& model, HandState& s) {
   s.active_source.clear();
   for (size_t i = 0; i < s.contacts.size(); ++i) {
     s.contacts[i].f_W.setZero();
-    if (!valid_contact(model, s.contacts[i])) continue;
+    if (!valid_contact(model, s, s.contacts[i])) continue;
     s.active_contacts.push_back(s.contacts[i]);
     s.active_source.push_back(static_cast<int>(i));
   }
@@ -258,9 +313,14 @@ void assemble(const HandModel& model, HandState& s) {
 
   for (int i = 0; i < n; ++i) sys.b_t.segment<3>(3 * i) = mass[i] * s.v.segment<3>(3 * i);
 
-  // Handles: mass, drive, coupling springs (eq. 8, 10, 11).
+  // Handles: mass, drive, coupling springs (eq. 8, 10, 11); then the implicit
+  // contact bodies as further 6-DOF blocks.
+  const int nb = static_cast<int>(s.bodies.size());
   std::vector<Eigen::Triplet<double>> th, ht;
-  sys.A_h.setZero();
+  sys.A_h.setZero(6 * (m + nb), 6 * (m + nb));
+  sys.b_h.resize(6 * (m + nb));
+  sys.A_th.resize(3 * n, 6 * (m + nb));
+  sys.A_ht.resize(6 * (m + nb), 3 * n);
   for (int j = 0; j < m; ++j) {
     const RigidHandle& H = model.handles()[j];
     const HandleState& hs = s.handles[j];
@@ -303,6 +363,18 @@ void assemble(const HandModel& model, HandState& s) {
     sys.A_h.block<6, 6>(6 * j, 6 * j) = A;
     sys.b_h.segment<6>(6 * j) = M_h * v_h + h * W;
   }
+  for (int b = 0; b < nb; ++b) {
+    const ContactBody& B = s.bodies[b];
+    Matrix6d M = Matrix6d::Zero();
+    M.topLeftCorner<3, 3>() = B.mass_kg * Eigen::Matrix3d::Identity();
+    M.bottomRightCorner<3, 3>() = B.inertia_W;
+    Vector6d v;
+    v << B.v_W, B.w_W;
+    sys.A_h.block<6, 6>(6 * (m + b), 6 * (m + b)) = M;
+    sys.b_h.segment<6>(6 * (m + b)) = M * v;
+  }
+  for (const PointContact& c : s.active_contacts)
+    if (c.body >= 0) assemble_body_contact(model, c, s, 6 * (m + c.body), h, th, ht);
   sys.A_th.setFromTriplets(th.begin(), th.end());
   sys.A_ht.setFromTriplets(ht.begin(), ht.end());
   sys.b_t += h * s.f_t;
@@ -327,7 +399,8 @@ void record_contact_forces(const HandModel& model, HandState& s) {
   for (size_t i = 0; i < s.active_contacts.size(); ++i) {
     PointContact& c = s.active_contacts[i];
     const Eigen::Vector3d& n = c.n_W;
-    const Eigen::Vector3d u_rel = point_velocity(model.mesh().tets[c.tet], c.bary, s.v) - c.v_other_W;
+    const Tet& t = model.mesh().tets[c.tet];
+    const Eigen::Vector3d u_rel = point_velocity(t, c.bary, s.v) - other_velocity(c, t, s, true);
     const double f_n = std::max(0.0, c.stiffness_n_m * (c.depth_m - h * n.dot(u_rel)) - c.damping_ns_m * n.dot(u_rel));
     const Eigen::Vector3d u_t = u_rel - n.dot(u_rel) * n;
     const double c_t = c.friction * c.stiffness_n_m * c.depth_m /
@@ -366,12 +439,18 @@ StepStatus step(const HandModel& model, HandState& s, CoupledSolver& solver) {
   } else if (!within_bounds(s, model.config().max_speed_m_s)) {
     status = StepStatus::reset_diverged;
   }
+  for (ContactBody& b : s.bodies) b.dv_W.setZero(), b.dw_W.setZero();
   if (status != StepStatus::ok) {
     reset_to_target(model, s);
   } else {
     const double h = model.config().dt_s;
     s.v = s.v_t_next;
     s.x += h * s.v;
+    for (size_t b = 0; b < s.bodies.size(); ++b) {
+      const int col = 6 * (model.num_handles() + static_cast<int>(b));
+      s.bodies[b].dv_W = s.v_h_next.segment<3>(col) - s.bodies[b].v_W;
+      s.bodies[b].dw_W = s.v_h_next.segment<3>(col + 3) - s.bodies[b].w_W;
+    }
     for (int j = 0; j < model.num_handles(); ++j) {
       HandleState& hs = s.handles[j];
       hs.v_WH = s.v_h_next.segment<3>(6 * j);
@@ -381,6 +460,7 @@ StepStatus step(const HandModel& model, HandState& s, CoupledSolver& solver) {
     }
     if (!s.x.allFinite()) {
       status = StepStatus::reset_diverged;
+      for (ContactBody& b : s.bodies) b.dv_W.setZero(), b.dw_W.setZero();
       reset_to_target(model, s);
     } else {
       record_contact_forces(model, s);

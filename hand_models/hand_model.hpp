@@ -54,6 +54,9 @@ struct PointContact {
   Eigen::Vector3d v_other_W = Eigen::Vector3d::Zero();  // the other body's velocity at the point
   double stiffness_n_m = 2000.0, damping_ns_m = 2.0, friction = 0.0;
   int other = -1;  // the caller's index of the other body (-1: static geometry)
+  // Index into HandState::bodies when the other body is dynamic and solved
+  // implicitly with the hand (then v_other_W is ignored); -1: static or kinematic.
+  int body = -1;
   // Out, after a step: the force the contact put on this body at the end of the step, N.
   Eigen::Vector3d f_W = Eigen::Vector3d::Zero();
 };
@@ -113,6 +116,20 @@ class HandModel {
   std::vector<std::pair<int, int>> node_tet_;
 };
 
+// A rigid body touched by the hand, solved together with it for one step as an
+// extra 6-DOF block of eq. 7 (next to the handles): contact springs couple it
+// implicitly, so a light body pushed by stiff contacts stays stable and gets
+// exactly the impulse the hand gets, reversed. Gravity and the body's other
+// contacts stay with the rigid-body engine (operator splitting).
+struct ContactBody {
+  double mass_kg = 1.0;
+  Eigen::Matrix3d inertia_W = Eigen::Matrix3d::Identity();  // about the centre of mass, world axes, kg m^2
+  Eigen::Vector3d p_com_W = Eigen::Vector3d::Zero();
+  Eigen::Vector3d v_W = Eigen::Vector3d::Zero(), w_W = Eigen::Vector3d::Zero();
+  // Out, after a step: the velocity change the hand's contacts gave the body.
+  Eigen::Vector3d dv_W = Eigen::Vector3d::Zero(), dw_W = Eigen::Vector3d::Zero();
+};
+
 struct HandleTarget {
   Eigen::Vector3d p_W = Eigen::Vector3d::Zero();
   Eigen::Quaterniond q_W = Eigen::Quaterniond::Identity();
@@ -140,6 +157,7 @@ struct HandState {
   // Contacts against other bodies for the next step, set by the world; their
   // f_W is filled by the step. Floor contacts are added internally each step.
   std::vector<PointContact> contacts;
+  std::vector<ContactBody> bodies;            // the dynamic bodies contacts refer to
   std::vector<PointContact> active_contacts;  // valid contacts + floor, as last assembled
   std::vector<int> active_source;            // index into contacts, -1 for the floor
 
@@ -156,7 +174,7 @@ void place_hand(const HandModel& model, HandState& state, const Eigen::Vector3d&
                 int handle = 0);
 
 // Whether a contact is well formed for this model (tet in range, finite, unit normal).
-bool valid_contact(const HandModel& model, const PointContact& c);
+bool valid_contact(const HandModel& model, const HandState& state, const PointContact& c);
 
 // Sets handle h's drive target; a non-finite target is refused (returns false, target kept).
 bool set_target(HandState& state, int handle, const HandleTarget& target);

@@ -55,12 +55,15 @@ void ensure_ode_for_this_thread() {
 
 RigidWorld::RigidWorld(const SceneDesc& scene) : dt_(scene.dt_s) {
   ensure_ode_for_this_thread();
-  world_ = dWorldCreate();
   space_ = dHashSpaceCreate(nullptr);
   contacts_ = dJointGroupCreate(0);
-  dWorldSetGravity(world_, scene.gravity_m_s2.x(), scene.gravity_m_s2.y(), scene.gravity_m_s2.z());
-  dWorldSetERP(world_, kContactErp);
-  dWorldSetCFM(world_, kContactCfm);
+  // Static geometry alone is collision-only: the dynamics world exists only for rigid bodies.
+  if (scene.needs_rigid_world()) {
+    world_ = dWorldCreate();
+    dWorldSetGravity(world_, scene.gravity_m_s2.x(), scene.gravity_m_s2.y(), scene.gravity_m_s2.z());
+    dWorldSetERP(world_, kContactErp);
+    dWorldSetCFM(world_, kContactCfm);
+  }
   objects_.reserve(scene.objects.size());
   for (const ObjectDesc& o : scene.objects) {
     if (o.kind == BodyKind::deformable) continue;
@@ -171,7 +174,7 @@ RigidWorld::~RigidWorld() {
     if (o.body) dBodyDestroy(o.body);
   }
   dSpaceDestroy(space_);
-  dWorldDestroy(world_);
+  if (world_) dWorldDestroy(world_);
 }
 
 int RigidWorld::find(const std::string& n) const {
@@ -225,13 +228,39 @@ void RigidWorld::set_state(int i, const RigidBodyState& s) {
   dBodySetAngularVel(o.body, s.w_W.x(), s.w_W.y(), s.w_W.z());
 }
 
+Eigen::Vector3d RigidWorld::point_velocity(int i, const Eigen::Vector3d& p) const {
+  if (objects_[i].body == nullptr) return Eigen::Vector3d::Zero();
+  dVector3 v;
+  dBodyGetPointVel(objects_[i].body, p.x(), p.y(), p.z(), v);
+  return from_ode(v);
+}
+
 void RigidWorld::add_force_at(int i, const Eigen::Vector3d& f, const Eigen::Vector3d& p) {
   if (objects_[i].body) dBodyAddForceAtPos(objects_[i].body, f.x(), f.y(), f.z(), p.x(), p.y(), p.z());
 }
 
-void RigidWorld::apply_impulse_at(int i, const Eigen::Vector3d& J, const Eigen::Vector3d& p, double dt) {
-  // ODE integrates accumulated forces over the next step: an impulse J is the force J / dt.
-  add_force_at(i, J / dt, p);
+void RigidWorld::add_wrench(int i, const Eigen::Vector3d& f, const Eigen::Vector3d& tau) {
+  if (!objects_[i].body) return;
+  dBodyAddForce(objects_[i].body, f.x(), f.y(), f.z());
+  dBodyAddTorque(objects_[i].body, tau.x(), tau.y(), tau.z());
+}
+
+ContactBody RigidWorld::contact_body(int i) const {
+  ContactBody b;
+  dBodyID body = objects_[i].body;
+  dMass m;
+  dBodyGetMass(body, &m);
+  b.mass_kg = m.mass;
+  Eigen::Matrix3d I_B;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) I_B(r, c) = m.I[4 * r + c];  // ODE's dMatrix3 rows are padded to 4
+  const dReal* q = dBodyGetQuaternion(body);
+  const Eigen::Matrix3d R = Eigen::Quaterniond(q[0], q[1], q[2], q[3]).toRotationMatrix();
+  b.inertia_W = R * I_B * R.transpose();
+  b.p_com_W = from_ode(dBodyGetPosition(body));
+  b.v_W = from_ode(dBodyGetLinearVel(body));
+  b.w_W = from_ode(dBodyGetAngularVel(body));
+  return b;
 }
 
 void RigidWorld::near_callback(void* data, dGeomID a, dGeomID b) {
@@ -283,6 +312,7 @@ void RigidWorld::collide(dGeomID a, dGeomID b) {
 }
 
 void RigidWorld::step(double dt) {
+  if (world_ == nullptr) return;
   ensure_ode_for_this_thread();
   contacts_last_step_ = 0;
   dSpaceCollide(space_, this, &RigidWorld::near_callback);

@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "hand_models/hand_model.hpp"
 #include "server/world/scene.hpp"
 
 namespace hapticd {
@@ -36,7 +37,9 @@ class RigidWorld {
   RigidWorld(const RigidWorld&) = delete;
   RigidWorld& operator=(const RigidWorld&) = delete;
 
-  // Collide, then integrate one step of dt seconds (ODE).
+  // Whether a dynamics world exists (the scene has a rigid body).
+  bool has_dynamics() const { return world_ != nullptr; }
+  // Collide, then integrate one step of dt seconds (ODE); nothing without dynamics.
   void step(double dt);
 
   int num_objects() const { return static_cast<int>(objects_.size()); }
@@ -49,8 +52,15 @@ class RigidWorld {
   void set_state(int i, const RigidBodyState& s);
   // Adds a force (N) at a world point to body i for the next step (rigid bodies only).
   void add_force_at(int i, const Eigen::Vector3d& f_W, const Eigen::Vector3d& p_W);
-  // Applies an impulse (N s) at a world point to body i now (rigid bodies only).
-  void apply_impulse_at(int i, const Eigen::Vector3d& J_W, const Eigen::Vector3d& p_W, double dt);
+  // Adds a force (N) at the centre of mass and a torque (N m) for the next step.
+  void add_wrench(int i, const Eigen::Vector3d& f_W, const Eigen::Vector3d& tau_W);
+  // Mass, world inertia, centre of mass and velocity of rigid body i, for a hand
+  // that solves its contacts with the body implicitly.
+  ContactBody contact_body(int i) const;
+
+  // Velocity of the material point of object i at world point p (zero for static geometry).
+  Eigen::Vector3d point_velocity(int i, const Eigen::Vector3d& p_W) const;
+  double friction(int i) const { return objects_[i].friction; }
 
   dSpaceID space() const { return space_; }
   dGeomID geom(int i) const { return objects_[i].geom; }

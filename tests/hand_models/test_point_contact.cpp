@@ -118,5 +118,55 @@ TEST(PointContact, MalformedContactsAreDroppedNotAssembled) {
   for (const PointContact& c : s.contacts) EXPECT_EQ(c.f_W, Eigen::Vector3d::Zero());
 }
 
+// A free hand (no gravity, drive or mass damping) thrown against a free body: the
+// body is solved implicitly with the hand, so their total momentum is conserved.
+TEST(PointContact, ImplicitBodyContactConservesMomentumAtAnyMassRatio) {
+  HandConfig c;
+  c.gravity_m_s2.setZero();
+  c.drive = DriveParams{0, 0, 0, 0};
+  c.material.rayleigh_alpha_per_s = 0;
+  const HandModel model = slab_hand(1, c);
+  const double hand_mass = model.fem().lumped_mass().sum() + model.handles()[0].mass_kg;
+  for (double body_mass : {1e-3 * hand_mass, hand_mass, 1e3 * hand_mass}) {
+    HandState s = make_rest_state(model);
+    for (int i = 0; i < model.num_nodes(); ++i) s.v[3 * i] = 0.5;  // the slab moves along +x
+    s.handles[0].v_WH = Eigen::Vector3d(0.5, 0, 0);
+    ContactBody body;
+    body.mass_kg = body_mass;
+    body.inertia_W = body_mass * 1e-4 * Eigen::Matrix3d::Identity();
+    body.p_com_W = Eigen::Vector3d(0.06, 0, 0.01);
+    auto solver = make_solver(SolverKind::schur_cholmod);
+    Eigen::Vector3d p0 = linear_momentum(model, s) + body_mass * body.v_W;
+    for (int k = 0; k < 30; ++k) {
+      // The slab's +x face presses into a wall of the body at x = 0.04 (normal -x out of the body).
+      s.contacts.clear();
+      s.bodies = {body};
+      for (int i = 0; i < model.num_nodes(); ++i) {
+        const double depth = s.x[3 * i] - (0.04 + (body.p_com_W.x() - 0.06));
+        if (depth <= 0) continue;
+        PointContact pc;
+        const auto [tet, local] = model.node_tet(i);
+        pc.tet = tet;
+        pc.bary = Eigen::Vector4d::Unit(local);
+        pc.n_W = -Eigen::Vector3d::UnitX();
+        pc.depth_m = depth;
+        pc.stiffness_n_m = 5000;
+        pc.damping_ns_m = 5;
+        pc.friction = 0.5;
+        pc.body = 0;
+        s.contacts.push_back(pc);
+      }
+      ASSERT_EQ(step(model, s, *solver), StepStatus::ok);
+      body.v_W += s.bodies[0].dv_W;
+      body.w_W += s.bodies[0].dw_W;
+      body.p_com_W += c.dt_s * body.v_W;
+    }
+    const Eigen::Vector3d p1 = linear_momentum(model, s) + body_mass * body.v_W;
+    EXPECT_LT((p1 - p0).norm(), 1e-9 * p0.norm()) << "body/hand mass " << body_mass / hand_mass;
+    EXPECT_GT(body.v_W.x(), 0.0) << "the body was pushed";
+    EXPECT_TRUE(s.x.allFinite());
+  }
+}
+
 }  // namespace
 }  // namespace hapticd

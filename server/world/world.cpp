@@ -1,0 +1,267 @@
+#include "server/world/world.hpp"
+
+#include <chrono>
+#include <cmath>
+#include <stdexcept>
+
+namespace hapticd {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double ms_since(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+Eigen::Vector3d geom_position(dGeomID g) {
+  const dReal* p = dGeomGetPosition(g);
+  return {p[0], p[1], p[2]};
+}
+
+Eigen::Matrix3d geom_rotation(dGeomID g) {
+  dQuaternion q;
+  dGeomGetQuaternion(g, q);
+  return Eigen::Quaterniond(q[0], q[1], q[2], q[3]).toRotationMatrix();
+}
+
+int handle_count(HandleSet set) {
+  switch (set) {
+    case HandleSet::palm: return 1;
+    case HandleSet::fingertips: return 6;
+    case HandleSet::phalanges: return 16;
+  }
+  return 1;
+}
+
+}  // namespace
+
+bool point_penetration(dGeomID geom, const Eigen::Vector3d& p, double probe_m, double& depth, Eigen::Vector3d& n) {
+  const int cls = dGeomGetClass(geom);
+  if (cls == dPlaneClass) {
+    dVector4 plane;
+    dGeomPlaneGetParams(geom, plane);
+    n = Eigen::Vector3d(plane[0], plane[1], plane[2]);
+    depth = plane[3] - n.dot(p);
+    return depth > 0;
+  }
+  const Eigen::Matrix3d R = geom_rotation(geom);
+  const Eigen::Vector3d q = R.transpose() * (p - geom_position(geom));  // point in the geom frame
+  Eigen::Vector3d n_local = Eigen::Vector3d::UnitZ();
+  switch (cls) {
+    case dSphereClass: {
+      const double r = dGeomSphereGetRadius(geom), d = q.norm();
+      depth = r - d;
+      n_local = d > 0 ? Eigen::Vector3d(q / d) : Eigen::Vector3d::UnitZ();
+      break;
+    }
+    case dBoxClass: {
+      dVector3 size;
+      dGeomBoxGetLengths(geom, size);
+      depth = INFINITY;
+      for (int k = 0; k < 3; ++k) {
+        const double d = 0.5 * size[k] - std::abs(q[k]);
+        if (d < depth) {
+          depth = d;
+          n_local = (q[k] >= 0 ? 1.0 : -1.0) * Eigen::Vector3d::Unit(k);
+        }
+      }
+      break;
+    }
+    case dCapsuleClass: {
+      dReal r, len;
+      dGeomCapsuleGetParams(geom, &r, &len);
+      const Eigen::Vector3d axis_point(0, 0, std::clamp(q.z(), -0.5 * len, 0.5 * len));
+      const double d = (q - axis_point).norm();
+      depth = r - d;
+      n_local = d > 0 ? Eigen::Vector3d((q - axis_point) / d) : Eigen::Vector3d::UnitX();
+      break;
+    }
+    case dCylinderClass: {
+      dReal r, len;
+      dGeomCylinderGetParams(geom, &r, &len);
+      const double rho = std::hypot(q.x(), q.y());
+      const double side = r - rho, cap = 0.5 * len - std::abs(q.z());
+      depth = std::min(side, cap);
+      if (side < cap) {
+        n_local = rho > 0 ? Eigen::Vector3d(q.x() / rho, q.y() / rho, 0) : Eigen::Vector3d::UnitX();
+      } else {
+        n_local = Eigen::Vector3d(0, 0, q.z() >= 0 ? 1.0 : -1.0);
+      }
+      break;
+    }
+    default: {
+      // Meshes: a small probe sphere at the point, collided by ODE.
+      dGeomID probe = dCreateSphere(nullptr, probe_m);
+      dGeomSetPosition(probe, p.x(), p.y(), p.z());
+      dContactGeom c[4];
+      const int count = dCollide(probe, geom, 4, c, sizeof(dContactGeom));
+      dGeomDestroy(probe);
+      depth = 0;
+      for (int k = 0; k < count; ++k) {
+        if (c[k].depth - probe_m > depth) {
+          depth = c[k].depth - probe_m;
+          // ODE's normal points from the probe into the mesh: the outward normal is its opposite.
+          n = -Eigen::Vector3d(c[k].normal[0], c[k].normal[1], c[k].normal[2]);
+        }
+      }
+      return depth > 0;
+    }
+  }
+  n = R * n_local;
+  return depth > 0;
+}
+
+World::World(const SceneDesc& scene, const WorldOptions& options) : dt_(scene.dt_s), options_(options) {
+  if (scene.needs_deformable_objects())
+    throw std::runtime_error(scene.path + ": deformable objects are not simulated yet (scene loads; world refuses)");
+  bool has_geometry = false;
+  for (const ObjectDesc& o : scene.objects) has_geometry = has_geometry || o.kind != BodyKind::deformable;
+  if (has_geometry) rigid_ = std::make_unique<RigidWorld>(scene);
+  for (const HandDesc& d : scene.hands) {
+    if (d.model != HandModelKind::fem)
+      throw std::runtime_error("hands." + d.name + ": only the fem hand model is built so far");
+    auto h = std::make_unique<WorldHand>();
+    h->name = d.name;
+    ProceduralHandOptions shape_options;
+    shape_options.target_tets = d.resolution_tets;
+    shape_options.left = d.side == HandSide::left;
+    h->shape = make_procedural_hand(shape_options);
+    HandConfig config;
+    config.dt_s = scene.dt_s;
+    config.gravity_m_s2 = scene.gravity_m_s2;
+    config.material.youngs_modulus_pa = d.material.youngs_modulus_pa;
+    config.material.poisson_ratio = d.material.poisson_ratio;
+    config.material.density_kg_m3 = embedding_density(h->shape, d.material.density_kg_m3);
+    config.material.rayleigh_alpha_per_s = d.material.rayleigh_alpha_per_s;
+    config.material.rayleigh_beta_s = d.material.rayleigh_beta_s;
+    config.coupling.stiffness_n_m = d.coupling_stiffness_n_m;
+    config.coupling.damping_ns_m = d.coupling_damping_ns_m;
+    config.handles = procedural_handles(h->shape, handle_count(d.handles));
+    config.drive = options.drive;
+    h->friction = d.material.friction;
+    h->model = std::make_unique<HandModel>(h->shape.mesh, config);
+    h->state = make_rest_state(*h->model);
+    // The hand frame's pose places the rest mesh: handle 0 goes where it sits in that frame.
+    const Eigen::Vector3d p_handle = d.pose.p_W + d.pose.q_W * h->model->handles()[0].p_WH_rest;
+    place_hand(*h->model, h->state, p_handle, d.pose.q_W, 0);
+    h->solver = make_solver(options.solver);
+    hands_.push_back(std::move(h));
+  }
+  contact_points_.resize(hands_.size());
+  publish();
+}
+
+int World::find_hand(const std::string& name) const {
+  for (size_t i = 0; i < hands_.size(); ++i)
+    if (hands_[i]->name == name) return static_cast<int>(i);
+  return -1;
+}
+
+void World::collide(int hi) {
+  WorldHand& h = *hands_[hi];
+  h.state.contacts.clear();
+  h.state.bodies.clear();
+  std::vector<int> body_of_object(rigid_ ? rigid_->num_objects() : 0, -1);
+  contact_points_[hi].clear();
+  if (!rigid_) return;
+  const TetMesh& mesh = h.model->mesh();
+  const double probe = 0.5 * h.shape.spacing;
+  for (int g = 0; g < rigid_->num_objects(); ++g) {
+    dGeomID geom = rigid_->geom(g);
+    dReal aabb[6];
+    const bool bounded = dGeomGetClass(geom) != dPlaneClass;
+    if (bounded) dGeomGetAABB(geom, aabb);
+    for (size_t v = 0; v < h.shape.skin_vertices.size(); ++v) {
+      const Tet& t = mesh.tets[h.shape.skin_tet[v]];
+      const Eigen::Vector4d& w = h.shape.skin_bary[v];
+      Eigen::Vector3d p = Eigen::Vector3d::Zero();
+      for (int k = 0; k < 4; ++k) p += w[k] * h.state.x.segment<3>(3 * t[k]);
+      if (bounded && (p.x() < aabb[0] || p.x() > aabb[1] || p.y() < aabb[2] || p.y() > aabb[3] ||
+                      p.z() < aabb[4] || p.z() > aabb[5]))
+        continue;
+      double depth;
+      Eigen::Vector3d n;
+      if (!point_penetration(geom, p, probe, depth, n)) continue;
+      PointContact c;
+      c.tet = h.shape.skin_tet[v];
+      c.bary = w;
+      c.n_W = n;
+      c.depth_m = depth;
+      c.v_other_W = rigid_->point_velocity(g, p);
+      if (rigid_->is_dynamic(g)) {
+        // Dynamic bodies join this hand's implicit system for the step.
+        if (body_of_object[g] < 0) {
+          body_of_object[g] = static_cast<int>(h.state.bodies.size());
+          h.state.bodies.push_back(rigid_->contact_body(g));
+        }
+        c.body = body_of_object[g];
+      }
+      c.stiffness_n_m = options_.contact_stiffness_n_m;
+      c.damping_ns_m = options_.contact_damping_ns_m;
+      c.friction = std::sqrt(h.friction * rigid_->friction(g));
+      c.other = g;
+      h.state.contacts.push_back(c);
+      contact_points_[hi].push_back(p);
+    }
+  }
+}
+
+void World::step() {
+  const auto t0 = Clock::now();
+  WorldTimings timings;
+  for (int h = 0; h < num_hands(); ++h) collide(h);
+  timings.collide_ms = ms_since(t0);
+  const auto t1 = Clock::now();
+  for (auto& h : hands_) hapticd::step(*h->model, h->state, *h->solver);
+  timings.hands_ms = ms_since(t1);
+  const auto t2 = Clock::now();
+  if (rigid_) {
+    apply_reactions();
+    rigid_->step(dt_);
+  }
+  timings.rigid_ms = ms_since(t2);
+  timings.total_ms = ms_since(t0);
+  ++steps_;
+  publish();
+  snapshot_.timings = timings;
+}
+
+void World::apply_reactions() {
+  // Each body a hand touched was solved implicitly with that hand: the velocity
+  // change it got is the contact impulse, applied to ODE as a wrench over the next
+  // step (ODE then adds gravity and the body's other contacts).
+  for (int h = 0; h < num_hands(); ++h) {
+    const HandState& s = hands_[h]->state;
+    std::vector<int> object_of_body(s.bodies.size(), -1);
+    for (const PointContact& c : s.contacts)
+      if (c.body >= 0) object_of_body[c.body] = c.other;
+    for (size_t b = 0; b < s.bodies.size(); ++b) {
+      const ContactBody& B = s.bodies[b];
+      if (object_of_body[b] < 0) continue;
+      rigid_->add_wrench(object_of_body[b], B.mass_kg * B.dv_W / dt_, B.inertia_W * B.dw_W / dt_);
+    }
+  }
+}
+
+void World::publish() {
+  snapshot_.step = steps_;
+  snapshot_.t_s = static_cast<double>(steps_) * dt_;
+  snapshot_.handles.resize(hands_.size());
+  snapshot_.contacts.clear();
+  snapshot_.max_penetration_m = 0;
+  snapshot_.resets = 0;
+  for (int h = 0; h < num_hands(); ++h) {
+    const HandState& s = hands_[h]->state;
+    snapshot_.handles[h] = s.handles;
+    snapshot_.resets += s.resets;
+    for (size_t k = 0; k < s.contacts.size(); ++k) {
+      const PointContact& c = s.contacts[k];
+      snapshot_.contacts.push_back({h, c.other, contact_points_[h][k], c.n_W, c.f_W, c.depth_m});
+      snapshot_.max_penetration_m = std::max(snapshot_.max_penetration_m, c.depth_m);
+    }
+  }
+  snapshot_.bodies.clear();
+  if (rigid_)
+    for (int i = 0; i < rigid_->num_objects(); ++i) snapshot_.bodies.push_back(rigid_->state(i));
+}
+
+}  // namespace hapticd

@@ -1,0 +1,96 @@
+#pragma once
+// The world of a scene, stepped once per visual frame in named stages:
+// collide (hand skin vs static and rigid geometry), hands (implicit FEM step
+// with the contacts), reactions (contact forces onto ODE bodies), rigid (ODE
+// step), publish (snapshot). Built from a SceneDesc, building only what the
+// scene names. Contact here is the penalty baseline (PointContact);
+// constraint contact and the handle-space linearization build on this loop.
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "hand_models/coupled_solver.hpp"
+#include "hand_models/hand_model.hpp"
+#include "hand_models/press_scenario.hpp"
+#include "hand_models/procedural_hand.hpp"
+#include "server/world/rigid_world.hpp"
+#include "server/world/scene.hpp"
+
+namespace hapticd {
+
+struct WorldOptions {
+  double contact_stiffness_n_m = 1000.0;  // per skin point in contact
+  double contact_damping_ns_m = 1.0;
+  SolverKind solver = SolverKind::schur_lagged;
+  DriveParams drive;  // how each handle is pulled toward its target (zero: the hand is let go)
+};
+
+struct WorldHand {
+  std::string name;
+  ProceduralHand shape;  // mesh, skeleton and the skin used for contact
+  std::unique_ptr<HandModel> model;
+  HandState state;
+  std::unique_ptr<CoupledSolver> solver;
+  double friction = 0.5;
+};
+
+struct ContactRecord {
+  int hand = -1, object = -1;
+  Eigen::Vector3d p_W = Eigen::Vector3d::Zero(), n_W = Eigen::Vector3d::Zero(), f_W = Eigen::Vector3d::Zero();
+  double depth_m = 0;
+};
+
+struct WorldTimings {
+  double collide_ms = 0, hands_ms = 0, rigid_ms = 0, total_ms = 0;
+};
+
+struct WorldSnapshot {
+  long step = 0;
+  double t_s = 0;
+  std::vector<std::vector<HandleState>> handles;  // per hand, per handle
+  std::vector<RigidBodyState> bodies;             // per RigidWorld object
+  std::vector<ContactRecord> contacts;
+  double max_penetration_m = 0;
+  long resets = 0;
+  WorldTimings timings;
+};
+
+class World {
+ public:
+  // Throws std::runtime_error (or std::invalid_argument) naming the scene
+  // element it cannot build.
+  explicit World(const SceneDesc& scene, const WorldOptions& options = {});
+
+  void step();
+
+  int num_hands() const { return static_cast<int>(hands_.size()); }
+  WorldHand& hand(int i) { return *hands_[i]; }
+  const WorldHand& hand(int i) const { return *hands_[i]; }
+  int find_hand(const std::string& name) const;
+  // Null when the scene has no static or rigid object.
+  RigidWorld* rigid() { return rigid_.get(); }
+  const WorldSnapshot& snapshot() const { return snapshot_; }
+  double dt() const { return dt_; }
+
+ private:
+  void collide(int h);
+  void apply_reactions();
+  void publish();
+
+  double dt_;
+  long steps_ = 0;
+  WorldOptions options_;
+  std::vector<std::unique_ptr<WorldHand>> hands_;
+  std::unique_ptr<RigidWorld> rigid_;
+  std::vector<std::vector<Eigen::Vector3d>> contact_points_;  // per hand, per contact: world point
+  WorldSnapshot snapshot_;
+};
+
+// Penetration of point p_W into one geom of the rigid world: depth > 0 and the
+// unit normal out of the geom; false when p_W is outside. Exact for planes,
+// spheres, boxes, capsules and cylinders; meshes use an ODE probe sphere of
+// radius `probe_m`, so points deeper than the probe inside a mesh are missed.
+bool point_penetration(dGeomID geom, const Eigen::Vector3d& p_W, double probe_m, double& depth_m,
+                       Eigen::Vector3d& n_W);
+
+}  // namespace hapticd
