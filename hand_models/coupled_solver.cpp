@@ -82,6 +82,8 @@ class CholmodSchur {
     return v_t.allFinite();
   }
 
+  Eigen::MatrixXd solve_tool(const Eigen::MatrixXd& B) const { return chol_.solve(B); }
+
   // z = P^-1 r with P the factored system: one A_t solve and the small Schur solve.
   void apply(const Eigen::VectorXd& r, Eigen::VectorXd& z) const {
     const int nh = static_cast<int>(S_.rows());
@@ -109,6 +111,33 @@ void multiply(const CoupledSystem& s, const Eigen::VectorXd& v, Eigen::VectorXd&
   y.head(nh).noalias() += s.A_ht * v.tail(nt);
   y.tail(nt).noalias() = s.A_t * v.tail(nt);
   y.tail(nt).noalias() += s.A_th * v.head(nh);
+}
+
+// Preconditioned CG on A_t, column by column; `precondition` applies P^-1.
+template <class Precondition>
+bool pcg_columns(const Eigen::SparseMatrix<double>& A, const Eigen::MatrixXd& B, Eigen::MatrixXd& X,
+                 Precondition precondition) {
+  constexpr double kTolerance = 1e-13;
+  X.resize(B.rows(), B.cols());
+  for (int c = 0; c < B.cols(); ++c) {
+    const Eigen::VectorXd b = B.col(c);
+    const double b_norm = b.norm();
+    Eigen::VectorXd x = Eigen::VectorXd::Zero(b.size()), r = b, z = precondition(r), p = z;
+    double rz = r.dot(z);
+    for (int it = 0; it < 4 * b.size() && r.norm() > kTolerance * b_norm; ++it) {
+      const Eigen::VectorXd Ap = A * p;
+      const double alpha = rz / p.dot(Ap);
+      x += alpha * p;
+      r -= alpha * Ap;
+      z = precondition(r);
+      const double rz_next = r.dot(z);
+      p = z + (rz_next / rz) * p;
+      rz = rz_next;
+    }
+    if (!(r.norm() <= kTolerance * b_norm) && b_norm > 0) return false;
+    X.col(c) = x;
+  }
+  return X.allFinite();
 }
 
 class MonolithicSolver final : public CoupledSolver {
@@ -198,8 +227,16 @@ class SchurCholmodSolver final : public CoupledSolver {
   explicit SchurCholmodSolver(const SolverOptions& o) : schur_(o) {}
   SolverKind kind() const override { return SolverKind::schur_cholmod; }
 
+  // Its factorization preconditions CG on the given A_t: one iteration when it
+  // is that system's, a few when the system has moved on.
+  bool solve_tool(const CoupledSystem& s, const Eigen::MatrixXd& B, Eigen::MatrixXd& X) override {
+    if (!factored_) return CoupledSolver::solve_tool(s, B, X);
+    return pcg_columns(s.A_t, B, X, [&](const Eigen::VectorXd& r) -> Eigen::VectorXd { return schur_.solve_tool(r); });
+  }
+
   bool solve(const CoupledSystem& s, Eigen::VectorXd& v_h, Eigen::VectorXd& v_t, SolveReport& report) override {
-    if (!schur_.factor(s, report)) return false;
+    factored_ = schur_.factor(s, report);
+    if (!factored_) return false;
     const auto t0 = Clock::now();
     const bool ok = schur_.solve_factored(s, v_h, v_t);
     report.solve_ms = ms_since(t0);
@@ -208,6 +245,7 @@ class SchurCholmodSolver final : public CoupledSolver {
 
  private:
   CholmodSchur schur_;
+  bool factored_ = false;
 };
 
 // GMRES on the whole of eq. 7, right-preconditioned by the exact Schur solve of
@@ -219,6 +257,12 @@ class SchurLaggedSolver final : public CoupledSolver {
  public:
   explicit SchurLaggedSolver(const SolverOptions& o) : options_(o), schur_(o) {}
   SolverKind kind() const override { return SolverKind::schur_lagged; }
+
+  // The factorization (current or lagged) preconditions CG on the current A_t.
+  bool solve_tool(const CoupledSystem& s, const Eigen::MatrixXd& B, Eigen::MatrixXd& X) override {
+    if (factored_size_ < 0) return CoupledSolver::solve_tool(s, B, X);
+    return pcg_columns(s.A_t, B, X, [&](const Eigen::VectorXd& r) -> Eigen::VectorXd { return schur_.solve_tool(r); });
+  }
 
   bool solve(const CoupledSystem& s, Eigen::VectorXd& v_h, Eigen::VectorXd& v_t, SolveReport& report) override {
     const int nh = s.handle_dofs(), nt = s.tool_dofs();
@@ -336,6 +380,11 @@ class SchurLaggedSolver final : public CoupledSolver {
 };
 
 }  // namespace
+
+bool CoupledSolver::solve_tool(const CoupledSystem& s, const Eigen::MatrixXd& B, Eigen::MatrixXd& X) {
+  const Eigen::VectorXd inv_diag = s.A_t.diagonal().cwiseInverse();
+  return pcg_columns(s.A_t, B, X, [&](const Eigen::VectorXd& r) -> Eigen::VectorXd { return inv_diag.cwiseProduct(r); });
+}
 
 std::unique_ptr<CoupledSolver> make_solver(SolverKind kind, const SolverOptions& options) {
   switch (kind) {

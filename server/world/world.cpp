@@ -147,6 +147,8 @@ World::World(const SceneDesc& scene, const WorldOptions& options) : dt_(scene.dt
     hands_.push_back(std::move(h));
   }
   contact_points_.resize(hands_.size());
+  for (int h = 0; h < num_hands(); ++h) collide(h);
+  linearize();
   publish();
 }
 
@@ -206,23 +208,38 @@ void World::collide(int hi) {
 }
 
 void World::step() {
+  // Contacts were detected at the end of the previous step (for its linearization).
   const auto t0 = Clock::now();
   WorldTimings timings;
-  for (int h = 0; h < num_hands(); ++h) collide(h);
-  timings.collide_ms = ms_since(t0);
-  const auto t1 = Clock::now();
   for (auto& h : hands_) hapticd::step(*h->model, h->state, *h->solver);
-  timings.hands_ms = ms_since(t1);
-  const auto t2 = Clock::now();
+  timings.hands_ms = ms_since(t0);
+  const auto t1 = Clock::now();
   if (rigid_) {
     apply_reactions();
     rigid_->step(dt_);
   }
-  timings.rigid_ms = ms_since(t2);
+  timings.rigid_ms = ms_since(t1);
+  const auto t2 = Clock::now();
+  for (int h = 0; h < num_hands(); ++h) collide(h);
+  timings.collide_ms = ms_since(t2);
+  const auto t3 = Clock::now();
+  linearize();
+  timings.linearize_ms = ms_since(t3);
   timings.total_ms = ms_since(t0);
   ++steps_;
   publish();
   snapshot_.timings = timings;
+}
+
+void World::linearize() {
+  snapshot_.linear_models.resize(hands_.size());
+  snapshot_.linear_model_valid.assign(hands_.size(), false);
+  for (int h = 0; h < num_hands(); ++h) {
+    WorldHand& hand = *hands_[h];
+    assemble(*hand.model, hand.state);  // the system of the next step, at the new state and contacts
+    snapshot_.linear_model_valid[h] =
+        linearize_handles(*hand.model, hand.state, *hand.solver, snapshot_.linear_models[h]);
+  }
 }
 
 void World::apply_reactions() {

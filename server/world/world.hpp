@@ -2,14 +2,16 @@
 // The world of a scene, stepped once per visual frame in named stages:
 // collide (hand skin vs static and rigid geometry), hands (implicit FEM step
 // with the contacts), reactions (contact forces onto ODE bodies), rigid (ODE
-// step), publish (snapshot). Built from a SceneDesc, building only what the
-// scene names. Contact here is the penalty baseline (PointContact);
-// constraint contact and the handle-space linearization build on this loop.
+// step), linearize (the next step's system and each hand's handle-space force
+// model), publish (snapshot). Built from a SceneDesc, building only what the
+// scene names. Contact here is the penalty baseline (PointContact); rigid bodies
+// a hand touches are solved implicitly with it. Constraint contact builds on this.
 #include <memory>
 #include <string>
 #include <vector>
 
 #include "hand_models/coupled_solver.hpp"
+#include "hand_models/handle_linearization.hpp"
 #include "hand_models/hand_model.hpp"
 #include "hand_models/press_scenario.hpp"
 #include "hand_models/procedural_hand.hpp"
@@ -41,13 +43,17 @@ struct ContactRecord {
 };
 
 struct WorldTimings {
-  double collide_ms = 0, hands_ms = 0, rigid_ms = 0, total_ms = 0;
+  double collide_ms = 0, hands_ms = 0, rigid_ms = 0, linearize_ms = 0, total_ms = 0;
 };
 
 struct WorldSnapshot {
   long step = 0;
   double t_s = 0;
   std::vector<std::vector<HandleState>> handles;  // per hand, per handle
+  // Per hand: the time-implicit model of the coupling wrench on its handles over
+  // the next visual step, F*(x, v) = F0 + K (x - x0) + D (v - v0) (all handles at once).
+  std::vector<HandleLinearization> linear_models;
+  std::vector<bool> linear_model_valid;
   std::vector<RigidBodyState> bodies;             // per RigidWorld object
   std::vector<ContactRecord> contacts;
   double max_penetration_m = 0;
@@ -74,6 +80,7 @@ class World {
 
  private:
   void collide(int h);
+  void linearize();
   void apply_reactions();
   void publish();
 

@@ -80,6 +80,13 @@ TEST(World, HandPushesARigidBoxAcrossTheFloor) {
     set_target(hand.state, 0, t);
     world.step();
     for (const ContactRecord& c : world.snapshot().contacts) box_touched = box_touched || c.object == box;
+    // Every step publishes the handle-space model of the next one, bodies in contact included.
+    ASSERT_TRUE(world.snapshot().linear_model_valid[0]) << "step " << k;
+    const HandleLinearization& lin = world.snapshot().linear_models[0];
+    ASSERT_EQ(lin.K.rows(), 6);
+    ASSERT_TRUE(lin.K.allFinite() && lin.D.allFinite() && lin.F0.allFinite());
+    // A restoring stiffness: pulling the handle along any axis is resisted.
+    for (int i = 0; i < 3; ++i) ASSERT_LT(lin.K(i, i), 0.0) << "step " << k;
   }
   const Eigen::Vector3d moved = rigid.state(box).p_WO - box0;
   std::printf("box moved by (%.4f, %.4f, %.4f) m\n", moved.x(), moved.y(), moved.z());

@@ -1,0 +1,96 @@
+#include "hand_models/handle_linearization.hpp"
+
+#include <Eigen/Dense>
+
+namespace hapticd {
+
+Eigen::VectorXd coupling_wrench(const HandModel& model, const Eigen::VectorXd& x_t, const Eigen::VectorXd& v_t,
+                                const std::vector<HandleState>& handles) {
+  const int m = model.num_handles();
+  const CouplingParams& cp = model.config().coupling;
+  Eigen::VectorXd W = Eigen::VectorXd::Zero(6 * m);
+  for (int j = 0; j < m; ++j) {
+    const RigidHandle& H = model.handles()[j];
+    for (size_t si = 0; si < H.nodes.size(); ++si) {
+      const int a = H.nodes[si];
+      W.segment<6>(6 * j) +=
+          coupling_spring(x_t.segment<3>(3 * a), v_t.segment<3>(3 * a), handles[j], H.r_B[si], cp.stiffness_n_m,
+                          cp.damping_ns_m)
+              .W_B;
+    }
+  }
+  return W;
+}
+
+Eigen::VectorXd HandleLinearization::evaluate(const std::vector<HandleState>& handles) const {
+  const int m = static_cast<int>(x0.size());
+  Eigen::VectorXd dx(6 * m), dv(6 * m);
+  for (int j = 0; j < m; ++j) {
+    dx.segment<3>(6 * j) = handles[j].p_WH - x0[j].p_WH;
+    dx.segment<3>(6 * j + 3) = rotation_difference(handles[j].q_WH, x0[j].q_WH);
+    dv.segment<3>(6 * j) = handles[j].v_WH - x0[j].v_WH;
+    dv.segment<3>(6 * j + 3) = handles[j].w_WH - x0[j].w_WH;
+  }
+  return F0 + K * dx + D * dv;
+}
+
+bool linearize_handles(const HandModel& model, const HandState& s, CoupledSolver& solver, HandleLinearization& out) {
+  const CoupledSystem& sys = s.system;
+  const int m = model.num_handles(), nh = 6 * m, nt = sys.tool_dofs();
+  const int nb = (sys.handle_dofs() - nh) / 6;  // rigid bodies solved with the hand
+  const double h = model.config().dt_s;
+  const CouplingParams& cp = model.config().coupling;
+
+  // The coupling Jacobians split into their K and D parts (eq. 11), which the
+  // assembled system only holds combined as -h D - h^2 K.
+  Eigen::MatrixXd K_hh = Eigen::MatrixXd::Zero(nh, nh), D_hh = K_hh;
+  Eigen::MatrixXd K_th = Eigen::MatrixXd::Zero(nt, nh), D_th = K_th;
+  Eigen::MatrixXd KD_ht = Eigen::MatrixXd::Zero(nh, nt);  // h K_ht + D_ht
+  Eigen::VectorXd W_el = Eigen::VectorXd::Zero(nh);
+  for (int j = 0; j < m; ++j) {
+    const RigidHandle& H = model.handles()[j];
+    const HandleState& hs = s.handles[j];
+    for (size_t si = 0; si < H.nodes.size(); ++si) {
+      const int a = H.nodes[si];
+      const SpringTerms sp = coupling_spring(s.x.segment<3>(3 * a), s.v.segment<3>(3 * a), hs, H.r_B[si],
+                                             cp.stiffness_n_m, cp.damping_ns_m);
+      K_hh.block<6, 6>(6 * j, 6 * j) += sp.dWB_dxh;
+      D_hh.block<6, 6>(6 * j, 6 * j) += sp.dWB_dvh;
+      K_th.block<3, 6>(3 * a, 6 * j) += sp.dFA_dxh;
+      D_th.block<3, 6>(3 * a, 6 * j) += sp.dFA_dvh;
+      KD_ht.block<6, 3>(6 * j, 3 * a) += h * sp.dWB_dxA + sp.dWB_dvA;
+      // Elastic part: the wrench with the damping of the current velocities removed (linear in v).
+      Vector6d v_h;
+      v_h << hs.v_WH, hs.w_WH;
+      W_el.segment<6>(6 * j) += sp.W_B - sp.dWB_dvA * s.v.segment<3>(3 * a) - sp.dWB_dvh * v_h;
+    }
+  }
+  // Solves with everything but the handles: the tool and the implicit bodies
+  // (block elimination of the bodies through the tool's A_t^-1).
+  Eigen::MatrixXd rhs(nt, 1 + 2 * nh + 6 * nb);
+  rhs << sys.b_t, h * K_th, h * D_th, Eigen::MatrixXd(sys.A_th.rightCols(6 * nb));
+  Eigen::MatrixXd Y;
+  if (!solver.solve_tool(sys, rhs, Y)) return false;
+  if (nb > 0) {
+    // The bodies' own RHS for b_t's column; zero for the handle columns.
+    const Eigen::MatrixXd A_bt = Eigen::MatrixXd(sys.A_ht.bottomRows(6 * nb));
+    const Eigen::MatrixXd Y_b = Y.rightCols(6 * nb);
+    const Eigen::MatrixXd S_b = sys.A_h.bottomRightCorner(6 * nb, 6 * nb) - A_bt * Y_b;
+    Eigen::MatrixXd R_b = -A_bt * Y.leftCols(1 + 2 * nh);
+    R_b.col(0) += sys.b_h.tail(6 * nb);
+    const Eigen::MatrixXd X_b = S_b.partialPivLu().solve(R_b);
+    Y.leftCols(1 + 2 * nh) -= Y_b * X_b;
+  }
+  const Eigen::VectorXd y0 = Y.col(0);
+  const Eigen::MatrixXd Y_K = Y.middleCols(1, nh), Y_D = Y.middleCols(1 + nh, nh);
+  out.K = K_hh + KD_ht * Y_K;
+  out.D = D_hh + KD_ht * Y_D;
+  out.x0 = s.handles;
+  Eigen::VectorXd v0(nh);
+  for (int j = 0; j < m; ++j) v0.segment<6>(6 * j) << s.handles[j].v_WH, s.handles[j].w_WH;
+  // F0 = W_el + D_hh v0 + (h K_ht + D_ht) v_t(dx = 0, v = v0).
+  out.F0 = W_el + D_hh * v0 + KD_ht * (y0 + Y_D * v0);
+  return out.F0.allFinite() && out.K.allFinite() && out.D.allFinite();
+}
+
+}  // namespace hapticd

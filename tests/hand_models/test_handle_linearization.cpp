@@ -1,0 +1,128 @@
+// The handle-space linearized coupling force against a re-simulation of the step
+// with the handles prescribed at displaced poses: the error must be O(|dx|^2).
+#include <gtest/gtest.h>
+
+#include <cstdio>
+
+#include "hand_models/handle_linearization.hpp"
+#include "hand_test_util.hpp"
+
+namespace hapticd {
+namespace {
+
+using testing_util::offset_target;
+using testing_util::slab_hand;
+
+// The step from `s` (assembled) with every handle prescribed to end at `end`:
+// the flesh's implicit step with its contacts held, then the exact coupling wrench.
+Eigen::VectorXd resimulated_wrench(const HandModel& model, const HandState& s, CoupledSolver& solver,
+                                   const std::vector<HandleState>& end) {
+  const double h = model.config().dt_s;
+  const double k = model.config().coupling.stiffness_n_m, d = model.config().coupling.damping_ns_m;
+  Eigen::VectorXd rhs = s.system.b_t;  // holds the springs' pull at the current handle poses
+  for (int j = 0; j < model.num_handles(); ++j) {
+    const RigidHandle& H = model.handles()[j];
+    for (size_t si = 0; si < H.nodes.size(); ++si) {
+      const Eigen::Vector3d rho0 = s.handles[j].q_WH * H.r_B[si], rho = end[j].q_WH * H.r_B[si];
+      const Eigen::Vector3d x_B0 = s.handles[j].p_WH + rho0, x_B = end[j].p_WH + rho;
+      const Eigen::Vector3d v_B = end[j].v_WH + end[j].w_WH.cross(rho);
+      rhs.segment<3>(3 * H.nodes[si]) += h * (k * (x_B - x_B0) + d * v_B);
+    }
+  }
+  Eigen::MatrixXd v_t;
+  EXPECT_TRUE(solver.solve_tool(s.system, rhs, v_t));
+  return coupling_wrench(model, s.x + h * v_t, v_t, end);
+}
+
+void expect_quadratic_error(int handles, bool floor) {
+  HandConfig c;
+  c.floor.enabled = floor;
+  c.floor.height_m = 0.002;
+  c.floor.friction = 0.3;
+  const HandModel model = slab_hand(handles, c);
+  HandState s = make_rest_state(model);
+  auto solver = make_solver(SolverKind::schur_cholmod);
+  for (int k = 0; k < 20; ++k) {  // press, drag and twist, so springs, flesh and contacts are loaded
+    for (int j = 0; j < handles; ++j)
+      set_target(s, j, offset_target(model, j, Eigen::Vector3d(0.001 * k, 0.0005 * j * k, -0.0004 * k), 0.02 * k));
+    ASSERT_EQ(step(model, s, *solver), StepStatus::ok);
+  }
+  if (floor) {
+    ASSERT_GT(s.floor_contacts, 0);
+  }
+  assemble(model, s);
+  Eigen::VectorXd v_h, v_t;
+  SolveReport report;
+  ASSERT_TRUE(solver->solve(s.system, v_h, v_t, report));  // factor the system linearized
+  HandleLinearization lin;
+  ASSERT_TRUE(linearize_handles(model, s, *solver, lin));
+  const int m = model.num_handles();
+  // A displacement of every handle: translation, rotation and velocity change together.
+  Eigen::VectorXd dir(12 * m);
+  for (int i = 0; i < 12 * m; ++i) dir[i] = std::sin(1.7 * i + 0.3);
+  auto displaced = [&](double eps) {
+    std::vector<HandleState> end = s.handles;
+    for (int j = 0; j < m; ++j) {
+      end[j].p_WH += eps * 0.01 * dir.segment<3>(12 * j);
+      end[j].q_WH = rotate_by(end[j].q_WH, eps * 0.2 * dir.segment<3>(12 * j + 3));
+      end[j].v_WH += eps * 0.1 * dir.segment<3>(12 * j + 6);
+      end[j].w_WH += eps * 2.0 * dir.segment<3>(12 * j + 9);
+    }
+    return end;
+  };
+  const Eigen::VectorXd at_zero = resimulated_wrench(model, s, *solver, s.handles);
+  EXPECT_LT((lin.F0 - at_zero).norm(), 1e-9 * (1 + at_zero.norm()));  // exact at the linearization point
+  double previous = 0;
+  for (double eps : {0.5, 0.25, 0.125}) {
+    const std::vector<HandleState> end = displaced(eps);
+    const Eigen::VectorXd exact = resimulated_wrench(model, s, *solver, end);
+    const double err = (lin.evaluate(end) - exact).norm();
+    std::printf("handles %d floor %d eps %.3f: error %.3e, change %.3e\n", m, floor, eps, err, (exact - at_zero).norm());
+    const double change = (exact - at_zero).norm();
+    EXPECT_LT(err, 0.1 * change) << "eps " << eps;  // the linear term dominates
+    if (previous > 0) {
+      EXPECT_NEAR(previous / err, 4.0, 0.8) << "eps " << eps;  // O(|dx|^2)
+    }
+    previous = err;
+  }
+}
+
+TEST(HandleLinearization, MatchesResimulationToSecondOrderWithoutContacts) { expect_quadratic_error(1, false); }
+TEST(HandleLinearization, MatchesResimulationToSecondOrderWithFloorContacts) { expect_quadratic_error(1, true); }
+TEST(HandleLinearization, CouplesSeveralHandlesThroughTheFleshToSecondOrder) { expect_quadratic_error(2, true); }
+
+TEST(HandleLinearization, EqualsTheSchurComplementOfTheCouplingOverOneStep) {
+  // Moving every handle at v for one step: d F / d v_h = h K + D = -S_c / h, with
+  // S_c = A_h^c - A_ht A_t^-1 A_th and A_h^c the coupling part of A_h.
+  HandConfig c;
+  c.drive = DriveParams{0, 0, 0, 0};
+  const HandModel model = slab_hand(2, c);
+  HandState s = make_rest_state(model);
+  s.handles[0].w_WH = Eigen::Vector3d(1, -2, 0.5);
+  s.handles[1].p_WH.z() += 0.003;
+  auto solver = make_solver(SolverKind::schur_cholmod);
+  assemble(model, s);
+  Eigen::VectorXd v_h, v_t;
+  SolveReport report;
+  ASSERT_TRUE(solver->solve(s.system, v_h, v_t, report));
+  HandleLinearization lin;
+  ASSERT_TRUE(linearize_handles(model, s, *solver, lin));
+  const double h = c.dt_s;
+  Eigen::MatrixXd A_hc = s.system.A_h;
+  for (int j = 0; j < 2; ++j) {
+    const Eigen::Matrix3d R = s.handles[j].q_WH.toRotationMatrix();
+    A_hc.block<3, 3>(6 * j, 6 * j) -= model.handles()[j].mass_kg * Eigen::Matrix3d::Identity();
+    A_hc.block<3, 3>(6 * j + 3, 6 * j + 3) -= R * model.handles()[j].inertia_B * R.transpose();
+  }
+  Eigen::MatrixXd Y;
+  ASSERT_TRUE(solver->solve_tool(s.system, Eigen::MatrixXd(s.system.A_th), Y));
+  const Eigen::MatrixXd S_c = A_hc - s.system.A_ht * Y;
+  const Eigen::MatrixXd expected = -S_c / h;
+  EXPECT_LT((h * lin.K + lin.D - expected).norm(), 1e-9 * expected.norm());
+  // The flesh couples the two handles: off-diagonal blocks are not zero.
+  const double coupled = lin.K.topRightCorner(6, 6).norm(), own = lin.K.topLeftCorner(6, 6).norm();
+  EXPECT_GT(coupled, 1e-3 * own);
+}
+
+}  // namespace
+}  // namespace hapticd
