@@ -4,11 +4,13 @@
 #include <exception>
 
 #include "hand_bench.hpp"
+#include "world_bench.hpp"
 
 int main(int argc, char** argv) {
   CLI::App app{"haptic-bench: hapticd benchmarks; every figure printed with its machine and baseline"};
   app.require_subcommand(1);
   hapticd::bench::add_hand_suite(app);
+  hapticd::bench::add_world_suite(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

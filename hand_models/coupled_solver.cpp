@@ -113,31 +113,36 @@ void multiply(const CoupledSystem& s, const Eigen::VectorXd& v, Eigen::VectorXd&
   y.tail(nt).noalias() += s.A_th * v.head(nh);
 }
 
-// Preconditioned CG on A_t, column by column; `precondition` applies P^-1.
+// Preconditioned CG on A_t for all columns of B at once (each column its own
+// CG; the preconditioner and the product run on the whole block, so a
+// factorization's triangular solves are block solves). `precondition` maps a
+// block R to P^-1 R.
 template <class Precondition>
 bool pcg_columns(const Eigen::SparseMatrix<double>& A, const Eigen::MatrixXd& B, Eigen::MatrixXd& X,
                  Precondition precondition) {
-  constexpr double kTolerance = 1e-13;
-  X.resize(B.rows(), B.cols());
-  for (int c = 0; c < B.cols(); ++c) {
-    const Eigen::VectorXd b = B.col(c);
-    const double b_norm = b.norm();
-    Eigen::VectorXd x = Eigen::VectorXd::Zero(b.size()), r = b, z = precondition(r), p = z;
-    double rz = r.dot(z);
-    for (int it = 0; it < 4 * b.size() && r.norm() > kTolerance * b_norm; ++it) {
-      const Eigen::VectorXd Ap = A * p;
-      const double alpha = rz / p.dot(Ap);
-      x += alpha * p;
-      r -= alpha * Ap;
-      z = precondition(r);
-      const double rz_next = r.dot(z);
-      p = z + (rz_next / rz) * p;
-      rz = rz_next;
+  constexpr double kTolerance = 1e-10;  // ample for a force model; 1e-13 can sit below rounding
+  const Eigen::Index n = B.rows(), c = B.cols();
+  const Eigen::RowVectorXd b_norm = B.colwise().norm();
+  X = Eigen::MatrixXd::Zero(n, c);
+  Eigen::MatrixXd R = B, Z = precondition(R), P = Z, AP(n, c);
+  Eigen::RowVectorXd rz = (R.cwiseProduct(Z)).colwise().sum();
+  for (int it = 0; it < 4 * n; ++it) {
+    const Eigen::RowVectorXd r_norm = R.colwise().norm();
+    if (((r_norm.array() <= kTolerance * b_norm.array()) || (b_norm.array() == 0)).all()) return X.allFinite();
+    AP.noalias() = A * P;
+    const Eigen::RowVectorXd pAp = (P.cwiseProduct(AP)).colwise().sum();
+    for (Eigen::Index j = 0; j < c; ++j) {
+      if (r_norm[j] <= kTolerance * b_norm[j] || pAp[j] == 0) continue;  // this column has converged
+      const double alpha = rz[j] / pAp[j];
+      X.col(j) += alpha * P.col(j);
+      R.col(j) -= alpha * AP.col(j);
     }
-    if (!(r.norm() <= kTolerance * b_norm) && b_norm > 0) return false;
-    X.col(c) = x;
+    Z = precondition(R);
+    const Eigen::RowVectorXd rz_next = (R.cwiseProduct(Z)).colwise().sum();
+    for (Eigen::Index j = 0; j < c; ++j) P.col(j) = Z.col(j) + (rz[j] != 0 ? rz_next[j] / rz[j] : 0.0) * P.col(j);
+    rz = rz_next;
   }
-  return X.allFinite();
+  return false;
 }
 
 class MonolithicSolver final : public CoupledSolver {
@@ -231,7 +236,7 @@ class SchurCholmodSolver final : public CoupledSolver {
   // is that system's, a few when the system has moved on.
   bool solve_tool(const CoupledSystem& s, const Eigen::MatrixXd& B, Eigen::MatrixXd& X) override {
     if (!factored_) return CoupledSolver::solve_tool(s, B, X);
-    return pcg_columns(s.A_t, B, X, [&](const Eigen::VectorXd& r) -> Eigen::VectorXd { return schur_.solve_tool(r); });
+    return pcg_columns(s.A_t, B, X, [&](const Eigen::MatrixXd& r) -> Eigen::MatrixXd { return schur_.solve_tool(r); });
   }
 
   bool solve(const CoupledSystem& s, Eigen::VectorXd& v_h, Eigen::VectorXd& v_t, SolveReport& report) override {
@@ -261,7 +266,7 @@ class SchurLaggedSolver final : public CoupledSolver {
   // The factorization (current or lagged) preconditions CG on the current A_t.
   bool solve_tool(const CoupledSystem& s, const Eigen::MatrixXd& B, Eigen::MatrixXd& X) override {
     if (factored_size_ < 0) return CoupledSolver::solve_tool(s, B, X);
-    return pcg_columns(s.A_t, B, X, [&](const Eigen::VectorXd& r) -> Eigen::VectorXd { return schur_.solve_tool(r); });
+    return pcg_columns(s.A_t, B, X, [&](const Eigen::MatrixXd& r) -> Eigen::MatrixXd { return schur_.solve_tool(r); });
   }
 
   bool solve(const CoupledSystem& s, Eigen::VectorXd& v_h, Eigen::VectorXd& v_t, SolveReport& report) override {
@@ -383,7 +388,8 @@ class SchurLaggedSolver final : public CoupledSolver {
 
 bool CoupledSolver::solve_tool(const CoupledSystem& s, const Eigen::MatrixXd& B, Eigen::MatrixXd& X) {
   const Eigen::VectorXd inv_diag = s.A_t.diagonal().cwiseInverse();
-  return pcg_columns(s.A_t, B, X, [&](const Eigen::VectorXd& r) -> Eigen::VectorXd { return inv_diag.cwiseProduct(r); });
+  return pcg_columns(s.A_t, B, X,
+                     [&](const Eigen::MatrixXd& r) -> Eigen::MatrixXd { return inv_diag.asDiagonal() * r; });
 }
 
 std::unique_ptr<CoupledSolver> make_solver(SolverKind kind, const SolverOptions& options) {

@@ -47,7 +47,7 @@ class CoupledSolver {
   virtual bool solve(const CoupledSystem& system, Eigen::VectorXd& v_h, Eigen::VectorXd& v_t,
                      SolveReport& report) = 0;
   // X = A_t^-1 B (the handle-space linearization needs it): CG to a relative
-  // residual of 1e-13 per column, preconditioned by the solver's factorization
+  // residual of 1e-10 per column, preconditioned by the solver's factorization
   // where it has one (one iteration when it is this system's), else by Jacobi.
   virtual bool solve_tool(const CoupledSystem& system, const Eigen::MatrixXd& B, Eigen::MatrixXd& X);
 };

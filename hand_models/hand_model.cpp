@@ -6,6 +6,7 @@
 #include <stdexcept>
 
 #include "hand_models/coupled_solver.hpp"
+#include "hand_models/handle_linearization.hpp"
 
 namespace hapticd {
 namespace {
@@ -421,7 +422,7 @@ bool within_bounds(const HandState& s, double max_speed) {
 
 }  // namespace
 
-StepStatus step(const HandModel& model, HandState& s, CoupledSolver& solver) {
+StepStatus step(const HandModel& model, HandState& s, CoupledSolver& solver, HandleLinearization* linearization) {
   const auto t0 = Clock::now();
   assemble(model, s);
   s.timings = StepTimings{};
@@ -440,6 +441,12 @@ StepStatus step(const HandModel& model, HandState& s, CoupledSolver& solver) {
     status = StepStatus::reset_diverged;
   }
   for (ContactBody& b : s.bodies) b.dv_W.setZero(), b.dw_W.setZero();
+  bool linearized = false;
+  if (linearization && status == StepStatus::ok) {
+    const auto t_lin = Clock::now();
+    linearized = linearize_handles(model, s, solver, *linearization);
+    s.timings.linearize_ms = ms_since(t_lin);
+  }
   if (status != StepStatus::ok) {
     reset_to_target(model, s);
   } else {
@@ -464,8 +471,14 @@ StepStatus step(const HandModel& model, HandState& s, CoupledSolver& solver) {
       reset_to_target(model, s);
     } else {
       record_contact_forces(model, s);
+      if (linearized) {
+        // The model is linear: anchoring it at the end-of-step state is exact.
+        linearization->F0 = linearization->evaluate(s.handles);
+        linearization->x0 = s.handles;
+      }
     }
   }
+  if (linearization && (!linearized || status != StepStatus::ok)) *linearization = HandleLinearization{};
   s.timings.integrate_ms = ms_since(t1);
   s.timings.total_ms = ms_since(t0);
   return status;

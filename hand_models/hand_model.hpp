@@ -14,6 +14,7 @@
 namespace hapticd {
 
 class CoupledSolver;
+struct HandleLinearization;
 
 // Zero-rest-length spring per coupled node (seed 004 eq. 4).
 struct CouplingParams {
@@ -139,7 +140,7 @@ struct HandleTarget {
 
 // Per-stage wall time of the last step, ms, and the solver's iteration count.
 struct StepTimings {
-  double assembly_ms = 0, factor_ms = 0, schur_ms = 0, solve_ms = 0, integrate_ms = 0, total_ms = 0;
+  double assembly_ms = 0, factor_ms = 0, schur_ms = 0, solve_ms = 0, linearize_ms = 0, integrate_ms = 0, total_ms = 0;
   long iterations = 0;
 };
 
@@ -184,10 +185,14 @@ void assemble(const HandModel& model, HandState& state);
 
 enum class StepStatus { ok, reset_solver_failed, reset_diverged };
 
-// One implicit Euler step: assemble, solve (with `solver`), integrate, check.
+// One implicit Euler step: assemble, solve (with `solver`), linearize (when
+// `linearization` is given: the handle-space force model of this step's system,
+// computed while its factorization is current, re-anchored at the handles'
+// end-of-step state; cleared to zero size if it fails), integrate, check.
 // A failed solve or a diverging/non-finite result resets the hand to rest at its
 // first handle's target (state.resets counts it) instead of propagating.
-StepStatus step(const HandModel& model, HandState& state, CoupledSolver& solver);
+StepStatus step(const HandModel& model, HandState& state, CoupledSolver& solver,
+                HandleLinearization* linearization = nullptr);
 
 // Total mechanical energy (kinetic + elastic + coupling + drive + floor + gravity), J.
 double total_energy(const HandModel& model, const HandState& state);

@@ -27,9 +27,9 @@ struct HandleLinearization {
   Eigen::VectorXd evaluate(const std::vector<HandleState>& handles) const;
 };
 
-// Builds the model from the system of the next step: call after assemble(model,
-// state) (step() leaves the system of the step it took: assemble again first).
-// `solver` provides A_t^-1 (its factorization when current). False if a solve fails.
+// Builds the model of the step whose system `state` holds (assembled at the
+// state's current positions); step() calls it right after its solve, while the
+// solver's factorization is current. `solver` provides A_t^-1. False if a solve fails.
 bool linearize_handles(const HandModel& model, const HandState& state, CoupledSolver& solver,
                        HandleLinearization& out);
 

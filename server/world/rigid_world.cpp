@@ -44,7 +44,80 @@ void set_mass(dMass& m, const ShapeDesc& s, double mass_kg, double density, dGeo
   }
 }
 
+Eigen::Vector3d geom_position(dGeomID g) {
+  const dReal* p = dGeomGetPosition(g);
+  return {p[0], p[1], p[2]};
+}
+
+Eigen::Matrix3d geom_rotation(dGeomID g) {
+  dQuaternion q;
+  dGeomGetQuaternion(g, q);
+  return Eigen::Quaterniond(q[0], q[1], q[2], q[3]).toRotationMatrix();
+}
+
 }  // namespace
+
+bool point_penetration(dGeomID geom, const Eigen::Vector3d& p, double& depth, Eigen::Vector3d& n) {
+  const int cls = dGeomGetClass(geom);
+  if (cls == dPlaneClass) {
+    dVector4 plane;
+    dGeomPlaneGetParams(geom, plane);
+    n = Eigen::Vector3d(plane[0], plane[1], plane[2]);
+    depth = plane[3] - n.dot(p);
+    return depth > 0;
+  }
+  const Eigen::Matrix3d R = geom_rotation(geom);
+  const Eigen::Vector3d q = R.transpose() * (p - geom_position(geom));  // point in the geom frame
+  Eigen::Vector3d n_local = Eigen::Vector3d::UnitZ();
+  switch (cls) {
+    case dSphereClass: {
+      const double r = dGeomSphereGetRadius(geom), d = q.norm();
+      depth = r - d;
+      n_local = d > 0 ? Eigen::Vector3d(q / d) : Eigen::Vector3d::UnitZ();
+      break;
+    }
+    case dBoxClass: {
+      dVector3 size;
+      dGeomBoxGetLengths(geom, size);
+      depth = INFINITY;
+      for (int k = 0; k < 3; ++k) {
+        const double d = 0.5 * size[k] - std::abs(q[k]);
+        if (d < depth) {
+          depth = d;
+          n_local = (q[k] >= 0 ? 1.0 : -1.0) * Eigen::Vector3d::Unit(k);
+        }
+      }
+      break;
+    }
+    case dCapsuleClass: {
+      dReal r, len;
+      dGeomCapsuleGetParams(geom, &r, &len);
+      const Eigen::Vector3d axis_point(0, 0, std::clamp(q.z(), -0.5 * len, 0.5 * len));
+      const double d = (q - axis_point).norm();
+      depth = r - d;
+      n_local = d > 0 ? Eigen::Vector3d((q - axis_point) / d) : Eigen::Vector3d::UnitX();
+      break;
+    }
+    case dCylinderClass: {
+      dReal r, len;
+      dGeomCylinderGetParams(geom, &r, &len);
+      const double rho = std::hypot(q.x(), q.y());
+      const double side = r - rho, cap = 0.5 * len - std::abs(q.z());
+      depth = std::min(side, cap);
+      if (side < cap) {
+        n_local = rho > 0 ? Eigen::Vector3d(q.x() / rho, q.y() / rho, 0) : Eigen::Vector3d::UnitX();
+      } else {
+        n_local = Eigen::Vector3d(0, 0, q.z() >= 0 ? 1.0 : -1.0);
+      }
+      break;
+    }
+    default:
+      return false;  // meshes: RigidWorld::penetration uses their distance grid
+  }
+  n = R * n_local;
+  return depth > 0;
+}
+
 
 void ensure_ode_for_this_thread() {
   static std::once_flag once;
@@ -92,6 +165,9 @@ RigidWorld::RigidWorld(const SceneDesc& scene) : dt_(scene.dt_s) {
                                     static_cast<int>(surface.vertices.size()), obj.indices.data(),
                                     static_cast<int>(obj.indices.size()), 3 * sizeof(dTriIndex));
         obj.geom = dCreateTriMesh(space_, obj.trimesh, nullptr, nullptr, nullptr);
+        SurfaceMesh scaled = surface;
+        for (Eigen::Vector3d& v : scaled.vertices) v *= s.scale;
+        obj.sdf = MeshSdf(scaled, 0.003, 6);  // distances exact to 1.8 cm from the surface
         break;
       }
       case ShapeType::tet_mesh:
@@ -233,6 +309,22 @@ Eigen::Vector3d RigidWorld::point_velocity(int i, const Eigen::Vector3d& p) cons
   dVector3 v;
   dBodyGetPointVel(objects_[i].body, p.x(), p.y(), p.z(), v);
   return from_ode(v);
+}
+
+bool RigidWorld::penetration(int i, const Eigen::Vector3d& p, double& depth, Eigen::Vector3d& n) const {
+  const Object& o = objects_[i];
+  if (o.sdf.empty()) return point_penetration(o.geom, p, depth, n);
+  // Into the geom's frame (the mesh's own coordinates).
+  const dReal* gp = dGeomGetPosition(o.geom);
+  dQuaternion q;
+  dGeomGetQuaternion(o.geom, q);
+  const Eigen::Quaterniond R(q[0], q[1], q[2], q[3]);
+  double distance;
+  Eigen::Vector3d n_local;
+  if (!o.sdf.query(R.conjugate() * (p - from_ode(gp)), distance, n_local) || distance >= 0) return false;
+  depth = -distance;
+  n = R * n_local;
+  return true;
 }
 
 void RigidWorld::add_force_at(int i, const Eigen::Vector3d& f, const Eigen::Vector3d& p) {

@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "hand_models/hand_model.hpp"
+#include "server/world/mesh_sdf.hpp"
 #include "server/world/scene.hpp"
 
 namespace hapticd {
@@ -61,6 +62,11 @@ class RigidWorld {
   // Velocity of the material point of object i at world point p (zero for static geometry).
   Eigen::Vector3d point_velocity(int i, const Eigen::Vector3d& p_W) const;
   double friction(int i) const { return objects_[i].friction; }
+  // Penetration of world point p into object i: depth > 0 and the unit normal
+  // out of the object; false when outside. Exact for planes, spheres, boxes,
+  // capsules and cylinders; meshes use their signed distance grid (3 mm cells,
+  // exact within 1.8 cm of the surface; deeper points keep a depth of 1.8 cm).
+  bool penetration(int i, const Eigen::Vector3d& p_W, double& depth_m, Eigen::Vector3d& n_W) const;
 
   dSpaceID space() const { return space_; }
   dGeomID geom(int i) const { return objects_[i].geom; }
@@ -76,6 +82,7 @@ class RigidWorld {
     Eigen::Vector3d com_O = Eigen::Vector3d::Zero();  // centre of mass in the object frame
     double friction = 0.5, friction_static = 0.5, restitution = 0;
     dTriMeshDataID trimesh = nullptr;
+    MeshSdf sdf;  // meshes only
     std::vector<double> vertices;
     std::vector<dTriIndex> indices;
   };
@@ -90,5 +97,10 @@ class RigidWorld {
   double dt_ = 1.0 / 60.0;
   int contacts_last_step_ = 0;
 };
+
+// Penetration of point p_W into a primitive ODE geom (plane, sphere, box,
+// capsule, cylinder): depth > 0 and the unit normal out of the geom; false when
+// outside or for other geom classes.
+bool point_penetration(dGeomID geom, const Eigen::Vector3d& p_W, double& depth_m, Eigen::Vector3d& n_W);
 
 }  // namespace hapticd

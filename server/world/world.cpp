@@ -12,17 +12,6 @@ double ms_since(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
 
-Eigen::Vector3d geom_position(dGeomID g) {
-  const dReal* p = dGeomGetPosition(g);
-  return {p[0], p[1], p[2]};
-}
-
-Eigen::Matrix3d geom_rotation(dGeomID g) {
-  dQuaternion q;
-  dGeomGetQuaternion(g, q);
-  return Eigen::Quaterniond(q[0], q[1], q[2], q[3]).toRotationMatrix();
-}
-
 int handle_count(HandleSet set) {
   switch (set) {
     case HandleSet::palm: return 1;
@@ -33,82 +22,6 @@ int handle_count(HandleSet set) {
 }
 
 }  // namespace
-
-bool point_penetration(dGeomID geom, const Eigen::Vector3d& p, double probe_m, double& depth, Eigen::Vector3d& n) {
-  const int cls = dGeomGetClass(geom);
-  if (cls == dPlaneClass) {
-    dVector4 plane;
-    dGeomPlaneGetParams(geom, plane);
-    n = Eigen::Vector3d(plane[0], plane[1], plane[2]);
-    depth = plane[3] - n.dot(p);
-    return depth > 0;
-  }
-  const Eigen::Matrix3d R = geom_rotation(geom);
-  const Eigen::Vector3d q = R.transpose() * (p - geom_position(geom));  // point in the geom frame
-  Eigen::Vector3d n_local = Eigen::Vector3d::UnitZ();
-  switch (cls) {
-    case dSphereClass: {
-      const double r = dGeomSphereGetRadius(geom), d = q.norm();
-      depth = r - d;
-      n_local = d > 0 ? Eigen::Vector3d(q / d) : Eigen::Vector3d::UnitZ();
-      break;
-    }
-    case dBoxClass: {
-      dVector3 size;
-      dGeomBoxGetLengths(geom, size);
-      depth = INFINITY;
-      for (int k = 0; k < 3; ++k) {
-        const double d = 0.5 * size[k] - std::abs(q[k]);
-        if (d < depth) {
-          depth = d;
-          n_local = (q[k] >= 0 ? 1.0 : -1.0) * Eigen::Vector3d::Unit(k);
-        }
-      }
-      break;
-    }
-    case dCapsuleClass: {
-      dReal r, len;
-      dGeomCapsuleGetParams(geom, &r, &len);
-      const Eigen::Vector3d axis_point(0, 0, std::clamp(q.z(), -0.5 * len, 0.5 * len));
-      const double d = (q - axis_point).norm();
-      depth = r - d;
-      n_local = d > 0 ? Eigen::Vector3d((q - axis_point) / d) : Eigen::Vector3d::UnitX();
-      break;
-    }
-    case dCylinderClass: {
-      dReal r, len;
-      dGeomCylinderGetParams(geom, &r, &len);
-      const double rho = std::hypot(q.x(), q.y());
-      const double side = r - rho, cap = 0.5 * len - std::abs(q.z());
-      depth = std::min(side, cap);
-      if (side < cap) {
-        n_local = rho > 0 ? Eigen::Vector3d(q.x() / rho, q.y() / rho, 0) : Eigen::Vector3d::UnitX();
-      } else {
-        n_local = Eigen::Vector3d(0, 0, q.z() >= 0 ? 1.0 : -1.0);
-      }
-      break;
-    }
-    default: {
-      // Meshes: a small probe sphere at the point, collided by ODE.
-      dGeomID probe = dCreateSphere(nullptr, probe_m);
-      dGeomSetPosition(probe, p.x(), p.y(), p.z());
-      dContactGeom c[4];
-      const int count = dCollide(probe, geom, 4, c, sizeof(dContactGeom));
-      dGeomDestroy(probe);
-      depth = 0;
-      for (int k = 0; k < count; ++k) {
-        if (c[k].depth - probe_m > depth) {
-          depth = c[k].depth - probe_m;
-          // ODE's normal points from the probe into the mesh: the outward normal is its opposite.
-          n = -Eigen::Vector3d(c[k].normal[0], c[k].normal[1], c[k].normal[2]);
-        }
-      }
-      return depth > 0;
-    }
-  }
-  n = R * n_local;
-  return depth > 0;
-}
 
 World::World(const SceneDesc& scene, const WorldOptions& options) : dt_(scene.dt_s), options_(options) {
   if (scene.needs_deformable_objects())
@@ -148,7 +61,6 @@ World::World(const SceneDesc& scene, const WorldOptions& options) : dt_(scene.dt
   }
   contact_points_.resize(hands_.size());
   for (int h = 0; h < num_hands(); ++h) collide(h);
-  linearize();
   publish();
 }
 
@@ -164,9 +76,8 @@ void World::collide(int hi) {
   h.state.bodies.clear();
   std::vector<int> body_of_object(rigid_ ? rigid_->num_objects() : 0, -1);
   contact_points_[hi].clear();
-  if (!rigid_) return;
+  if (!rigid_ || !options_.hand_contacts) return;
   const TetMesh& mesh = h.model->mesh();
-  const double probe = 0.5 * h.shape.spacing;
   for (int g = 0; g < rigid_->num_objects(); ++g) {
     dGeomID geom = rigid_->geom(g);
     dReal aabb[6];
@@ -182,7 +93,7 @@ void World::collide(int hi) {
         continue;
       double depth;
       Eigen::Vector3d n;
-      if (!point_penetration(geom, p, probe, depth, n)) continue;
+      if (!rigid_->penetration(g, p, depth, n)) continue;
       PointContact c;
       c.tet = h.shape.skin_tet[v];
       c.bary = w;
@@ -208,11 +119,18 @@ void World::collide(int hi) {
 }
 
 void World::step() {
-  // Contacts were detected at the end of the previous step (for its linearization).
+  // Contacts were detected at the end of the previous step.
   const auto t0 = Clock::now();
   WorldTimings timings;
-  for (auto& h : hands_) hapticd::step(*h->model, h->state, *h->solver);
-  timings.hands_ms = ms_since(t0);
+  snapshot_.linear_models.resize(hands_.size());
+  snapshot_.linear_model_valid.assign(hands_.size(), false);
+  for (int h = 0; h < num_hands(); ++h) {
+    WorldHand& hand = *hands_[h];
+    hapticd::step(*hand.model, hand.state, *hand.solver, &snapshot_.linear_models[h]);
+    snapshot_.linear_model_valid[h] = snapshot_.linear_models[h].K.size() > 0;
+    timings.linearize_ms += hand.state.timings.linearize_ms;
+  }
+  timings.hands_ms = ms_since(t0) - timings.linearize_ms;
   const auto t1 = Clock::now();
   if (rigid_) {
     apply_reactions();
@@ -222,24 +140,10 @@ void World::step() {
   const auto t2 = Clock::now();
   for (int h = 0; h < num_hands(); ++h) collide(h);
   timings.collide_ms = ms_since(t2);
-  const auto t3 = Clock::now();
-  linearize();
-  timings.linearize_ms = ms_since(t3);
   timings.total_ms = ms_since(t0);
   ++steps_;
   publish();
   snapshot_.timings = timings;
-}
-
-void World::linearize() {
-  snapshot_.linear_models.resize(hands_.size());
-  snapshot_.linear_model_valid.assign(hands_.size(), false);
-  for (int h = 0; h < num_hands(); ++h) {
-    WorldHand& hand = *hands_[h];
-    assemble(*hand.model, hand.state);  // the system of the next step, at the new state and contacts
-    snapshot_.linear_model_valid[h] =
-        linearize_handles(*hand.model, hand.state, *hand.solver, snapshot_.linear_models[h]);
-  }
 }
 
 void World::apply_reactions() {

@@ -2,8 +2,8 @@
 // The world of a scene, stepped once per visual frame in named stages:
 // collide (hand skin vs static and rigid geometry), hands (implicit FEM step
 // with the contacts), reactions (contact forces onto ODE bodies), rigid (ODE
-// step), linearize (the next step's system and each hand's handle-space force
-// model), publish (snapshot). Built from a SceneDesc, building only what the
+// step, with each hand's handle-space force model), reactions, rigid (ODE),
+// collide (for the next step), publish (snapshot). Built from a SceneDesc, building only what the
 // scene names. Contact here is the penalty baseline (PointContact); rigid bodies
 // a hand touches are solved implicitly with it. Constraint contact builds on this.
 #include <memory>
@@ -23,8 +23,11 @@ namespace hapticd {
 struct WorldOptions {
   double contact_stiffness_n_m = 1000.0;  // per skin point in contact
   double contact_damping_ns_m = 1.0;
-  SolverKind solver = SolverKind::schur_lagged;
+  // Per-step CHOLMOD: the handle-space model needs A_t^-1 on 2 x 6m + 1 columns
+  // every step, cheap with a current factorization and costly with a lagged one.
+  SolverKind solver = SolverKind::schur_cholmod;
   DriveParams drive;  // how each handle is pulled toward its target (zero: the hand is let go)
+  bool hand_contacts = true;  // false: hands pass through everything (a cost baseline for benches)
 };
 
 struct WorldHand {
@@ -50,8 +53,9 @@ struct WorldSnapshot {
   long step = 0;
   double t_s = 0;
   std::vector<std::vector<HandleState>> handles;  // per hand, per handle
-  // Per hand: the time-implicit model of the coupling wrench on its handles over
-  // the next visual step, F*(x, v) = F0 + K (x - x0) + D (v - v0) (all handles at once).
+  // Per hand: the time-implicit model of the coupling wrench on its handles,
+  // F*(x, v) = F0 + K (x - x0) + D (v - v0) (all handles at once), from the last
+  // step's system and anchored at its end state; empty before the first step.
   std::vector<HandleLinearization> linear_models;
   std::vector<bool> linear_model_valid;
   std::vector<RigidBodyState> bodies;             // per RigidWorld object
@@ -80,7 +84,6 @@ class World {
 
  private:
   void collide(int h);
-  void linearize();
   void apply_reactions();
   void publish();
 
@@ -92,12 +95,5 @@ class World {
   std::vector<std::vector<Eigen::Vector3d>> contact_points_;  // per hand, per contact: world point
   WorldSnapshot snapshot_;
 };
-
-// Penetration of point p_W into one geom of the rigid world: depth > 0 and the
-// unit normal out of the geom; false when p_W is outside. Exact for planes,
-// spheres, boxes, capsules and cylinders; meshes use an ODE probe sphere of
-// radius `probe_m`, so points deeper than the probe inside a mesh are missed.
-bool point_penetration(dGeomID geom, const Eigen::Vector3d& p_W, double probe_m, double& depth_m,
-                       Eigen::Vector3d& n_W);
 
 }  // namespace hapticd

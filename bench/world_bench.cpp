@@ -1,0 +1,130 @@
+#include "world_bench.hpp"
+
+#include <cmath>
+#include <cstdio>
+#include <memory>
+#include <numbers>
+#include <string>
+#include <vector>
+
+#include "bench_common.hpp"
+#include "server/world/scene_loader.hpp"
+#include "server/world/world.hpp"
+
+namespace hapticd::bench {
+namespace {
+
+struct WorldBenchArgs {
+  std::string scene;
+  int steps = 240;
+  std::string solver = "cholmod";
+  std::string json;
+};
+
+struct RunStats {
+  std::vector<double> total, collide, hands, rigid, linearize, contacts;
+  double max_penetration_m = 0;
+  long resets = 0;
+};
+
+// Every hand's handles travel onto the scene's first rigid object in the first
+// second (palm centre 5 mm above its top surface, so the palm's skin presses
+// into it), then stroke 2 cm along x with a 2 s period.
+RunStats run(const SceneDesc& scene, const WorldOptions& options, int steps) {
+  World world(scene, options);
+  std::vector<std::vector<HandleState>> start;
+  for (int h = 0; h < world.num_hands(); ++h) start.push_back(world.hand(h).state.handles);
+  Eigen::Vector3d goal = start.empty() ? Eigen::Vector3d::Zero() : start[0][0].p_WH;
+  for (const ObjectDesc& o : scene.objects)
+    if (o.kind == BodyKind::rigid && world.rigid()) {
+      // The object's top surface under the centre of its bounding box.
+      const int i = world.rigid()->find(o.name);
+      dReal aabb[6];
+      dGeomGetAABB(world.rigid()->geom(i), aabb);
+      goal = Eigen::Vector3d(0.5 * (aabb[0] + aabb[1]), 0.5 * (aabb[2] + aabb[3]), aabb[5]);
+      double depth;
+      Eigen::Vector3d n;
+      while (goal.z() > aabb[4] && !world.rigid()->penetration(i, goal, depth, n)) goal.z() -= 0.001;
+      goal.z() += 0.005;
+      break;
+    }
+  RunStats r;
+  for (int k = 0; k < steps; ++k) {
+    const double t = (k + 1) * world.dt();
+    const Eigen::Vector3d stroke(0.02 * std::sin(2 * std::numbers::pi * std::max(0.0, t - 1.0) / 2.0), 0, 0);
+    for (int h = 0; h < world.num_hands(); ++h)
+      for (size_t j = 0; j < start[h].size(); ++j) {
+        HandleTarget target;
+        target.p_W = start[h][j].p_WH + std::min(1.0, t) * (goal - start[0][0].p_WH) + stroke;
+        target.q_W = start[h][j].q_WH;
+        set_target(world.hand(h).state, static_cast<int>(j), target);
+      }
+    world.step();
+    const WorldSnapshot& s = world.snapshot();
+    if (k < 10) continue;  // warm-up
+    r.total.push_back(s.timings.total_ms);
+    r.collide.push_back(s.timings.collide_ms);
+    r.hands.push_back(s.timings.hands_ms);
+    r.rigid.push_back(s.timings.rigid_ms);
+    r.linearize.push_back(s.timings.linearize_ms);
+    r.contacts.push_back(static_cast<double>(s.contacts.size()));
+    r.max_penetration_m = std::max(r.max_penetration_m, s.max_penetration_m);
+    r.resets = s.resets;
+  }
+  return r;
+}
+
+nlohmann::json to_json(const RunStats& r) {
+  return {{"step_ms_median", median(r.total)},       {"step_ms_p99", percentile(r.total, 99)},
+          {"collision_ms", median(r.collide)},       {"hand_ms", median(r.hands)},
+          {"ode_ms", median(r.rigid)},               {"linearization_ms", median(r.linearize)},
+          {"contacts_median", median(r.contacts)},   {"contacts_max", percentile(r.contacts, 100)},
+          {"max_penetration_mm", 1e3 * r.max_penetration_m}, {"resets", r.resets}};
+}
+
+void run_world_bench(const WorldBenchArgs& a) {
+  const SceneDesc scene = load_scene(a.scene);
+  WorldOptions options;
+  options.solver = parse_solver_kind(a.solver);
+  const Machine machine = describe_machine();
+  std::fprintf(stderr, "world: %s, %zu objects, %zu hands, %d steps\n", scene.name.c_str(), scene.objects.size(),
+               scene.hands.size(), a.steps);
+  const RunStats with = run(scene, options, a.steps);
+  options.hand_contacts = false;
+  const RunStats without = run(scene, options, a.steps);
+  nlohmann::json doc = {{"suite", "world"},
+                        {"scene", scene.name},
+                        {"solver", a.solver},
+                        {"contact_model", "penalty (implicit; rigid bodies in contact solved with the hand)"},
+                        {"steps", a.steps},
+                        {"with_contact", to_json(with)},
+                        {"without_contact", to_json(without)},
+                        {"contact_cost_ratio", median(with.total) / median(without.total)},
+                        {"threads", 1},
+                        {"cpu", machine.cpu},
+                        {"machine", to_json(machine)}};
+  std::printf("%-18s %-8s %9s %9s %9s %9s %9s %9s %9s %9s\n", "scene", "contact", "step_med", "step_p99",
+              "collide", "hand", "ode", "linearize", "contacts", "pen_mm");
+  for (const auto& [label, r] : {std::pair<const char*, const RunStats&>{"on", with}, {"off", without}})
+    std::printf("%-18s %-8s %9.3f %9.3f %9.3f %9.3f %9.3f %9.3f %9.0f %9.3f\n", scene.name.c_str(), label,
+                median(r.total), percentile(r.total, 99), median(r.collide), median(r.hands), median(r.rigid),
+                median(r.linearize), median(r.contacts), 1e3 * r.max_penetration_m);
+  std::printf("machine: %s, %d cores, BLAS %s, revision %s (times in ms, one thread)\n", machine.cpu.c_str(),
+              machine.cores, machine.blas.c_str(), machine.git_revision.c_str());
+  if (!a.json.empty()) write_json(a.json, doc);
+}
+
+}  // namespace
+
+void add_world_suite(CLI::App& app) {
+  auto args = std::make_shared<WorldBenchArgs>();
+  CLI::App* sub = app.add_subcommand("world", "a scene's world under a scripted press and stroke, contact on and off");
+  sub->add_option("--scene", args->scene, "scene file (scenes/*.json)")->required()->check(CLI::ExistingFile);
+  sub->add_option("--steps", args->steps, "steps (the first 10 are not measured)")->check(CLI::Range(11, 1000000));
+  sub->add_option("--solver", args->solver, "hand solver: monolithic | cg | cholmod | lagged")
+      ->check(CLI::IsMember({"monolithic", "cg", "cholmod", "lagged"}));
+  sub->add_option("--json", args->json, "write the results as JSON to this file");
+  sub->callback([args] { run_world_bench(*args); });
+}
+
+}  // namespace hapticd::bench

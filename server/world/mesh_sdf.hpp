@@ -1,0 +1,30 @@
+#pragma once
+// Signed distance to a closed triangle mesh on a regular grid (negative inside),
+// for hand-vs-mesh contact: sign by ray parity along z per grid column, exact
+// distance in a band of `band_cells` around each triangle, clamped beyond it.
+// Queries interpolate trilinearly; the normal is the interpolant's gradient.
+#include <Eigen/Core>
+#include <vector>
+
+#include "hand_models/embedded_surface.hpp"
+
+namespace hapticd {
+
+class MeshSdf {
+ public:
+  MeshSdf() = default;
+  MeshSdf(const SurfaceMesh& mesh, double cell_m, int band_cells = 3);
+
+  // Signed distance (m) and unit outward normal at p (mesh frame); false outside the grid.
+  bool query(const Eigen::Vector3d& p, double& distance, Eigen::Vector3d& normal) const;
+  bool empty() const { return values_.empty(); }
+
+ private:
+  double at(int i, int j, int k) const { return values_[i + dims_[0] * (j + dims_[1] * k)]; }
+  Eigen::Vector3d origin_ = Eigen::Vector3d::Zero();
+  double cell_ = 0;
+  int dims_[3] = {0, 0, 0};
+  std::vector<double> values_;
+};
+
+}  // namespace hapticd
