@@ -27,6 +27,7 @@ test: build
 
 bench: build
 	scripts/bench-hand $(BUILD)
+	scripts/bench-world $(BUILD)
 
 clean:
 	rm -rf $(BUILD)
