@@ -4,6 +4,7 @@
 #include <Eigen/Dense>
 #include <Eigen/IterativeLinearSolvers>
 #include <Eigen/SparseLU>
+#include <array>
 #include <chrono>
 #include <stdexcept>
 #include <vector>
@@ -60,6 +61,7 @@ class CholmodSchur {
     }
     chol_.factorize(s.A_t);
     report.factor_ms += ms_since(t0);
+    fingerprint_ = fingerprint(s.A_t);
     if (chol_.info() != Eigen::Success) return false;
     const auto t1 = Clock::now();
     rhs_.resize(nt, nh + 1);
@@ -84,6 +86,12 @@ class CholmodSchur {
 
   Eigen::MatrixXd solve_tool(const Eigen::MatrixXd& B) const { return chol_.solve(B); }
 
+  // Whether the current factorization is of exactly this A_t (same pattern and values).
+  bool factors(const Eigen::SparseMatrix<double>& A) const { return fingerprint(A) == fingerprint_; }
+
+  // A_t^-1 B: directly when the factorization is this A_t's, else CG preconditioned by it.
+  bool solve_tool(const Eigen::SparseMatrix<double>& A, const Eigen::MatrixXd& B, Eigen::MatrixXd& X) const;
+
   // z = P^-1 r with P the factored system: one A_t solve and the small Schur solve.
   void apply(const Eigen::VectorXd& r, Eigen::VectorXd& z) const {
     const int nh = static_cast<int>(S_.rows());
@@ -95,6 +103,17 @@ class CholmodSchur {
   }
 
  private:
+  // Two weighted sums of the values and the size: equal for the same matrix.
+  static std::array<double, 3> fingerprint(const Eigen::SparseMatrix<double>& A) {
+    std::array<double, 3> f{0, 0, static_cast<double>(A.nonZeros())};
+    for (Eigen::Index k = 0; k < A.nonZeros(); ++k) {
+      f[0] += A.valuePtr()[k];
+      f[1] += A.valuePtr()[k] * static_cast<double>(k + 1);
+    }
+    return f;
+  }
+
+  std::array<double, 3> fingerprint_{0, 0, -1};
   Eigen::CholmodDecomposition<Eigen::SparseMatrix<double>, Eigen::Lower> chol_;
   long analyzed_nnz_ = -1;
   long analyzed_rows_ = -1;
@@ -143,6 +162,15 @@ bool pcg_columns(const Eigen::SparseMatrix<double>& A, const Eigen::MatrixXd& B,
     rz = rz_next;
   }
   return false;
+}
+
+bool CholmodSchur::solve_tool(const Eigen::SparseMatrix<double>& A, const Eigen::MatrixXd& B,
+                              Eigen::MatrixXd& X) const {
+  if (factors(A)) {
+    X = chol_.solve(B);
+    return X.allFinite();
+  }
+  return pcg_columns(A, B, X, [&](const Eigen::MatrixXd& r) -> Eigen::MatrixXd { return chol_.solve(r); });
 }
 
 class MonolithicSolver final : public CoupledSolver {
@@ -236,7 +264,7 @@ class SchurCholmodSolver final : public CoupledSolver {
   // is that system's, a few when the system has moved on.
   bool solve_tool(const CoupledSystem& s, const Eigen::MatrixXd& B, Eigen::MatrixXd& X) override {
     if (!factored_) return CoupledSolver::solve_tool(s, B, X);
-    return pcg_columns(s.A_t, B, X, [&](const Eigen::MatrixXd& r) -> Eigen::MatrixXd { return schur_.solve_tool(r); });
+    return schur_.solve_tool(s.A_t, B, X);
   }
 
   bool solve(const CoupledSystem& s, Eigen::VectorXd& v_h, Eigen::VectorXd& v_t, SolveReport& report) override {
@@ -266,7 +294,7 @@ class SchurLaggedSolver final : public CoupledSolver {
   // The factorization (current or lagged) preconditions CG on the current A_t.
   bool solve_tool(const CoupledSystem& s, const Eigen::MatrixXd& B, Eigen::MatrixXd& X) override {
     if (factored_size_ < 0) return CoupledSolver::solve_tool(s, B, X);
-    return pcg_columns(s.A_t, B, X, [&](const Eigen::MatrixXd& r) -> Eigen::MatrixXd { return schur_.solve_tool(r); });
+    return schur_.solve_tool(s.A_t, B, X);
   }
 
   bool solve(const CoupledSystem& s, Eigen::VectorXd& v_h, Eigen::VectorXd& v_t, SolveReport& report) override {
