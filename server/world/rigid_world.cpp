@@ -57,7 +57,8 @@ Eigen::Matrix3d geom_rotation(dGeomID g) {
 
 }  // namespace
 
-bool point_penetration(dGeomID geom, const Eigen::Vector3d& p, double& depth, Eigen::Vector3d& n) {
+bool point_penetration(dGeomID geom, const Eigen::Vector3d& p, double& depth, Eigen::Vector3d& n,
+                       const Eigen::Vector3d& entry_n) {
   const int cls = dGeomGetClass(geom);
   if (cls == dPlaneClass) {
     dVector4 plane;
@@ -86,6 +87,15 @@ bool point_penetration(dGeomID geom, const Eigen::Vector3d& p, double& depth, Ei
           depth = d;
           n_local = (q[k] >= 0 ? 1.0 : -1.0) * Eigen::Vector3d::Unit(k);
         }
+      }
+      if (depth > 0 && !entry_n.isZero()) {
+        // Inside: keep the entry face (the local axis closest to the entry normal).
+        Eigen::Index k;
+        const Eigen::Vector3d e = R.transpose() * entry_n;
+        e.cwiseAbs().maxCoeff(&k);
+        const double sign = e[k] >= 0 ? 1.0 : -1.0;
+        n_local = sign * Eigen::Vector3d::Unit(k);
+        depth = 0.5 * size[k] - sign * q[k];
       }
       break;
     }
@@ -311,9 +321,10 @@ Eigen::Vector3d RigidWorld::point_velocity(int i, const Eigen::Vector3d& p) cons
   return from_ode(v);
 }
 
-bool RigidWorld::penetration(int i, const Eigen::Vector3d& p, double& depth, Eigen::Vector3d& n) const {
+bool RigidWorld::penetration(int i, const Eigen::Vector3d& p, double& depth, Eigen::Vector3d& n,
+                             const Eigen::Vector3d& entry_n) const {
   const Object& o = objects_[i];
-  if (o.sdf.empty()) return point_penetration(o.geom, p, depth, n);
+  if (o.sdf.empty()) return point_penetration(o.geom, p, depth, n, entry_n);
   // Into the geom's frame (the mesh's own coordinates).
   const dReal* gp = dGeomGetPosition(o.geom);
   dQuaternion q;

@@ -66,7 +66,10 @@ class RigidWorld {
   // out of the object; false when outside. Exact for planes, spheres, boxes,
   // capsules and cylinders; meshes use their signed distance grid (3 mm cells,
   // exact within 1.8 cm of the surface; deeper points keep a depth of 1.8 cm).
-  bool penetration(int i, const Eigen::Vector3d& p_W, double& depth_m, Eigen::Vector3d& n_W) const;
+  // `entry_n_W`, when non-zero, is the normal the point had on entering a box:
+  // the depth is then measured to that face while the point is inside.
+  bool penetration(int i, const Eigen::Vector3d& p_W, double& depth_m, Eigen::Vector3d& n_W,
+                   const Eigen::Vector3d& entry_n_W = Eigen::Vector3d::Zero()) const;
 
   dSpaceID space() const { return space_; }
   dGeomID geom(int i) const { return objects_[i].geom; }
@@ -101,6 +104,7 @@ class RigidWorld {
 // Penetration of point p_W into a primitive ODE geom (plane, sphere, box,
 // capsule, cylinder): depth > 0 and the unit normal out of the geom; false when
 // outside or for other geom classes.
-bool point_penetration(dGeomID geom, const Eigen::Vector3d& p_W, double& depth_m, Eigen::Vector3d& n_W);
+bool point_penetration(dGeomID geom, const Eigen::Vector3d& p_W, double& depth_m, Eigen::Vector3d& n_W,
+                       const Eigen::Vector3d& entry_n_W = Eigen::Vector3d::Zero());
 
 }  // namespace hapticd

@@ -60,6 +60,8 @@ World::World(const SceneDesc& scene, const WorldOptions& options) : dt_(scene.dt
     hands_.push_back(std::move(h));
   }
   contact_points_.resize(hands_.size());
+  last_contact_.resize(hands_.size());
+  for (size_t h = 0; h < hands_.size(); ++h) last_contact_[h].resize(hands_[h]->shape.skin_vertices.size());
   for (int h = 0; h < num_hands(); ++h) collide(h);
   publish();
 }
@@ -89,11 +91,19 @@ void World::collide(int hi) {
       Eigen::Vector3d p = Eigen::Vector3d::Zero();
       for (int k = 0; k < 4; ++k) p += w[k] * h.state.x.segment<3>(3 * t[k]);
       if (bounded && (p.x() < aabb[0] || p.x() > aabb[1] || p.y() < aabb[2] || p.y() > aabb[3] ||
-                      p.z() < aabb[4] || p.z() > aabb[5]))
+                      p.z() < aabb[4] || p.z() > aabb[5])) {
+        if (last_contact_[hi][v].object == g) last_contact_[hi][v] = LastContact{};
         continue;
+      }
       double depth;
       Eigen::Vector3d n;
-      if (!rigid_->penetration(g, p, depth, n)) continue;
+      LastContact& last = last_contact_[hi][v];
+      const Eigen::Vector3d entry = last.object == g ? last.n_W : Eigen::Vector3d::Zero();
+      if (!rigid_->penetration(g, p, depth, n, entry)) {
+        if (last.object == g) last = LastContact{};
+        continue;
+      }
+      last = LastContact{g, n};
       PointContact c;
       c.tet = h.shape.skin_tet[v];
       c.bary = w;

@@ -93,6 +93,13 @@ class World {
   std::vector<std::unique_ptr<WorldHand>> hands_;
   std::unique_ptr<RigidWorld> rigid_;
   std::vector<std::vector<Eigen::Vector3d>> contact_points_;  // per hand, per contact: world point
+  // Per hand, per skin vertex: the object and normal of its last contact. A point
+  // keeps the face it entered through while inside (no tunnelling through thin boxes).
+  struct LastContact {
+    int object = -1;
+    Eigen::Vector3d n_W = Eigen::Vector3d::Zero();
+  };
+  std::vector<std::vector<LastContact>> last_contact_;
   WorldSnapshot snapshot_;
 };
 

@@ -1,0 +1,141 @@
+// World hard cases (penalty contact baseline): a handle driven 10 cm into a box
+// in one step, a 2 mm plate, a 3 m/s impact, 1:1000 mass ratios. Nothing may
+// go non-finite, reset or fly off; penetration recovers once the push stops.
+#include <gtest/gtest.h>
+
+#include "server/world/world.hpp"
+
+namespace hapticd {
+namespace {
+
+// A static slab (top face at z = 0) under a 350-tet hand resting 3 cm above it,
+// plus optionally a rigid box to push.
+SceneDesc slab_scene(double slab_thickness, double box_mass_kg) {
+  SceneDesc scene;
+  ObjectDesc slab;
+  slab.name = "slab";
+  slab.kind = BodyKind::static_body;
+  slab.shape.type = ShapeType::box;
+  slab.shape.size = {1.0, 1.0, slab_thickness};
+  slab.pose.p_W = {0, 0, -0.5 * slab_thickness};
+  scene.objects.push_back(slab);
+  if (box_mass_kg > 0) {
+    ObjectDesc box;
+    box.name = "box";
+    box.shape.type = ShapeType::box;
+    box.shape.size = {0.05, 0.05, 0.05};
+    box.mass_kg = box_mass_kg;
+    box.pose.p_W = {0.0, 0.16, 0.025};
+    scene.objects.push_back(box);
+  }
+  HandDesc hand;
+  hand.name = "right";
+  hand.resolution_tets = 350;
+  hand.pose.p_W = {0, 0, 0.03};
+  scene.hands.push_back(hand);
+  return scene;
+}
+
+HandleTarget target_at(const HandleState& start, const Eigen::Vector3d& offset, const Eigen::Vector3d& v = {0, 0, 0}) {
+  HandleTarget t;
+  t.p_W = start.p_WH + offset;
+  t.q_W = start.q_WH;
+  t.v_W = v;
+  return t;
+}
+
+bool finite(const World& w) {
+  const WorldHand& h = w.hand(0);
+  bool ok = h.state.x.allFinite() && h.state.v.allFinite();
+  for (const RigidBodyState& b : w.snapshot().bodies) ok = ok && b.p_WO.allFinite() && b.v_WO.allFinite();
+  return ok;
+}
+
+TEST(WorldHardCases, HandleDriven10cmIntoAStaticBoxInOneStepRecoversWithinHalfASecond) {
+  World world(slab_scene(0.1, 0));
+  WorldHand& hand = world.hand(0);
+  const HandleState start = hand.state.handles[0];
+  for (int k = 0; k < 30; ++k) {  // 0.5 s with the target 10 cm inside the slab
+    set_target(hand.state, 0, target_at(start, {0, 0, -0.1}));
+    world.step();
+    ASSERT_TRUE(finite(world)) << "step " << k;
+  }
+  EXPECT_GT(world.snapshot().contacts.size(), 10u);
+  for (int k = 0; k < 30; ++k) {  // released: back to the start pose, 3 cm above
+    set_target(hand.state, 0, target_at(start, {0, 0, 0}));
+    world.step();
+    ASSERT_TRUE(finite(world));
+  }
+  EXPECT_LT(world.snapshot().max_penetration_m, 1e-4);  // recovered within 0.5 s
+  EXPECT_EQ(world.snapshot().resets, 0);
+}
+
+TEST(WorldHardCases, HandPressedOnATwoMillimetrePlateDoesNotTunnelThrough) {
+  World world(slab_scene(0.002, 0));
+  WorldHand& hand = world.hand(0);
+  const HandleState start = hand.state.handles[0];
+  for (int k = 0; k < 120; ++k) {  // pressed 2.5 cm past the plate's top: ~75 N of drive
+    set_target(hand.state, 0, target_at(start, {0, 0, -0.055 * std::min(1.0, k / 30.0)}));
+    world.step();
+    ASSERT_TRUE(finite(world));
+  }
+  // No skin point has come out under the plate.
+  const TetMesh& mesh = hand.model->mesh();
+  double lowest = 1e9;
+  for (size_t v = 0; v < hand.shape.skin_vertices.size(); ++v) {
+    const Tet& t = mesh.tets[hand.shape.skin_tet[v]];
+    double z = 0;
+    for (int i = 0; i < 4; ++i) z += hand.shape.skin_bary[v][i] * hand.state.x[3 * t[i] + 2];
+    lowest = std::min(lowest, z);
+  }
+  EXPECT_GT(lowest, -0.002);
+  EXPECT_EQ(world.snapshot().resets, 0);
+}
+
+TEST(WorldHardCases, HandAt3MetresPerSecondIntoABoxStaysFiniteAndSettles) {
+  World world(slab_scene(0.1, 0));
+  WorldHand& hand = world.hand(0);
+  const HandleState start = hand.state.handles[0];
+  // The target dives at 3 m/s from 3 cm above the slab to 2 cm inside it in 1/60 s steps, then holds there.
+  for (int k = 0; k < 60; ++k) {
+    const double dz = std::max(-0.05, -3.0 * (k + 1) * world.dt());
+    set_target(hand.state, 0, target_at(start, {0, 0, dz}, {0, 0, dz > -0.05 ? -3.0 : 0.0}));
+    world.step();
+    ASSERT_TRUE(finite(world)) << "step " << k;
+    ASSERT_LT(hand.state.v.cwiseAbs().maxCoeff(), 10.0) << "step " << k;  // m/s: no blow-up
+  }
+  EXPECT_EQ(world.snapshot().resets, 0);
+  // Held pressed: at rest again, the skin no deeper than the drive's force over the contact stiffness allows.
+  EXPECT_LT(hand.state.v.cwiseAbs().maxCoeff(), 0.05);
+  EXPECT_LT(world.snapshot().max_penetration_m, 0.01);
+}
+
+TEST(WorldHardCases, PushingObjectsAThousandTimesLighterAndHeavierThanTheHand) {
+  const double hand_mass = 0.3;  // kg, about the procedural hand's
+  for (double ratio : {1e-3, 1e3}) {
+    World world(slab_scene(0.1, ratio * hand_mass));
+    WorldHand& hand = world.hand(0);
+    RigidWorld& rigid = *world.rigid();
+    const int box = rigid.find("box");
+    const Eigen::Vector3d box0 = rigid.state(box).p_WO;
+    const HandleState start = hand.state.handles[0];
+    double max_box_speed = 0;
+    for (int k = 0; k < 90; ++k) {  // the hand moves 15 cm along +y at 10 cm/s into the box
+      set_target(hand.state, 0, target_at(start, {0, 0.1 * (k + 1) * world.dt(), 0}, {0, 0.1, 0}));
+      world.step();
+      ASSERT_TRUE(finite(world)) << "ratio " << ratio << " step " << k;
+      max_box_speed = std::max(max_box_speed, rigid.state(box).v_WO.norm());
+    }
+    const Eigen::Vector3d moved = rigid.state(box).p_WO - box0;
+    EXPECT_EQ(world.snapshot().resets, 0) << "ratio " << ratio;
+    if (ratio < 1) {
+      EXPECT_GT(moved.y(), 0.03) << "the light box is pushed along";
+      EXPECT_LT(max_box_speed, 1.0) << "and not launched (the hand moves at 0.1 m/s)";
+    } else {
+      EXPECT_LT(moved.norm(), 0.005) << "the 300 kg box barely moves";
+    }
+  }
+}
+
+}  // namespace
+}  // namespace hapticd
