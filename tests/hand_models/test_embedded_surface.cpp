@@ -1,4 +1,6 @@
 #include <gtest/gtest.h>
+
+#include "temp_dir_test.hpp"
 #include <unistd.h>
 
 #include <Eigen/LU>
@@ -304,27 +306,7 @@ TEST(Assets, LettersAreClosedAndEmbedded) {
 
 // ---- files ----
 
-class EmbeddedFilesTest : public testing::Test {
- protected:
-  void SetUp() override {
-    // The pid keeps concurrent runs of this binary (e.g. ctest -j, two build dirs) apart.
-    dir_ = fs::path(testing::TempDir()) / ("hapticd_embedded_" + std::to_string(::getpid()) + "_" +
-                                           testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::create_directories(dir_);
-  }
-  void TearDown() override {
-    std::error_code ec;
-    fs::remove_all(dir_, ec);
-  }
-
-  std::string write(const std::string& name, const std::string& text) {
-    const std::string path = (dir_ / name).string();
-    std::ofstream(path, std::ios::binary) << text;
-    return path;
-  }
-
-  fs::path dir_;
-};
+class EmbeddedFilesTest : public testing_util::TempDirTest {};
 
 // Passes when load throws a MeshError starting "<path>:<line>: " and containing phrase.
 testing::AssertionResult throws_mesh_error(const std::function<void()>& load, const std::string& path, long long line,

@@ -1,4 +1,6 @@
 #include <gtest/gtest.h>
+
+#include "temp_dir_test.hpp"
 #include <unistd.h>
 
 #include <filesystem>
@@ -137,25 +139,8 @@ void expect_same_mesh(const TetMesh& a, const TetMesh& b) {
   EXPECT_EQ(a.surface, b.surface);
 }
 
-class MeshIoTest : public testing::Test {
+class MeshIoTest : public testing_util::TempDirTest {
  protected:
-  void SetUp() override {
-    // The pid keeps concurrent runs of this binary (e.g. ctest -j, two build dirs) apart.
-    dir_ = fs::path(testing::TempDir()) / ("hapticd_mesh_io_" + std::to_string(::getpid()) + "_" +
-                                           testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::create_directories(dir_);
-  }
-  void TearDown() override {
-    std::error_code ec;
-    fs::remove_all(dir_, ec);
-  }
-
-  std::string write(const std::string& name, const std::string& text) {
-    const std::string path = (dir_ / name).string();
-    std::ofstream(path, std::ios::binary) << text;
-    return path;
-  }
-
   // Writes bad.node/bad.ele and loads them as a TetGen pair.
   std::function<void()> tetgen(const std::string& node, const std::string& ele) {
     node_ = write("bad.node", node);
@@ -168,7 +153,6 @@ class MeshIoTest : public testing::Test {
     return [this] { load_gmsh(msh_); };
   }
 
-  fs::path dir_;
   std::string node_, ele_, msh_;
 };
 

@@ -6,6 +6,7 @@
 
 #include "server/world/scene_loader.hpp"
 #include "server/world/world.hpp"
+#include "world_test_util.hpp"
 
 namespace hapticd {
 namespace {
@@ -18,21 +19,8 @@ SceneDesc floor_scene(double box_mass_kg) {
   floor.shape.type = ShapeType::plane;
   floor.material.friction = 0.5;
   scene.objects.push_back(floor);
-  if (box_mass_kg > 0) {
-    ObjectDesc box;
-    box.name = "box";
-    box.shape.type = ShapeType::box;
-    box.shape.size = {0.05, 0.05, 0.05};
-    box.mass_kg = box_mass_kg;
-    box.pose.p_W = {0.0, 0.16, 0.025};
-    box.material.friction = 0.3;
-    scene.objects.push_back(box);
-  }
-  HandDesc hand;
-  hand.name = "right";
-  hand.resolution_tets = 350;
-  hand.pose.p_W = {0, 0, 0.03};
-  scene.hands.push_back(hand);
+  if (box_mass_kg > 0) testing_util::add_push_box(scene, box_mass_kg, 0.3);
+  testing_util::add_test_hand(scene);
   return scene;
 }
 

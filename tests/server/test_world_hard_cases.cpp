@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include "server/world/world.hpp"
+#include "world_test_util.hpp"
 
 namespace hapticd {
 namespace {
@@ -19,20 +20,8 @@ SceneDesc slab_scene(double slab_thickness, double box_mass_kg) {
   slab.shape.size = {1.0, 1.0, slab_thickness};
   slab.pose.p_W = {0, 0, -0.5 * slab_thickness};
   scene.objects.push_back(slab);
-  if (box_mass_kg > 0) {
-    ObjectDesc box;
-    box.name = "box";
-    box.shape.type = ShapeType::box;
-    box.shape.size = {0.05, 0.05, 0.05};
-    box.mass_kg = box_mass_kg;
-    box.pose.p_W = {0.0, 0.16, 0.025};
-    scene.objects.push_back(box);
-  }
-  HandDesc hand;
-  hand.name = "right";
-  hand.resolution_tets = 350;
-  hand.pose.p_W = {0, 0, 0.03};
-  scene.hands.push_back(hand);
+  if (box_mass_kg > 0) testing_util::add_push_box(scene, box_mass_kg);
+  testing_util::add_test_hand(scene);
   return scene;
 }
 

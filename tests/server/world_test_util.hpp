@@ -1,0 +1,28 @@
+#pragma once
+// Scene pieces shared by the world tests.
+#include "server/world/scene.hpp"
+
+namespace hapticd::testing_util {
+
+// A 350-tet right hand whose palm centre is 3 cm above z = 0.
+inline void add_test_hand(SceneDesc& scene) {
+  HandDesc hand;
+  hand.name = "right";
+  hand.resolution_tets = 350;
+  hand.pose.p_W = {0, 0, 0.03};
+  scene.hands.push_back(hand);
+}
+
+// A 5 cm rigid box on z = 0, in front of the test hand's fingertips.
+inline void add_push_box(SceneDesc& scene, double mass_kg, double friction = 0.5) {
+  ObjectDesc box;
+  box.name = "box";
+  box.shape.type = ShapeType::box;
+  box.shape.size = {0.05, 0.05, 0.05};
+  box.mass_kg = mass_kg;
+  box.pose.p_W = {0.0, 0.16, 0.025};
+  box.material.friction = friction;
+  scene.objects.push_back(box);
+}
+
+}  // namespace hapticd::testing_util
