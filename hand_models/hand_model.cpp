@@ -48,15 +48,11 @@ Matrix6d handle_mass_matrix(const RigidHandle& h, const HandleState& s) {
   return M;
 }
 
-// Velocity of an embedded point.
-Eigen::Vector3d point_velocity(const Tet& t, const Eigen::Vector4d& w, const Eigen::VectorXd& v) {
+// Barycentric sum over a tet's nodes of a 3n vector: an embedded point's position or velocity.
+Eigen::Vector3d embedded(const Tet& t, const Eigen::Vector4d& w, const Eigen::VectorXd& v) {
   Eigen::Vector3d u = Eigen::Vector3d::Zero();
   for (int k = 0; k < 4; ++k) u += w[k] * v.segment<3>(3 * t[k]);
   return u;
-}
-
-Eigen::Vector3d embedded_point(const Tet& t, const Eigen::Vector4d& w, const Eigen::VectorXd& x) {
-  return point_velocity(t, w, x);  // the same barycentric sum
 }
 
 // Velocity of the other body at a contact: the known one, or for an implicit body
@@ -66,7 +62,7 @@ Eigen::Vector3d other_velocity(const PointContact& c, const Tet& t, const HandSt
   const ContactBody& b = s.bodies[c.body];
   Eigen::Vector3d v = b.v_W, w = b.w_W;
   if (next) v += b.dv_W, w += b.dw_W;
-  return v + w.cross(embedded_point(t, c.bary, s.x) - b.p_com_W);
+  return v + w.cross(embedded(t, c.bary, s.x) - b.p_com_W);
 }
 
 // The 3x3 block C = h D_c + h^2 K_c of a contact: what it adds to eq. 7 between
@@ -83,10 +79,10 @@ void assemble_contact(const HandModel& model, const PointContact& c, HandState& 
   const Tet& t = model.mesh().tets[c.tet];
   const AssemblyMap& map = model.assembly_map();
   const Eigen::Vector3d& n = c.n_W;
-  const Eigen::Matrix3d nn = n * n.transpose(), T = Eigen::Matrix3d::Identity() - nn;
-  const Eigen::Vector3d u_rel = point_velocity(t, c.bary, s.v) - other_velocity(c, t, s, false);
+  const Eigen::Matrix3d nn = n * n.transpose();
+  const Eigen::Vector3d u_rel = embedded(t, c.bary, s.v) - other_velocity(c, t, s, false);
   const Eigen::Matrix3d C = contact_block(c, u_rel, h);
-  // Velocity-independent part; an implicit body's motion enters through the
+  // Velocity-independent part (C / h minus the stiffness part is the damping D_c); an implicit body's motion enters through the
   // coupling blocks instead of as a known velocity.
   const Eigen::Vector3d v_known = c.body >= 0 ? Eigen::Vector3d::Zero() : c.v_other_W;
   const Eigen::Vector3d f = c.stiffness_n_m * c.depth_m * n + (C - h * h * c.stiffness_n_m * nn) / h * v_known;
@@ -97,7 +93,6 @@ void assemble_contact(const HandModel& model, const PointContact& c, HandState& 
       if (c.bary[b] != 0)
         add_block(values, map, map.element_block[c.tet][4 * a + b], t[b], c.bary[a] * c.bary[b] * C);
   }
-  (void)T;
 }
 
 // A contact with an implicit body: its blocks between the hand point and the
@@ -106,10 +101,10 @@ void assemble_body_contact(const HandModel& model, const PointContact& c, HandSt
                            std::vector<Eigen::Triplet<double>>& th, std::vector<Eigen::Triplet<double>>& ht) {
   const Tet& t = model.mesh().tets[c.tet];
   const ContactBody& B = s.bodies[c.body];
-  const Eigen::Vector3d p = embedded_point(t, c.bary, s.x);
+  const Eigen::Vector3d p = embedded(t, c.bary, s.x);
   Eigen::Matrix<double, 3, 6> J;
   J << Eigen::Matrix3d::Identity(), -skew(p - B.p_com_W);
-  const Eigen::Vector3d u_rel = point_velocity(t, c.bary, s.v) - other_velocity(c, t, s, false);
+  const Eigen::Vector3d u_rel = embedded(t, c.bary, s.v) - other_velocity(c, t, s, false);
   const Eigen::Matrix3d C = contact_block(c, u_rel, h);
   const Eigen::Vector3d f0 = c.stiffness_n_m * c.depth_m * c.n_W;
   s.system.A_h.block<6, 6>(col, col) += J.transpose() * C * J;
@@ -401,7 +396,7 @@ void record_contact_forces(const HandModel& model, HandState& s) {
     PointContact& c = s.active_contacts[i];
     const Eigen::Vector3d& n = c.n_W;
     const Tet& t = model.mesh().tets[c.tet];
-    const Eigen::Vector3d u_rel = point_velocity(t, c.bary, s.v) - other_velocity(c, t, s, true);
+    const Eigen::Vector3d u_rel = embedded(t, c.bary, s.v) - other_velocity(c, t, s, true);
     const double f_n = std::max(0.0, c.stiffness_n_m * (c.depth_m - h * n.dot(u_rel)) - c.damping_ns_m * n.dot(u_rel));
     const Eigen::Vector3d u_t = u_rel - n.dot(u_rel) * n;
     const double c_t = c.friction * c.stiffness_n_m * c.depth_m /
