@@ -1,6 +1,6 @@
 #include <gtest/gtest.h>
 
-#include "temp_dir_test.hpp"
+#include "file_test_util.hpp"
 #include <unistd.h>
 
 #include <Eigen/LU>
@@ -308,22 +308,7 @@ TEST(Assets, LettersAreClosedAndEmbedded) {
 
 class EmbeddedFilesTest : public testing_util::TempDirTest {};
 
-// Passes when load throws a MeshError starting "<path>:<line>: " and containing phrase.
-testing::AssertionResult throws_mesh_error(const std::function<void()>& load, const std::string& path, long long line,
-                                           const std::string& phrase) {
-  try {
-    load();
-  } catch (const MeshError& e) {
-    const std::string msg = e.what();
-    const std::string prefix = path + ":" + std::to_string(line) + ": ";
-    if (msg.rfind(prefix, 0) != 0)
-      return testing::AssertionFailure() << "message '" << msg << "' lacks prefix '" << prefix << "'";
-    if (msg.find(phrase) == std::string::npos)
-      return testing::AssertionFailure() << "message '" << msg << "' lacks '" << phrase << "'";
-    return testing::AssertionSuccess();
-  }
-  return testing::AssertionFailure() << "no MeshError thrown";
-}
+using testing_util::throws_mesh_error;
 
 TEST_F(EmbeddedFilesTest, ObjFormsAreRead) {
   const std::string path = write("forms.obj",

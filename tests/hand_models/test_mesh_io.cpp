@@ -1,6 +1,6 @@
 #include <gtest/gtest.h>
 
-#include "temp_dir_test.hpp"
+#include "file_test_util.hpp"
 #include <unistd.h>
 
 #include <filesystem>
@@ -107,22 +107,7 @@ std::string first_lines(const std::string& text, int n) {
   return join_lines(lines);
 }
 
-// Passes when load throws a MeshError starting "<path>:<line>: " and containing phrase.
-testing::AssertionResult throws_mesh_error(const std::function<void()>& load, const std::string& path, long long line,
-                                           const std::string& phrase) {
-  try {
-    load();
-  } catch (const MeshError& e) {
-    const std::string msg = e.what();
-    const std::string prefix = path + ":" + std::to_string(line) + ": ";
-    if (msg.rfind(prefix, 0) != 0)
-      return testing::AssertionFailure() << "message '" << msg << "' lacks prefix '" << prefix << "'";
-    if (msg.find(phrase) == std::string::npos)
-      return testing::AssertionFailure() << "message '" << msg << "' lacks '" << phrase << "'";
-    return testing::AssertionSuccess();
-  }
-  return testing::AssertionFailure() << "no MeshError thrown";
-}
+using testing_util::throws_mesh_error;
 
 void expect_unit_cube(const TetMesh& m, int tets) {
   EXPECT_EQ(m.num_nodes(), 8);

@@ -1,11 +1,15 @@
 #pragma once
-// A fixture with a fresh temporary folder per test, for tests that write files.
+// Helpers for tests that read and write files: a fresh temporary folder per
+// test, and a check of MeshError messages.
 #include <gtest/gtest.h>
 #include <unistd.h>
 
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <string>
+
+#include "hand_models/tet_mesh.hpp"
 
 namespace hapticd::testing_util {
 
@@ -32,5 +36,22 @@ class TempDirTest : public ::testing::Test {
 
   std::filesystem::path dir_;
 };
+
+// Passes when load throws a MeshError starting "<path>:<line>: " and containing phrase.
+inline ::testing::AssertionResult throws_mesh_error(const std::function<void()>& load, const std::string& path,
+                                                    long long line, const std::string& phrase) {
+  try {
+    load();
+  } catch (const MeshError& e) {
+    const std::string msg = e.what();
+    const std::string prefix = path + ":" + std::to_string(line) + ": ";
+    if (msg.rfind(prefix, 0) != 0)
+      return ::testing::AssertionFailure() << "message '" << msg << "' lacks prefix '" << prefix << "'";
+    if (msg.find(phrase) == std::string::npos)
+      return ::testing::AssertionFailure() << "message '" << msg << "' lacks '" << phrase << "'";
+    return ::testing::AssertionSuccess();
+  }
+  return ::testing::AssertionFailure() << "no MeshError thrown";
+}
 
 }  // namespace hapticd::testing_util
