@@ -38,7 +38,7 @@ PgsResult solve_contacts_pgs(const ContactProblem& p, const PgsOptions& options,
       const Eigen::Vector3d old = r.lambda.segment<3>(3 * i);
       Eigen::Vector3d l = old;
       const double Wnn = p.W(3 * i, 3 * i);
-      if (Wnn > 0) l[0] = std::max(0.0, l[0] - (u[3 * i] + p.bias[i]) / Wnn);
+      if (Wnn > 0) l[0] = std::max(0.0, l[0] - (u[3 * i] - p.bias[i]) / Wnn);
       // Tangential: the impulse that would stop sliding, clipped to the cone of the new normal.
       const Eigen::Vector2d u_t = u.segment<2>(3 * i + 1) + p.W.block<2, 1>(3 * i + 1, 3 * i) * (l[0] - old[0]);
       l.tail<2>() -= tangent_step[i] * u_t;
@@ -65,7 +65,7 @@ double contact_residual(const ContactProblem& p, const Eigen::VectorXd& lambda) 
   const Eigen::VectorXd u = p.u_free + p.W * lambda;
   double worst = 0;
   for (int i = 0; i < c; ++i) {
-    const double ln = lambda[3 * i], un = u[3 * i] + p.bias[i];
+    const double ln = lambda[3 * i], un = u[3 * i] - p.bias[i];
     const Eigen::Vector2d lt = lambda.segment<2>(3 * i + 1), ut = u.segment<2>(3 * i + 1);
     const double scale = std::max(p.W(3 * i, 3 * i), 1e-300);
     worst = std::max({worst, std::max(0.0, -ln) * scale, std::max(0.0, -un), std::min(ln * scale, std::abs(un))});

@@ -2,7 +2,7 @@
 // Velocity-level frictional contact by projected Gauss-Seidel on the Delassus
 // operator W = J A^-1 J^T (DESIGN.md section 3): find contact impulses
 // lambda_i = (normal, tangent 1, tangent 2), N s, with
-//   u = u_free + W lambda,  0 <= lambda_n  _|_  u_n + bias >= 0,
+//   u = u_free + W lambda,  0 <= lambda_n  _|_  u_n - bias >= 0,
 //   |lambda_t| <= mu lambda_n, and lambda_t opposing u_t when sliding
 // (Coulomb, maximal dissipation). The building block of constraint contact;
 // W comes from the implicit system's factorization (the Schur machinery).
@@ -14,7 +14,7 @@ namespace hapticd {
 struct ContactProblem {
   Eigen::MatrixXd W;        // 3c x 3c, symmetric positive semi-definite, contact frames (n, t1, t2)
   Eigen::VectorXd u_free;   // 3c: relative velocities without contact impulses, m/s
-  Eigen::VectorXd bias;     // c: required normal velocity (>= 0 pushes penetrating points out), m/s
+  Eigen::VectorXd bias;     // c: least normal velocity (> 0 pushes penetrating points out), m/s
   std::vector<double> mu;   // c: friction coefficients
 };
 

@@ -93,13 +93,14 @@ class CholmodSchur {
   bool solve_tool(const Eigen::SparseMatrix<double>& A, const Eigen::MatrixXd& B, Eigen::MatrixXd& X) const;
 
   // z = P^-1 r with P the factored system: one A_t solve and the small Schur solve.
-  void apply(const Eigen::VectorXd& r, Eigen::VectorXd& z) const {
-    const int nh = static_cast<int>(S_.rows());
-    const Eigen::VectorXd y = chol_.solve(r.tail(r.size() - nh));
-    const Eigen::VectorXd z_h = lu_.solve(r.head(nh) - A_ht_ * y);
-    z.resize(r.size());
-    z.head(nh) = z_h;
-    z.tail(r.size() - nh) = y - Y_.rightCols(nh) * z_h;
+  template <class In, class Out>
+  void apply(const In& r, Out& z) const {
+    const Eigen::Index nh = S_.rows(), n = r.rows();
+    const Eigen::MatrixXd y = chol_.solve(Eigen::MatrixXd(r.bottomRows(n - nh)));
+    const Eigen::MatrixXd z_h = lu_.solve(Eigen::MatrixXd(r.topRows(nh) - A_ht_ * y));
+    z.resize(n, r.cols());
+    z.topRows(nh) = z_h;
+    z.bottomRows(n - nh) = y - Y_.rightCols(nh) * z_h;
   }
 
  private:
@@ -179,22 +180,7 @@ class MonolithicSolver final : public CoupledSolver {
   bool solve(const CoupledSystem& s, Eigen::VectorXd& v_h, Eigen::VectorXd& v_t, SolveReport& report) override {
     const auto t0 = Clock::now();
     const int nh = s.handle_dofs(), nt = s.tool_dofs();
-    std::vector<Eigen::Triplet<double>> entries;
-    entries.reserve(s.A_t.nonZeros() + 2 * s.A_th.nonZeros() + nh * nh);
-    for (int r = 0; r < nh; ++r)
-      for (int c = 0; c < nh; ++c) entries.emplace_back(r, c, s.A_h(r, c));
-    for (int k = 0; k < s.A_ht.outerSize(); ++k)
-      for (Eigen::SparseMatrix<double, Eigen::RowMajor>::InnerIterator it(s.A_ht, k); it; ++it)
-        entries.emplace_back(it.row(), nh + it.col(), it.value());
-    for (int k = 0; k < s.A_th.outerSize(); ++k)
-      for (Eigen::SparseMatrix<double>::InnerIterator it(s.A_th, k); it; ++it)
-        entries.emplace_back(nh + it.row(), it.col(), it.value());
-    for (int k = 0; k < s.A_t.outerSize(); ++k)
-      for (Eigen::SparseMatrix<double>::InnerIterator it(s.A_t, k); it; ++it)
-        entries.emplace_back(nh + it.row(), nh + it.col(), it.value());
-    Eigen::SparseMatrix<double> A(nh + nt, nh + nt);
-    A.setFromTriplets(entries.begin(), entries.end());
-    A.makeCompressed();
+    const Eigen::SparseMatrix<double> A = full_matrix(s);
     lu_.compute(A);
     report.factor_ms = ms_since(t0);
     if (lu_.info() != Eigen::Success) return false;
@@ -259,6 +245,12 @@ class SchurCholmodSolver final : public CoupledSolver {
  public:
   explicit SchurCholmodSolver(const SolverOptions& o) : schur_(o) {}
   SolverKind kind() const override { return SolverKind::schur_cholmod; }
+
+  bool solve_block(const CoupledSystem& s, const Eigen::MatrixXd& R, Eigen::MatrixXd& X) override {
+    if (!factored_ || !schur_.factors(s.A_t)) return CoupledSolver::solve_block(s, R, X);
+    schur_.apply(R, X);
+    return X.allFinite();
+  }
 
   // Its factorization preconditions CG on the given A_t: one iteration when it
   // is that system's, a few when the system has moved on.
@@ -413,6 +405,34 @@ class SchurLaggedSolver final : public CoupledSolver {
 };
 
 }  // namespace
+
+Eigen::SparseMatrix<double> full_matrix(const CoupledSystem& s) {
+  const int nh = s.handle_dofs(), nt = s.tool_dofs();
+  std::vector<Eigen::Triplet<double>> entries;
+  entries.reserve(s.A_t.nonZeros() + 2 * s.A_th.nonZeros() + nh * nh);
+  for (int r = 0; r < nh; ++r)
+    for (int c = 0; c < nh; ++c) entries.emplace_back(r, c, s.A_h(r, c));
+  for (int k = 0; k < s.A_ht.outerSize(); ++k)
+    for (Eigen::SparseMatrix<double, Eigen::RowMajor>::InnerIterator it(s.A_ht, k); it; ++it)
+      entries.emplace_back(it.row(), nh + it.col(), it.value());
+  for (int k = 0; k < s.A_th.outerSize(); ++k)
+    for (Eigen::SparseMatrix<double>::InnerIterator it(s.A_th, k); it; ++it)
+      entries.emplace_back(nh + it.row(), it.col(), it.value());
+  for (int k = 0; k < s.A_t.outerSize(); ++k)
+    for (Eigen::SparseMatrix<double>::InnerIterator it(s.A_t, k); it; ++it)
+      entries.emplace_back(nh + it.row(), nh + it.col(), it.value());
+  Eigen::SparseMatrix<double> A(nh + nt, nh + nt);
+  A.setFromTriplets(entries.begin(), entries.end());
+  A.makeCompressed();
+  return A;
+}
+
+bool CoupledSolver::solve_block(const CoupledSystem& s, const Eigen::MatrixXd& R, Eigen::MatrixXd& X) {
+  Eigen::SparseLU<Eigen::SparseMatrix<double>, Eigen::COLAMDOrdering<int>> lu(full_matrix(s));
+  if (lu.info() != Eigen::Success) return false;
+  X = lu.solve(R);
+  return X.allFinite();
+}
 
 bool CoupledSolver::solve_tool(const CoupledSystem& s, const Eigen::MatrixXd& B, Eigen::MatrixXd& X) {
   const Eigen::VectorXd inv_diag = s.A_t.diagonal().cwiseInverse();

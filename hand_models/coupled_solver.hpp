@@ -50,7 +50,14 @@ class CoupledSolver {
   // residual of 1e-10 per column, preconditioned by the solver's factorization
   // where it has one (one iteration when it is this system's), else by Jacobi.
   virtual bool solve_tool(const CoupledSystem& system, const Eigen::MatrixXd& B, Eigen::MatrixXd& X);
+  // X = A^-1 R for the whole eq. 7 matrix (rows: handle DOFs, then tool DOFs):
+  // directly with the solver's factorization when it is this system's, else by
+  // a sparse LU of the whole system.
+  virtual bool solve_block(const CoupledSystem& system, const Eigen::MatrixXd& R, Eigen::MatrixXd& X);
 };
+
+// The whole eq. 7 matrix [A_h A_ht; A_th A_t] as one sparse matrix.
+Eigen::SparseMatrix<double> full_matrix(const CoupledSystem& system);
 
 std::unique_ptr<CoupledSolver> make_solver(SolverKind kind, const SolverOptions& options = {});
 

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <stdexcept>
 
+#include "hand_models/contact_pgs.hpp"
 #include "hand_models/coupled_solver.hpp"
 #include "hand_models/handle_linearization.hpp"
 
@@ -305,7 +306,8 @@ void assemble(const HandModel& model, HandState& s) {
       s.active_source.push_back(-1);
     }
   }
-  for (const PointContact& c : s.active_contacts) assemble_contact(model, c, s, values, h);
+  for (const PointContact& c : s.active_contacts)
+    if (!c.constraint) assemble_contact(model, c, s, values, h);
 
   for (int i = 0; i < n; ++i) sys.b_t.segment<3>(3 * i) = mass[i] * s.v.segment<3>(3 * i);
 
@@ -370,7 +372,7 @@ void assemble(const HandModel& model, HandState& s) {
     sys.b_h.segment<6>(6 * (m + b)) = M * v;
   }
   for (const PointContact& c : s.active_contacts)
-    if (c.body >= 0) assemble_body_contact(model, c, s, 6 * (m + c.body), h, th, ht);
+    if (c.body >= 0 && !c.constraint) assemble_body_contact(model, c, s, 6 * (m + c.body), h, th, ht);
   sys.A_th.setFromTriplets(th.begin(), th.end());
   sys.A_ht.setFromTriplets(ht.begin(), ht.end());
   sys.b_t += h * s.f_t;
@@ -417,13 +419,84 @@ bool within_bounds(const HandState& s, double max_speed) {
 
 }  // namespace
 
+namespace {
+
+// An orthonormal contact frame (n, t1, t2).
+Eigen::Matrix3d contact_frame(const Eigen::Vector3d& n) {
+  const Eigen::Vector3d a = std::abs(n.x()) < 0.9 ? Eigen::Vector3d::UnitX() : Eigen::Vector3d::UnitY();
+  const Eigen::Vector3d t1 = n.cross(a).normalized();
+  Eigen::Matrix3d F;
+  F << n, t1, n.cross(t1);
+  return F;
+}
+
+// Constraint contacts on the solved free velocities: J (contact frames of the
+// relative velocity), A^-1 J^T by one block solve, W = J A^-1 J^T, projected
+// Gauss-Seidel, V = V_free + A^-1 J^T lambda. Impulses go to `impulses` (world).
+bool solve_constraint_contacts(const HandModel& model, HandState& s, CoupledSolver& solver,
+                               std::vector<Eigen::Vector3d>& impulses) {
+  std::vector<int> rows;
+  for (size_t i = 0; i < s.active_contacts.size(); ++i)
+    if (s.active_contacts[i].constraint) rows.push_back(static_cast<int>(i));
+  impulses.assign(s.active_contacts.size(), Eigen::Vector3d::Zero());
+  if (rows.empty()) return true;
+  const CoupledSystem& sys = s.system;
+  const int nh = sys.handle_dofs(), nt = sys.tool_dofs(), c = static_cast<int>(rows.size());
+  const int m = model.num_handles();
+  const double h = model.config().dt_s;
+  Eigen::MatrixXd Jt = Eigen::MatrixXd::Zero(nh + nt, 3 * c);
+  ContactProblem problem;
+  problem.u_free.resize(3 * c);
+  problem.bias.resize(c);
+  std::vector<Eigen::Matrix3d> frames(c);
+  for (int k = 0; k < c; ++k) {
+    const PointContact& pc = s.active_contacts[rows[k]];
+    const Tet& t = model.mesh().tets[pc.tet];
+    frames[k] = contact_frame(pc.n_W);
+    for (int a = 0; a < 4; ++a)
+      Jt.block<3, 3>(nh + 3 * t[a], 3 * k) += pc.bary[a] * frames[k];
+    if (pc.body >= 0) {
+      const Eigen::Vector3d rho = embedded(t, pc.bary, s.x) - s.bodies[pc.body].p_com_W;
+      Eigen::Matrix<double, 3, 6> J_B;
+      J_B << Eigen::Matrix3d::Identity(), -skew(rho);
+      Jt.block<6, 3>(6 * (m + pc.body), 3 * k) -= J_B.transpose() * frames[k];
+    }
+    // A kinematic other body's known velocity is part of the free relative velocity.
+    const Eigen::Vector3d v_known = pc.body >= 0 ? Eigen::Vector3d::Zero() : pc.v_other_W;
+    problem.u_free.segment<3>(3 * k) = -frames[k].transpose() * v_known;
+    // Penetrating: push out a fraction of the depth; a gap (speculative contact) may close fully.
+    problem.bias[k] = pc.depth_m > 0 ? kContactDepthRecovery * pc.depth_m / h : pc.depth_m / h;
+    problem.mu.push_back(pc.friction);
+  }
+  Eigen::VectorXd V(nh + nt);
+  V << s.v_h_next, s.v_t_next;
+  problem.u_free += Jt.transpose() * V;
+  Eigen::MatrixXd X;
+  if (!solver.solve_block(sys, Jt, X)) return false;
+  problem.W = Jt.transpose() * X;
+  PgsOptions options;
+  options.max_iterations = 500;
+  options.tolerance = 1e-8;
+  const PgsResult r = solve_contacts_pgs(problem, options);
+  if (!r.lambda.allFinite()) return false;
+  V += X * r.lambda;
+  s.v_h_next = V.head(nh);
+  s.v_t_next = V.tail(nt);
+  for (int k = 0; k < c; ++k) impulses[rows[k]] = frames[k] * r.lambda.segment<3>(3 * k);
+  return true;
+}
+
+}  // namespace
+
 StepStatus step(const HandModel& model, HandState& s, CoupledSolver& solver, HandleLinearization* linearization) {
   const auto t0 = Clock::now();
   assemble(model, s);
   s.timings = StepTimings{};
   s.timings.assembly_ms = ms_since(t0);
   SolveReport report;
-  const bool solved = solver.solve(s.system, s.v_h_next, s.v_t_next, report);
+  bool solved = solver.solve(s.system, s.v_h_next, s.v_t_next, report);
+  std::vector<Eigen::Vector3d> impulses;
+  if (solved) solved = solve_constraint_contacts(model, s, solver, impulses);
   s.timings.factor_ms = report.factor_ms;
   s.timings.schur_ms = report.schur_ms;
   s.timings.solve_ms = report.solve_ms;
@@ -466,6 +539,11 @@ StepStatus step(const HandModel& model, HandState& s, CoupledSolver& solver, Han
       reset_to_target(model, s);
     } else {
       record_contact_forces(model, s);
+      for (size_t i = 0; i < s.active_contacts.size(); ++i) {
+        if (!s.active_contacts[i].constraint) continue;
+        s.active_contacts[i].f_W = impulses[i] / h;  // the impulse spread over the step
+        if (s.active_source[i] >= 0) s.contacts[s.active_source[i]].f_W = s.active_contacts[i].f_W;
+      }
       if (linearized) {
         // The model is linear: anchoring it at the end-of-step state is exact.
         linearization->F0 = linearization->evaluate(s.handles);

@@ -51,16 +51,23 @@ struct PointContact {
   int tet = 0;
   Eigen::Vector4d bary{1, 0, 0, 0};
   Eigen::Vector3d n_W = Eigen::Vector3d::UnitZ();      // unit, out of the other body
-  double depth_m = 0;                                   // penetration along n_W, > 0
+  double depth_m = 0;  // penetration along n_W, > 0 (a constraint contact may carry a gap, < 0)
   Eigen::Vector3d v_other_W = Eigen::Vector3d::Zero();  // the other body's velocity at the point
   double stiffness_n_m = 2000.0, damping_ns_m = 2.0, friction = 0.0;
   int other = -1;  // the caller's index of the other body (-1: static geometry)
   // Index into HandState::bodies when the other body is dynamic and solved
   // implicitly with the hand (then v_other_W is ignored); -1: static or kinematic.
   int body = -1;
+  // A constraint (non-penetration with a Coulomb cone, solved by projected
+  // Gauss-Seidel on the Delassus operator of the step) instead of a penalty
+  // spring: stiffness and damping are then unused.
+  bool constraint = false;
   // Out, after a step: the force the contact put on this body at the end of the step, N.
   Eigen::Vector3d f_W = Eigen::Vector3d::Zero();
 };
+
+// Constraint contacts push a penetrating point out at this fraction of its depth per step.
+constexpr double kContactDepthRecovery = 0.2;
 
 struct HandleSpec {
   std::string name;

@@ -23,7 +23,10 @@ int handle_count(HandleSet set) {
 
 }  // namespace
 
-World::World(const SceneDesc& scene, const WorldOptions& options) : dt_(scene.dt_s), options_(options) {
+World::World(const SceneDesc& scene, const WorldOptions& options)
+    : dt_(scene.dt_s),
+      constraint_contact_(options.contact.value_or(scene.contact) == ContactModel::constraint),
+      options_(options) {
   if (scene.needs_deformable_objects())
     throw std::runtime_error(scene.path + ": deformable objects are not simulated yet (scene loads; world refuses)");
   bool has_geometry = false;
@@ -122,6 +125,7 @@ void World::collide(int hi) {
       c.damping_ns_m = options_.contact_damping_ns_m;
       c.friction = std::sqrt(h.friction * rigid_->friction(g));
       c.other = g;
+      c.constraint = constraint_contact_;
       h.state.contacts.push_back(c);
       contact_points_[hi].push_back(p);
     }

@@ -4,9 +4,11 @@
 // with the contacts), reactions (contact forces onto ODE bodies), rigid (ODE
 // step, with each hand's handle-space force model), reactions, rigid (ODE),
 // collide (for the next step), publish (snapshot). Built from a SceneDesc, building only what the
-// scene names. Contact here is the penalty baseline (PointContact); rigid bodies
-// a hand touches are solved implicitly with it. Constraint contact builds on this.
+// scene names. Contact is the implicit penalty baseline by default, or constraint
+// contact (experimental, see WorldOptions::contact); rigid bodies a hand touches
+// are solved implicitly with it either way.
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -28,6 +30,11 @@ struct WorldOptions {
   SolverKind solver = SolverKind::schur_cholmod;
   DriveParams drive;  // how each handle is pulled toward its target (zero: the hand is let go)
   bool hand_contacts = true;  // false: hands pass through everything (a cost baseline for benches)
+  // Hand contact model. Penalty by default for now: constraint contacts (PGS on the
+  // step's Delassus operator) are tested per step, but the world does not yet
+  // detect speculative contacts or cluster skin points, so resting hands chatter
+  // and large contact sets are slow. Set it to follow the scene's "contact", or force one.
+  std::optional<ContactModel> contact = ContactModel::penalty;
 };
 
 struct WorldHand {
@@ -88,6 +95,7 @@ class World {
   void publish();
 
   double dt_;
+  bool constraint_contact_ = true;
   long steps_ = 0;
   WorldOptions options_;
   std::vector<std::unique_ptr<WorldHand>> hands_;

@@ -168,5 +168,84 @@ TEST(PointContact, ImplicitBodyContactConservesMomentumAtAnyMassRatio) {
   }
 }
 
+TEST(ConstraintContact, SlabRestsOnTheFloorWithoutPenetrationAndCarriesItsWeight) {
+  HandConfig c;
+  c.drive = DriveParams{0, 0, 0, 0};
+  const HandModel model = slab_hand(1, c);
+  HandState s = make_rest_state(model);
+  for (int i = 0; i < model.num_nodes(); ++i) s.x[3 * i + 2] += 0.002;  // dropped from 2 mm
+  auto solver = make_solver(SolverKind::schur_cholmod);
+  double max_depth_late = 0;
+  for (int k = 0; k < 180; ++k) {
+    s.contacts = floor_as_contacts(model, s, 0.0, 0, 0, 0.5);
+    for (PointContact& pc : s.contacts) pc.constraint = true;
+    // Nodes within 1 mm above the floor are contacts too (a speculative margin):
+    // the constraint keeps them from crossing it during the step.
+    for (int i = 0; i < model.num_nodes(); ++i) {
+      const double gap = s.x[3 * i + 2];
+      if (gap <= 0 || gap > 1e-3) continue;
+      PointContact pc;
+      const auto [tet, local] = model.node_tet(i);
+      pc.tet = tet;
+      pc.bary = Eigen::Vector4d::Unit(local);
+      pc.depth_m = -gap;
+      pc.friction = 0.5;
+      pc.constraint = true;
+      s.contacts.push_back(pc);
+    }
+    ASSERT_EQ(step(model, s, *solver), StepStatus::ok) << "step " << k;
+    if (k >= 120)
+      for (int i = 0; i < model.num_nodes(); ++i) max_depth_late = std::max(max_depth_late, -s.x[3 * i + 2]);
+  }
+  EXPECT_LT(max_depth_late, 0.05e-3);  // m: far below a penalty contact's sag
+  Eigen::Vector3d total = Eigen::Vector3d::Zero();
+  for (const PointContact& pc : s.contacts) total += pc.f_W;
+  const double weight = 9.81 * (model.fem().lumped_mass().sum() + model.handles()[0].mass_kg);
+  EXPECT_NEAR(total.z(), weight, 0.02 * weight);
+  EXPECT_LT(s.v.cwiseAbs().maxCoeff(), 1e-3);  // at rest
+}
+
+TEST(ConstraintContact, PushingAnImplicitBodyConservesMomentum) {
+  HandConfig c;
+  c.gravity_m_s2.setZero();
+  c.drive = DriveParams{0, 0, 0, 0};
+  c.material.rayleigh_alpha_per_s = 0;
+  const HandModel model = slab_hand(1, c);
+  HandState s = make_rest_state(model);
+  for (int i = 0; i < model.num_nodes(); ++i) s.v[3 * i] = 0.5;
+  s.handles[0].v_WH = Eigen::Vector3d(0.5, 0, 0);
+  ContactBody body;
+  body.mass_kg = 0.05;
+  body.inertia_W = 0.05 * 1e-4 * Eigen::Matrix3d::Identity();
+  body.p_com_W = Eigen::Vector3d(0.06, 0, 0.01);
+  auto solver = make_solver(SolverKind::schur_cholmod);
+  const Eigen::Vector3d p0 = linear_momentum(model, s) + body.mass_kg * body.v_W;
+  for (int k = 0; k < 30; ++k) {
+    s.contacts.clear();
+    s.bodies = {body};
+    for (int i = 0; i < model.num_nodes(); ++i) {
+      const double depth = s.x[3 * i] - (body.p_com_W.x() - 0.02);
+      if (depth <= -1e-3) continue;  // with a 1 mm speculative margin
+      PointContact pc;
+      const auto [tet, local] = model.node_tet(i);
+      pc.tet = tet;
+      pc.bary = Eigen::Vector4d::Unit(local);
+      pc.n_W = -Eigen::Vector3d::UnitX();
+      pc.depth_m = depth;
+      pc.friction = 0.3;
+      pc.body = 0;
+      pc.constraint = true;
+      s.contacts.push_back(pc);
+    }
+    ASSERT_EQ(step(model, s, *solver), StepStatus::ok);
+    body.v_W += s.bodies[0].dv_W;
+    body.w_W += s.bodies[0].dw_W;
+    body.p_com_W += c.dt_s * body.v_W;
+  }
+  const Eigen::Vector3d p1 = linear_momentum(model, s) + body.mass_kg * body.v_W;
+  EXPECT_LT((p1 - p0).norm(), 1e-6 * p0.norm());  // PGS tolerance 1e-8 on the impulses
+  EXPECT_GT(body.v_W.x(), 0.1);                     // pushed along
+}
+
 }  // namespace
 }  // namespace hapticd

@@ -86,6 +86,33 @@ TEST(World, HandPushesARigidBoxAcrossTheFloor) {
   EXPECT_TRUE(box_touched);
 }
 
+TEST(World, HandPushesARigidBoxWithConstraintContactsToo) {
+  SceneDesc scene = floor_scene(0.1);
+  WorldOptions options;
+  options.contact = ContactModel::constraint;
+  World world(scene, options);
+  WorldHand& hand = world.hand(0);
+  RigidWorld& rigid = *world.rigid();
+  const int box = rigid.find("box");
+  const Eigen::Vector3d box0 = rigid.state(box).p_WO;
+  const HandleState start = hand.state.handles[0];
+  for (int k = 0; k < 90; ++k) {
+    HandleTarget t;
+    t.p_W = start.p_WH + Eigen::Vector3d(0, 0.1 * (k + 1) * world.dt(), 0);
+    t.q_W = start.q_WH;
+    t.v_W = Eigen::Vector3d(0, 0.1, 0);
+    set_target(hand.state, 0, t);
+    world.step();
+    ASSERT_TRUE(hand.state.x.allFinite());
+  }
+  const Eigen::Vector3d moved = rigid.state(box).p_WO - box0;
+  EXPECT_GT(moved.y(), 0.03);
+  EXPECT_LT(moved.y(), 0.16);
+  EXPECT_EQ(world.snapshot().resets, 0);
+  // Constraint contacts keep the skin out of the box: penetration stays below a penalty contact's.
+  EXPECT_LT(world.snapshot().max_penetration_m, 0.01);
+}
+
 TEST(World, ShippedScenesStepOrSayWhatIsMissing) {
   for (const char* name : {"stylus_bunny.json", "blocks.json"}) {
     World world(load_scene(std::string(HAPTICD_SCENES_DIR) + "/" + name));
