@@ -58,14 +58,14 @@ Eigen::Matrix3d geom_rotation(dGeomID g) {
 }  // namespace
 
 bool point_penetration(dGeomID geom, const Eigen::Vector3d& p, double& depth, Eigen::Vector3d& n,
-                       const Eigen::Vector3d& entry_n) {
+                       const Eigen::Vector3d& entry_n, double margin) {
   const int cls = dGeomGetClass(geom);
   if (cls == dPlaneClass) {
     dVector4 plane;
     dGeomPlaneGetParams(geom, plane);
     n = Eigen::Vector3d(plane[0], plane[1], plane[2]);
     depth = plane[3] - n.dot(p);
-    return depth > 0;
+    return depth > -margin;
   }
   const Eigen::Matrix3d R = geom_rotation(geom);
   const Eigen::Vector3d q = R.transpose() * (p - geom_position(geom));  // point in the geom frame
@@ -125,7 +125,7 @@ bool point_penetration(dGeomID geom, const Eigen::Vector3d& p, double& depth, Ei
       return false;  // meshes: RigidWorld::penetration uses their distance grid
   }
   n = R * n_local;
-  return depth > 0;
+  return depth > -margin;
 }
 
 
@@ -322,9 +322,9 @@ Eigen::Vector3d RigidWorld::point_velocity(int i, const Eigen::Vector3d& p) cons
 }
 
 bool RigidWorld::penetration(int i, const Eigen::Vector3d& p, double& depth, Eigen::Vector3d& n,
-                             const Eigen::Vector3d& entry_n) const {
+                             const Eigen::Vector3d& entry_n, double margin) const {
   const Object& o = objects_[i];
-  if (o.sdf.empty()) return point_penetration(o.geom, p, depth, n, entry_n);
+  if (o.sdf.empty()) return point_penetration(o.geom, p, depth, n, entry_n, margin);
   // Into the geom's frame (the mesh's own coordinates).
   const dReal* gp = dGeomGetPosition(o.geom);
   dQuaternion q;
@@ -332,7 +332,7 @@ bool RigidWorld::penetration(int i, const Eigen::Vector3d& p, double& depth, Eig
   const Eigen::Quaterniond R(q[0], q[1], q[2], q[3]);
   double distance;
   Eigen::Vector3d n_local;
-  if (!o.sdf.query(R.conjugate() * (p - from_ode(gp)), distance, n_local) || distance >= 0) return false;
+  if (!o.sdf.query(R.conjugate() * (p - from_ode(gp)), distance, n_local) || distance >= margin) return false;
   depth = -distance;
   n = R * n_local;
   return true;

@@ -68,8 +68,9 @@ class RigidWorld {
   // exact within 1.8 cm of the surface; deeper points keep a depth of 1.8 cm).
   // `entry_n_W`, when non-zero, is the normal the point had on entering a box:
   // the depth is then measured to that face while the point is inside.
+  // `margin_m` > 0 also reports points up to that far outside (depth < 0: a gap).
   bool penetration(int i, const Eigen::Vector3d& p_W, double& depth_m, Eigen::Vector3d& n_W,
-                   const Eigen::Vector3d& entry_n_W = Eigen::Vector3d::Zero()) const;
+                   const Eigen::Vector3d& entry_n_W = Eigen::Vector3d::Zero(), double margin_m = 0) const;
 
   dSpaceID space() const { return space_; }
   dGeomID geom(int i) const { return objects_[i].geom; }
@@ -105,6 +106,6 @@ class RigidWorld {
 // capsule, cylinder): depth > 0 and the unit normal out of the geom; false when
 // outside or for other geom classes.
 bool point_penetration(dGeomID geom, const Eigen::Vector3d& p_W, double& depth_m, Eigen::Vector3d& n_W,
-                       const Eigen::Vector3d& entry_n_W = Eigen::Vector3d::Zero());
+                       const Eigen::Vector3d& entry_n_W = Eigen::Vector3d::Zero(), double margin_m = 0);
 
 }  // namespace hapticd

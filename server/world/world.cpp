@@ -12,6 +12,8 @@ double ms_since(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
 
+constexpr double kSpeculativeMargin_m = 0.002;
+
 int handle_count(HandleSet set) {
   switch (set) {
     case HandleSet::palm: return 1;
@@ -102,11 +104,13 @@ void World::collide(int hi) {
       Eigen::Vector3d n;
       LastContact& last = last_contact_[hi][v];
       const Eigen::Vector3d entry = last.object == g ? last.n_W : Eigen::Vector3d::Zero();
-      if (!rigid_->penetration(g, p, depth, n, entry)) {
+      // Constraint contacts also take points just outside (speculative: the step may not cross the gap).
+      const double margin = constraint_contact_ ? kSpeculativeMargin_m : 0.0;
+      if (!rigid_->penetration(g, p, depth, n, entry, margin)) {
         if (last.object == g) last = LastContact{};
         continue;
       }
-      last = LastContact{g, n};
+      if (depth > 0) last = LastContact{g, n};
       PointContact c;
       c.tet = h.shape.skin_tet[v];
       c.bary = w;
@@ -191,7 +195,7 @@ void World::publish() {
     for (size_t k = 0; k < s.contacts.size(); ++k) {
       const PointContact& c = s.contacts[k];
       snapshot_.contacts.push_back({h, c.other, contact_points_[h][k], c.n_W, c.f_W, c.depth_m});
-      snapshot_.max_penetration_m = std::max(snapshot_.max_penetration_m, c.depth_m);
+      snapshot_.max_penetration_m = std::max(snapshot_.max_penetration_m, c.depth_m);  // gaps are < 0
     }
   }
   snapshot_.bodies.clear();

@@ -31,9 +31,9 @@ struct WorldOptions {
   DriveParams drive;  // how each handle is pulled toward its target (zero: the hand is let go)
   bool hand_contacts = true;  // false: hands pass through everything (a cost baseline for benches)
   // Hand contact model. Penalty by default for now: constraint contacts (PGS on the
-  // step's Delassus operator) are tested per step, but the world does not yet
-  // detect speculative contacts or cluster skin points, so resting hands chatter
-  // and large contact sets are slow. Set it to follow the scene's "contact", or force one.
+  // step's Delassus operator, speculative contacts within 2 mm) hold a resting hand
+  // without penetration, but every skin point near a surface is a contact and the
+  // step slows to ~150 ms until skin points are clustered. Unset: follow the scene.
   std::optional<ContactModel> contact = ContactModel::penalty;
 };
 

@@ -86,6 +86,23 @@ TEST(World, HandPushesARigidBoxAcrossTheFloor) {
   EXPECT_TRUE(box_touched);
 }
 
+TEST(World, HandRestingOnTheFloorWithConstraintContactsDoesNotSink) {
+  WorldOptions options;
+  options.drive = DriveParams{0, 0, 0, 0};
+  options.contact = ContactModel::constraint;
+  World world(floor_scene(0), options);
+  double max_penetration = 0;
+  for (int k = 0; k < 60; ++k) {  // 1 s: the hand falls 3 cm and comes to rest
+    world.step();
+    ASSERT_TRUE(world.hand(0).state.x.allFinite());
+    if (k >= 40) max_penetration = std::max(max_penetration, world.snapshot().max_penetration_m);
+  }
+  EXPECT_EQ(world.snapshot().resets, 0);
+  EXPECT_GT(world.snapshot().contacts.size(), 5u);
+  EXPECT_LT(max_penetration, 0.5e-3);
+  EXPECT_LT(world.hand(0).state.v.cwiseAbs().maxCoeff(), 0.02);
+}
+
 TEST(World, HandPushesARigidBoxWithConstraintContactsToo) {
   SceneDesc scene = floor_scene(0.1);
   WorldOptions options;
