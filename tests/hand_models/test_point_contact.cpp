@@ -32,6 +32,25 @@ std::vector<PointContact> floor_as_contacts(const HandModel& model, const HandSt
   return out;
 }
 
+// Contacts of every node within `margin` of a wall x = x_wall of contact body 0
+// (normal -x, out of the body), for slabs pushed along +x.
+std::vector<PointContact> wall_contacts(const HandModel& model, const HandState& s, double x_wall, double margin) {
+  std::vector<PointContact> out;
+  for (int i = 0; i < model.num_nodes(); ++i) {
+    const double depth = s.x[3 * i] - x_wall;
+    if (depth <= -margin) continue;
+    PointContact pc;
+    const auto [tet, local] = model.node_tet(i);
+    pc.tet = tet;
+    pc.bary = Eigen::Vector4d::Unit(local);
+    pc.n_W = -Eigen::Vector3d::UnitX();
+    pc.depth_m = depth;
+    pc.body = 0;
+    out.push_back(pc);
+  }
+  return out;
+}
+
 TEST(PointContact, ContactsFromOutsideReproduceTheFloorExactly) {
   HandConfig with_floor;
   with_floor.floor.enabled = true;
@@ -139,23 +158,9 @@ TEST(PointContact, ImplicitBodyContactConservesMomentumAtAnyMassRatio) {
     Eigen::Vector3d p0 = linear_momentum(model, s) + body_mass * body.v_W;
     for (int k = 0; k < 30; ++k) {
       // The slab's +x face presses into a wall of the body at x = 0.04 (normal -x out of the body).
-      s.contacts.clear();
       s.bodies = {body};
-      for (int i = 0; i < model.num_nodes(); ++i) {
-        const double depth = s.x[3 * i] - (0.04 + (body.p_com_W.x() - 0.06));
-        if (depth <= 0) continue;
-        PointContact pc;
-        const auto [tet, local] = model.node_tet(i);
-        pc.tet = tet;
-        pc.bary = Eigen::Vector4d::Unit(local);
-        pc.n_W = -Eigen::Vector3d::UnitX();
-        pc.depth_m = depth;
-        pc.stiffness_n_m = 5000;
-        pc.damping_ns_m = 5;
-        pc.friction = 0.5;
-        pc.body = 0;
-        s.contacts.push_back(pc);
-      }
+      s.contacts = wall_contacts(model, s, 0.04 + (body.p_com_W.x() - 0.06), 0.0);
+      for (PointContact& pc : s.contacts) pc.stiffness_n_m = 5000, pc.damping_ns_m = 5, pc.friction = 0.5;
       ASSERT_EQ(step(model, s, *solver), StepStatus::ok);
       body.v_W += s.bodies[0].dv_W;
       body.w_W += s.bodies[0].dw_W;
@@ -221,22 +226,9 @@ TEST(ConstraintContact, PushingAnImplicitBodyConservesMomentum) {
   auto solver = make_solver(SolverKind::schur_cholmod);
   const Eigen::Vector3d p0 = linear_momentum(model, s) + body.mass_kg * body.v_W;
   for (int k = 0; k < 30; ++k) {
-    s.contacts.clear();
     s.bodies = {body};
-    for (int i = 0; i < model.num_nodes(); ++i) {
-      const double depth = s.x[3 * i] - (body.p_com_W.x() - 0.02);
-      if (depth <= -1e-3) continue;  // with a 1 mm speculative margin
-      PointContact pc;
-      const auto [tet, local] = model.node_tet(i);
-      pc.tet = tet;
-      pc.bary = Eigen::Vector4d::Unit(local);
-      pc.n_W = -Eigen::Vector3d::UnitX();
-      pc.depth_m = depth;
-      pc.friction = 0.3;
-      pc.body = 0;
-      pc.constraint = true;
-      s.contacts.push_back(pc);
-    }
+    s.contacts = wall_contacts(model, s, body.p_com_W.x() - 0.02, 1e-3);  // 1 mm speculative margin
+    for (PointContact& pc : s.contacts) pc.friction = 0.3, pc.constraint = true;
     ASSERT_EQ(step(model, s, *solver), StepStatus::ok);
     body.v_W += s.bodies[0].dv_W;
     body.w_W += s.bodies[0].dw_W;

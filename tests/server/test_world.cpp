@@ -61,11 +61,7 @@ TEST(World, HandPushesARigidBoxAcrossTheFloor) {
   const HandleState start = hand.state.handles[0];
   bool box_touched = false;
   for (int k = 0; k < 90; ++k) {  // 1.5 s, pushing along +y at 10 cm/s
-    HandleTarget t;
-    t.p_W = start.p_WH + Eigen::Vector3d(0, 0.1 * (k + 1) * world.dt(), 0);
-    t.q_W = start.q_WH;
-    t.v_W = Eigen::Vector3d(0, 0.1, 0);
-    set_target(hand.state, 0, t);
+    set_target(hand.state, 0, testing_util::push_along_y(start, k, world.dt()));
     world.step();
     for (const ContactRecord& c : world.snapshot().contacts) box_touched = box_touched || c.object == box;
     // Every step publishes the handle-space model of the next one, bodies in contact included.
@@ -114,11 +110,7 @@ TEST(World, HandPushesARigidBoxWithConstraintContactsToo) {
   const Eigen::Vector3d box0 = rigid.state(box).p_WO;
   const HandleState start = hand.state.handles[0];
   for (int k = 0; k < 90; ++k) {
-    HandleTarget t;
-    t.p_W = start.p_WH + Eigen::Vector3d(0, 0.1 * (k + 1) * world.dt(), 0);
-    t.q_W = start.q_WH;
-    t.v_W = Eigen::Vector3d(0, 0.1, 0);
-    set_target(hand.state, 0, t);
+    set_target(hand.state, 0, testing_util::push_along_y(start, k, world.dt()));
     world.step();
     ASSERT_TRUE(hand.state.x.allFinite());
   }

@@ -110,7 +110,7 @@ TEST(WorldHardCases, PushingObjectsAThousandTimesLighterAndHeavierThanTheHand) {
     const HandleState start = hand.state.handles[0];
     double max_box_speed = 0;
     for (int k = 0; k < 90; ++k) {  // the hand moves 15 cm along +y at 10 cm/s into the box
-      set_target(hand.state, 0, target_at(start, {0, 0.1 * (k + 1) * world.dt(), 0}, {0, 0.1, 0}));
+      set_target(hand.state, 0, testing_util::push_along_y(start, k, world.dt()));
       world.step();
       ASSERT_TRUE(finite(world)) << "ratio " << ratio << " step " << k;
       max_box_speed = std::max(max_box_speed, rigid.state(box).v_WO.norm());

@@ -1,5 +1,6 @@
 #pragma once
 // Scene pieces shared by the world tests.
+#include "hand_models/hand_model.hpp"
 #include "server/world/scene.hpp"
 
 namespace hapticd::testing_util {
@@ -23,6 +24,15 @@ inline void add_push_box(SceneDesc& scene, double mass_kg, double friction = 0.5
   box.pose.p_W = {0.0, 0.16, 0.025};
   box.material.friction = friction;
   scene.objects.push_back(box);
+}
+
+// The handle target of step k of a push along +y at 10 cm/s from `start`.
+inline HandleTarget push_along_y(const HandleState& start, int k, double dt) {
+  HandleTarget t;
+  t.p_W = start.p_WH + Eigen::Vector3d(0, 0.1 * (k + 1) * dt, 0);
+  t.q_W = start.q_WH;
+  t.v_W = Eigen::Vector3d(0, 0.1, 0);
+  return t;
 }
 
 }  // namespace hapticd::testing_util
