@@ -22,14 +22,19 @@ struct WorldBenchArgs {
 };
 
 struct RunStats {
-  std::vector<double> total, collide, hands, rigid, linearize, contacts;
+  std::vector<double> total, collide, hands, contact, rigid, linearize, contacts;
+  // |F of the last step's handle-space model at this step's handle states - this
+  // step's coupling force|, N: what the haptic loop renders against what the
+  // next visual step finds (hand 0, the force part of all handles).
+  std::vector<double> force_error_n;
   double max_penetration_m = 0;
   long resets = 0;
 };
 
-// Every hand's handles travel onto the scene's first rigid object in the first
-// second (palm centre 5 mm above its top surface, so the palm's skin presses
-// into it), then stroke 2 cm along x with a 2 s period.
+// Every hand's handles travel in the first second to 6 cm above the scene's
+// first rigid object, come down onto it in the next half second (palm centre
+// 5 mm above its top surface, so the palm's skin presses into it), then stroke
+// 2 cm along x with a 2 s period.
 RunStats run(const SceneDesc& scene, const WorldOptions& options, int steps) {
   World world(scene, options);
   std::vector<std::vector<HandleState>> start;
@@ -48,23 +53,40 @@ RunStats run(const SceneDesc& scene, const WorldOptions& options, int steps) {
       goal.z() += 0.005;
       break;
     }
+  const Eigen::Vector3d above = goal + Eigen::Vector3d(0, 0, 0.06);
+  auto approach = [&](double t) -> Eigen::Vector3d {
+    if (t < 1.0) return t * (above - start[0][0].p_WH);
+    return above - start[0][0].p_WH + std::min(1.0, 2 * (t - 1.0)) * (goal - above);
+  };
   RunStats r;
   for (int k = 0; k < steps; ++k) {
     const double t = (k + 1) * world.dt();
-    const Eigen::Vector3d stroke(0.02 * std::sin(2 * std::numbers::pi * std::max(0.0, t - 1.0) / 2.0), 0, 0);
+    const Eigen::Vector3d stroke(0.02 * std::sin(2 * std::numbers::pi * std::max(0.0, t - 1.5) / 2.0), 0, 0);
     for (int h = 0; h < world.num_hands(); ++h)
       for (size_t j = 0; j < start[h].size(); ++j) {
         HandleTarget target;
-        target.p_W = start[h][j].p_WH + std::min(1.0, t) * (goal - start[0][0].p_WH) + stroke;
+        target.p_W = start[h][j].p_WH + approach(t) + stroke;
         target.q_W = start[h][j].q_WH;
         set_target(world.hand(h).state, static_cast<int>(j), target);
       }
+    const HandleLinearization previous =
+        world.num_hands() > 0 ? world.snapshot().linear_models.empty() ? HandleLinearization{}
+                                                                       : world.snapshot().linear_models[0]
+                              : HandleLinearization{};
     world.step();
     const WorldSnapshot& s = world.snapshot();
     if (k < 10) continue;  // warm-up
+    if (previous.K.size() > 0 && s.linear_model_valid[0]) {
+      const Eigen::VectorXd predicted = previous.evaluate(s.handles[0]), actual = s.linear_models[0].F0;
+      double err = 0;
+      for (int j = 0; j < predicted.size() / 6; ++j)
+        err = std::max(err, (predicted.segment<3>(6 * j) - actual.segment<3>(6 * j)).norm());
+      r.force_error_n.push_back(err);
+    }
     r.total.push_back(s.timings.total_ms);
     r.collide.push_back(s.timings.collide_ms);
     r.hands.push_back(s.timings.hands_ms);
+    r.contact.push_back(s.timings.contact_ms);
     r.rigid.push_back(s.timings.rigid_ms);
     r.linearize.push_back(s.timings.linearize_ms);
     r.contacts.push_back(static_cast<double>(s.contacts.size()));
@@ -77,6 +99,9 @@ RunStats run(const SceneDesc& scene, const WorldOptions& options, int steps) {
 nlohmann::json to_json(const RunStats& r) {
   return {{"step_ms_median", median(r.total)},       {"step_ms_p99", percentile(r.total, 99)},
           {"collision_ms", median(r.collide)},       {"hand_ms", median(r.hands)},
+          {"contact_solve_ms", median(r.contact)},
+          {"force_error_n_median", r.force_error_n.empty() ? 0.0 : median(r.force_error_n)},
+          {"force_error_n_p99", r.force_error_n.empty() ? 0.0 : percentile(r.force_error_n, 99)},
           {"ode_ms", median(r.rigid)},               {"linearization_ms", median(r.linearize)},
           {"contacts_median", median(r.contacts)},   {"contacts_max", percentile(r.contacts, 100)},
           {"max_penetration_mm", 1e3 * r.max_penetration_m}, {"resets", r.resets}};
@@ -89,26 +114,34 @@ void run_world_bench(const WorldBenchArgs& a) {
   const Machine machine = describe_machine();
   std::fprintf(stderr, "world: %s, %zu objects, %zu hands, %d steps\n", scene.name.c_str(), scene.objects.size(),
                scene.hands.size(), a.steps);
-  const RunStats with = run(scene, options, a.steps);
+  options.contact = ContactModel::penalty;
+  const RunStats penalty = run(scene, options, a.steps);
+  options.contact = ContactModel::constraint;
+  const RunStats constraint = run(scene, options, a.steps);
   options.hand_contacts = false;
   const RunStats without = run(scene, options, a.steps);
   nlohmann::json doc = {{"suite", "world"},
                         {"scene", scene.name},
                         {"solver", a.solver},
-                        {"contact_model", "penalty (implicit; rigid bodies in contact solved with the hand)"},
+                        {"contact_cluster_m", options.contact_cluster_m},
                         {"steps", a.steps},
-                        {"with_contact", to_json(with)},
+                        {"penalty", to_json(penalty)},
+                        {"constraint", to_json(constraint)},
                         {"without_contact", to_json(without)},
-                        {"contact_cost_ratio", median(with.total) / median(without.total)},
+                        {"penalty_cost_ratio", median(penalty.total) / median(without.total)},
+                        {"constraint_cost_ratio", median(constraint.total) / median(without.total)},
                         {"threads", 1},
                         {"cpu", machine.cpu},
                         {"machine", to_json(machine)}};
-  std::printf("%-18s %-8s %9s %9s %9s %9s %9s %9s %9s %9s\n", "scene", "contact", "step_med", "step_p99",
-              "collide", "hand", "ode", "linearize", "contacts", "pen_mm");
-  for (const auto& [label, r] : {std::pair<const char*, const RunStats&>{"on", with}, {"off", without}})
-    std::printf("%-18s %-8s %9.3f %9.3f %9.3f %9.3f %9.3f %9.3f %9.0f %9.3f\n", scene.name.c_str(), label,
-                median(r.total), percentile(r.total, 99), median(r.collide), median(r.hands), median(r.rigid),
-                median(r.linearize), median(r.contacts), 1e3 * r.max_penetration_m);
+  std::printf("%-18s %-10s %9s %9s %9s %9s %9s %9s %9s %9s %9s %9s\n", "scene", "contact", "step_med", "step_p99",
+              "collide", "hand", "contact", "ode", "linearize", "contacts", "pen_mm", "ferr_N");
+  for (const auto& [label, r] : {std::pair<const char*, const RunStats&>{"penalty", penalty},
+                                 {"constraint", constraint},
+                                 {"off", without}})
+    std::printf("%-18s %-10s %9.3f %9.3f %9.3f %9.3f %9.3f %9.3f %9.3f %9.0f %9.3f %9.4f\n", scene.name.c_str(), label,
+                median(r.total), percentile(r.total, 99), median(r.collide), median(r.hands), median(r.contact),
+                median(r.rigid), median(r.linearize), median(r.contacts), 1e3 * r.max_penetration_m,
+                r.force_error_n.empty() ? 0.0 : median(r.force_error_n));
   std::printf("machine: %s, %d cores, BLAS %s, revision %s (times in ms, one thread)\n", machine.cpu.c_str(),
               machine.cores, machine.blas.c_str(), machine.git_revision.c_str());
   if (!a.json.empty()) write_json(a.json, doc);

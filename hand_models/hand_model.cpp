@@ -370,6 +370,7 @@ void assemble(const HandModel& model, HandState& s) {
     v << B.v_W, B.w_W;
     sys.A_h.block<6, 6>(6 * (m + b), 6 * (m + b)) = M;
     sys.b_h.segment<6>(6 * (m + b)) = M * v;
+    sys.b_h.segment<3>(6 * (m + b)) += h * B.mass_kg * cfg.gravity_m_s2;
   }
   for (const PointContact& c : s.active_contacts)
     if (c.body >= 0 && !c.constraint) assemble_body_contact(model, c, s, 6 * (m + c.body), h, th, ht);
@@ -387,6 +388,7 @@ void reset_to_target(const HandModel& model, HandState& s) {
   place_hand(model, s, usable ? t.p_W : model.handles()[0].p_WH_rest,
              usable ? t.q_W : Eigen::Quaterniond::Identity(), 0);
   s.targets = targets;
+  s.held = HeldContacts{};
   ++s.resets;
 }
 
@@ -430,59 +432,112 @@ Eigen::Matrix3d contact_frame(const Eigen::Vector3d& n) {
   return F;
 }
 
+bool valid_support(const HandState& s, const BodySupport& b) {
+  return b.body >= 0 && b.body < static_cast<int>(s.bodies.size()) && b.p_W.allFinite() && b.n_W.allFinite() &&
+         std::abs(b.n_W.norm() - 1) < 1e-6 && std::isfinite(b.depth_m) && b.v_other_W.allFinite() &&
+         finite_nonneg(b.friction);
+}
+
 // Constraint contacts on the solved free velocities: J (contact frames of the
-// relative velocity), A^-1 J^T by one block solve, W = J A^-1 J^T, projected
-// Gauss-Seidel, V = V_free + A^-1 J^T lambda. Impulses go to `impulses` (world).
+// relative velocity, sparse), A^-1 J^T by one block solve through the step's
+// factorization, W = J A^-1 J^T, projected Gauss-Seidel warm-started from each
+// contact's guess, V = V_free + A^-1 J^T lambda. The rows are the hand's
+// constraint contacts, then the implicit bodies' supports. Hand impulses go to
+// `impulses` (world frame, per active contact); the pushing rows become s.held
+// for the linearization.
 bool solve_constraint_contacts(const HandModel& model, HandState& s, CoupledSolver& solver,
                                std::vector<Eigen::Vector3d>& impulses) {
-  std::vector<int> rows;
+  std::vector<int> rows, supports;
   for (size_t i = 0; i < s.active_contacts.size(); ++i)
     if (s.active_contacts[i].constraint) rows.push_back(static_cast<int>(i));
+  for (size_t i = 0; i < s.supports.size(); ++i)
+    if (valid_support(s, s.supports[i])) supports.push_back(static_cast<int>(i));
   impulses.assign(s.active_contacts.size(), Eigen::Vector3d::Zero());
-  if (rows.empty()) return true;
+  s.held = HeldContacts{};
+  if (rows.empty() && supports.empty()) return true;
   const CoupledSystem& sys = s.system;
-  const int nh = sys.handle_dofs(), nt = sys.tool_dofs(), c = static_cast<int>(rows.size());
+  const int nh = sys.handle_dofs(), nt = sys.tool_dofs();
+  const int nc = static_cast<int>(rows.size()), c = nc + static_cast<int>(supports.size());
   const int m = model.num_handles();
   const double h = model.config().dt_s;
-  Eigen::MatrixXd Jt = Eigen::MatrixXd::Zero(nh + nt, 3 * c);
+  std::vector<Eigen::Triplet<double>> entries;  // of J^T: row = DOF, column = contact direction
+  entries.reserve(c * 3 * 18);
   ContactProblem problem;
   problem.u_free.resize(3 * c);
   problem.bias.resize(c);
+  problem.mu.resize(c);
+  Eigen::VectorXd warm = Eigen::VectorXd::Zero(3 * c);
   std::vector<Eigen::Matrix3d> frames(c);
-  for (int k = 0; k < c; ++k) {
+  auto add = [&](int dof, int k, const Eigen::Matrix3d& block) {
+    for (int r = 0; r < 3; ++r)
+      for (int d = 0; d < 3; ++d) entries.emplace_back(dof + r, 3 * k + d, block(r, d));
+  };
+  // Row k: the relative velocity of the hand point (or body) against the other side, in frame (n, t1, t2).
+  auto add_body = [&](int body, const Eigen::Vector3d& p_W, int k, double sign) {
+    const Eigen::Vector3d rho = p_W - s.bodies[body].p_com_W;
+    add(6 * (m + body), k, sign * frames[k]);
+    add(6 * (m + body) + 3, k, sign * skew(rho) * frames[k]);  // (w x rho) . f = w . (rho x f)
+  };
+  auto set_row = [&](int k, const Eigen::Vector3d& v_known, double depth, double mu) {
+    // A kinematic other side's known velocity is part of the free relative velocity.
+    problem.u_free.segment<3>(3 * k) = -frames[k].transpose() * v_known;
+    // Penetrating: push out a fraction of the depth; a gap (speculative contact) may close fully.
+    problem.bias[k] = depth > 0 ? kContactDepthRecovery * depth / h : depth / h;
+    problem.mu[k] = mu;
+  };
+  for (int k = 0; k < nc; ++k) {
     const PointContact& pc = s.active_contacts[rows[k]];
     const Tet& t = model.mesh().tets[pc.tet];
     frames[k] = contact_frame(pc.n_W);
     for (int a = 0; a < 4; ++a)
-      Jt.block<3, 3>(nh + 3 * t[a], 3 * k) += pc.bary[a] * frames[k];
-    if (pc.body >= 0) {
-      const Eigen::Vector3d rho = embedded(t, pc.bary, s.x) - s.bodies[pc.body].p_com_W;
-      Eigen::Matrix<double, 3, 6> J_B;
-      J_B << Eigen::Matrix3d::Identity(), -skew(rho);
-      Jt.block<6, 3>(6 * (m + pc.body), 3 * k) -= J_B.transpose() * frames[k];
-    }
-    // A kinematic other body's known velocity is part of the free relative velocity.
-    const Eigen::Vector3d v_known = pc.body >= 0 ? Eigen::Vector3d::Zero() : pc.v_other_W;
-    problem.u_free.segment<3>(3 * k) = -frames[k].transpose() * v_known;
-    // Penetrating: push out a fraction of the depth; a gap (speculative contact) may close fully.
-    problem.bias[k] = pc.depth_m > 0 ? kContactDepthRecovery * pc.depth_m / h : pc.depth_m / h;
-    problem.mu.push_back(pc.friction);
+      if (pc.bary[a] != 0) add(nh + 3 * t[a], k, pc.bary[a] * frames[k]);
+    if (pc.body >= 0) add_body(pc.body, embedded(t, pc.bary, s.x), k, -1.0);
+    set_row(k, pc.body >= 0 ? Eigen::Vector3d::Zero() : pc.v_other_W, pc.depth_m, pc.friction);
+    warm.segment<3>(3 * k) = frames[k].transpose() * pc.warm_impulse_W;
   }
+  for (int k = nc; k < c; ++k) {
+    const BodySupport& b = s.supports[supports[k - nc]];
+    frames[k] = contact_frame(b.n_W);
+    add_body(b.body, b.p_W, k, 1.0);
+    set_row(k, b.v_other_W, b.depth_m, b.friction);
+  }
+  Eigen::SparseMatrix<double> Jt(nh + nt, 3 * c);
+  Jt.setFromTriplets(entries.begin(), entries.end());
   Eigen::VectorXd V(nh + nt);
   V << s.v_h_next, s.v_t_next;
   problem.u_free += Jt.transpose() * V;
   Eigen::MatrixXd X;
-  if (!solver.solve_block(sys, Jt, X)) return false;
+  if (!solver.solve_block(sys, Eigen::MatrixXd(Jt), X)) return false;
   problem.W = Jt.transpose() * X;
   PgsOptions options;
   options.max_iterations = 500;
   options.tolerance = 1e-8;
-  const PgsResult r = solve_contacts_pgs(problem, options);
+  const PgsResult r = solve_contacts_pgs(problem, options, &warm);
   if (!r.lambda.allFinite()) return false;
+  s.timings.contact_iterations = r.iterations;
+  s.timings.contact_converged = r.converged;
   V += X * r.lambda;
   s.v_h_next = V.head(nh);
   s.v_t_next = V.tail(nt);
-  for (int k = 0; k < c; ++k) impulses[rows[k]] = frames[k] * r.lambda.segment<3>(3 * k);
+  for (int k = 0; k < nc; ++k) impulses[rows[k]] = frames[k] * r.lambda.segment<3>(3 * k);
+
+  // Held for the linearization: pushing rows' normals, and the tangents of those inside the cone.
+  std::vector<int> held_cols;
+  for (int k = 0; k < c; ++k) {
+    const Eigen::Vector3d l = r.lambda.segment<3>(3 * k);
+    if (l[0] <= 0) continue;
+    held_cols.push_back(3 * k);
+    const bool sticks = problem.mu[k] > 0 && l.tail<2>().norm() < (1 - 1e-6) * problem.mu[k] * l[0];
+    if (sticks) held_cols.push_back(3 * k + 1), held_cols.push_back(3 * k + 2);
+  }
+  s.held.J.resize(static_cast<int>(held_cols.size()), nh + nt);
+  std::vector<Eigen::Triplet<double>> held_entries;
+  for (size_t r_i = 0; r_i < held_cols.size(); ++r_i)
+    for (Eigen::SparseMatrix<double>::InnerIterator it(Jt, held_cols[r_i]); it; ++it)
+      held_entries.emplace_back(static_cast<int>(r_i), static_cast<int>(it.row()), it.value());
+  s.held.J.setFromTriplets(held_entries.begin(), held_entries.end());
+  s.held.u = s.held.J * V;
+  s.held.impulse = Jt * r.lambda;
   return true;
 }
 
@@ -496,7 +551,9 @@ StepStatus step(const HandModel& model, HandState& s, CoupledSolver& solver, Han
   SolveReport report;
   bool solved = solver.solve(s.system, s.v_h_next, s.v_t_next, report);
   std::vector<Eigen::Vector3d> impulses;
+  const auto t_contact = Clock::now();
   if (solved) solved = solve_constraint_contacts(model, s, solver, impulses);
+  s.timings.contact_ms = ms_since(t_contact);
   s.timings.factor_ms = report.factor_ms;
   s.timings.schur_ms = report.schur_ms;
   s.timings.solve_ms = report.solve_ms;
@@ -512,7 +569,7 @@ StepStatus step(const HandModel& model, HandState& s, CoupledSolver& solver, Han
   bool linearized = false;
   if (linearization && status == StepStatus::ok) {
     const auto t_lin = Clock::now();
-    linearized = linearize_handles(model, s, solver, *linearization);
+    linearized = linearize_handles(model, s, solver, *linearization, s.held.rows() > 0 ? &s.held : nullptr);
     s.timings.linearize_ms = ms_since(t_lin);
   }
   if (status != StepStatus::ok) {
@@ -522,9 +579,10 @@ StepStatus step(const HandModel& model, HandState& s, CoupledSolver& solver, Han
     s.v = s.v_t_next;
     s.x += h * s.v;
     for (size_t b = 0; b < s.bodies.size(); ++b) {
+      ContactBody& B = s.bodies[b];
       const int col = 6 * (model.num_handles() + static_cast<int>(b));
-      s.bodies[b].dv_W = s.v_h_next.segment<3>(col) - s.bodies[b].v_W;
-      s.bodies[b].dw_W = s.v_h_next.segment<3>(col + 3) - s.bodies[b].w_W;
+      B.dv_W = s.v_h_next.segment<3>(col) - B.v_W;
+      B.dw_W = s.v_h_next.segment<3>(col + 3) - B.w_W;
     }
     for (int j = 0; j < model.num_handles(); ++j) {
       HandleState& hs = s.handles[j];

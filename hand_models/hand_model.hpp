@@ -62,6 +62,9 @@ struct PointContact {
   // Gauss-Seidel on the Delassus operator of the step) instead of a penalty
   // spring: stiffness and damping are then unused.
   bool constraint = false;
+  // In, constraint contacts: a guess of this step's impulse (N s, world frame),
+  // e.g. the last step's at the same place; it warm-starts Gauss-Seidel.
+  Eigen::Vector3d warm_impulse_W = Eigen::Vector3d::Zero();
   // Out, after a step: the force the contact put on this body at the end of the step, N.
   Eigen::Vector3d f_W = Eigen::Vector3d::Zero();
 };
@@ -134,8 +137,23 @@ struct ContactBody {
   Eigen::Matrix3d inertia_W = Eigen::Matrix3d::Identity();  // about the centre of mass, world axes, kg m^2
   Eigen::Vector3d p_com_W = Eigen::Vector3d::Zero();
   Eigen::Vector3d v_W = Eigen::Vector3d::Zero(), w_W = Eigen::Vector3d::Zero();
-  // Out, after a step: the velocity change the hand's contacts gave the body.
+  // Out, after a step: the body's velocity change over the step, from its
+  // gravity, its supports and the hand's contacts together.
   Eigen::Vector3d dv_W = Eigen::Vector3d::Zero(), dw_W = Eigen::Vector3d::Zero();
+};
+
+// A contact of an implicit body with something that is not the hand (static
+// geometry, or another body taken as moving at its known velocity): solved as
+// a constraint with the hand's contacts, so the flesh feels the body supported
+// (a bunny pressed onto a table does not give way) instead of learning it one
+// step late from the rigid-body engine.
+struct BodySupport {
+  int body = 0;  // index into HandState::bodies
+  Eigen::Vector3d p_W = Eigen::Vector3d::Zero();
+  Eigen::Vector3d n_W = Eigen::Vector3d::UnitZ();  // unit, out of the support, into the body
+  double depth_m = 0;
+  double friction = 0.5;
+  Eigen::Vector3d v_other_W = Eigen::Vector3d::Zero();  // the support's velocity at the point
 };
 
 struct HandleTarget {
@@ -147,8 +165,22 @@ struct HandleTarget {
 
 // Per-stage wall time of the last step, ms, and the solver's iteration count.
 struct StepTimings {
-  double assembly_ms = 0, factor_ms = 0, schur_ms = 0, solve_ms = 0, linearize_ms = 0, integrate_ms = 0, total_ms = 0;
+  double assembly_ms = 0, factor_ms = 0, schur_ms = 0, solve_ms = 0, contact_ms = 0, linearize_ms = 0,
+         integrate_ms = 0, total_ms = 0;
   long iterations = 0;
+  int contact_iterations = 0;  // Gauss-Seidel sweeps of the constraint contacts
+  bool contact_converged = true;
+};
+
+// The constraint contacts a step ended with, as the linear constraints the
+// handle-space model holds (seed 004 section 3: "accounting for contact
+// constraints"): the normal row of every contact that pushes, and its tangent
+// rows too while it sticks (a sliding contact keeps its friction impulse).
+struct HeldContacts {
+  Eigen::SparseMatrix<double> J;  // rows: held directions; columns: the DOFs of eq. 7 (handles, bodies, tool)
+  Eigen::VectorXd u;              // J V at the step's solution, m/s (what the rows hold)
+  Eigen::VectorXd impulse;        // every constraint contact's generalized impulse J_all^T lambda (held or sliding)
+  int rows() const { return static_cast<int>(J.rows()); }
 };
 
 struct HandState {
@@ -166,8 +198,10 @@ struct HandState {
   // f_W is filled by the step. Floor contacts are added internally each step.
   std::vector<PointContact> contacts;
   std::vector<ContactBody> bodies;            // the dynamic bodies contacts refer to
+  std::vector<BodySupport> supports;          // those bodies' other contacts, for the next step
   std::vector<PointContact> active_contacts;  // valid contacts + floor, as last assembled
   std::vector<int> active_source;            // index into contacts, -1 for the floor
+  HeldContacts held;                          // the last step's held constraint contacts
 
   StepTimings timings;
   int floor_contacts = 0;

@@ -34,7 +34,8 @@ Eigen::VectorXd HandleLinearization::evaluate(const std::vector<HandleState>& ha
   return F0 + K * dx + D * dv;
 }
 
-bool linearize_handles(const HandModel& model, const HandState& s, CoupledSolver& solver, HandleLinearization& out) {
+bool linearize_handles(const HandModel& model, const HandState& s, CoupledSolver& solver, HandleLinearization& out,
+                       const HeldContacts* held) {
   const CoupledSystem& sys = s.system;
   const int m = model.num_handles(), nh = 6 * m, nt = sys.tool_dofs();
   const int nb = (sys.handle_dofs() - nh) / 6;  // rigid bodies solved with the hand
@@ -66,20 +67,45 @@ bool linearize_handles(const HandModel& model, const HandState& s, CoupledSolver
     }
   }
   // Solves with everything but the handles: the tool and the implicit bodies
-  // (block elimination of the bodies through the tool's A_t^-1).
-  Eigen::MatrixXd rhs(nt, 1 + 2 * nh + 6 * nb);
-  rhs << sys.b_t, h * K_th, h * D_th, Eigen::MatrixXd(sys.A_th.rightCols(6 * nb));
+  // (block elimination of the bodies through the tool's A_t^-1). Columns: the
+  // constant part, the K and D parts, then the held contact rows' J^T.
+  const int nc = held ? held->rows() : 0;
+  const int nk = 1 + 2 * nh;
+  Eigen::MatrixXd J_t(0, nt), J_b(0, 6 * nb);  // held rows on the tool and on the bodies
+  if (nc > 0) {
+    J_t = Eigen::MatrixXd(held->J.rightCols(nt));
+    J_b = Eigen::MatrixXd(held->J.middleCols(nh, 6 * nb));
+  }
+  Eigen::MatrixXd rhs(nt, nk + nc + 6 * nb);
+  rhs << sys.b_t, h * K_th, h * D_th, J_t.transpose(), Eigen::MatrixXd(sys.A_th.rightCols(6 * nb));
   Eigen::MatrixXd Y;
+  // The step's contact impulses act as known forces; the held rows' multipliers then only correct them.
+  if (held) rhs.col(0) += held->impulse.tail(nt);
   if (!solver.solve_tool(sys, rhs, Y)) return false;
+  Eigen::MatrixXd X_b = Eigen::MatrixXd::Zero(6 * nb, nk + nc);  // the bodies' part of each solution
   if (nb > 0) {
-    // The bodies' own RHS for b_t's column; zero for the handle columns.
     const Eigen::MatrixXd A_bt = Eigen::MatrixXd(sys.A_ht.bottomRows(6 * nb));
     const Eigen::MatrixXd Y_b = Y.rightCols(6 * nb);
     const Eigen::MatrixXd S_b = sys.A_h.bottomRightCorner(6 * nb, 6 * nb) - A_bt * Y_b;
-    Eigen::MatrixXd R_b = -A_bt * Y.leftCols(1 + 2 * nh);
-    R_b.col(0) += sys.b_h.tail(6 * nb);
-    const Eigen::MatrixXd X_b = S_b.partialPivLu().solve(R_b);
-    Y.leftCols(1 + 2 * nh) -= Y_b * X_b;
+    Eigen::MatrixXd R_b = -A_bt * Y.leftCols(nk + nc);
+    R_b.col(0) += sys.b_h.tail(6 * nb);  // the bodies' own RHS for b_t's column; zero for the handle columns
+    if (held) R_b.col(0) += held->impulse.segment(nh, 6 * nb);
+    if (nc > 0) R_b.rightCols(nc) += J_b.transpose();
+    X_b = S_b.partialPivLu().solve(R_b);
+    Y.leftCols(nk + nc) -= Y_b * X_b;
+  }
+  if (nc > 0) {
+    // Multipliers that keep J V = u for every column: W mu = u e0^T - J Y, with
+    // W = J A^-1 J^T (handles held). Redundant rows (more contacts than a body
+    // has DOFs) make W singular: a relative 1e-10 regularization picks the
+    // least-norm multipliers without changing the held velocities measurably.
+    const Eigen::MatrixXd Z = Y.middleCols(nk, nc), Z_b = X_b.rightCols(nc);
+    Eigen::MatrixXd W = J_t * Z + J_b * Z_b;
+    W.diagonal().array() += 1e-10 * W.diagonal().cwiseAbs().maxCoeff();
+    Eigen::MatrixXd Q = -(J_t * Y.leftCols(nk) + J_b * X_b.leftCols(nk));
+    Q.col(0) += held->u;
+    const Eigen::MatrixXd mu = W.ldlt().solve(Q);
+    Y.leftCols(nk) += Z * mu;
   }
   const Eigen::VectorXd y0 = Y.col(0);
   const Eigen::MatrixXd Y_K = Y.middleCols(1, nh), Y_D = Y.middleCols(1 + nh, nh);

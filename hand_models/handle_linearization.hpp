@@ -29,9 +29,12 @@ struct HandleLinearization {
 
 // Builds the model of the step whose system `state` holds (assembled at the
 // state's current positions); step() calls it right after its solve, while the
-// solver's factorization is current. `solver` provides A_t^-1. False if a solve fails.
+// solver's factorization is current. `solver` provides A_t^-1. With `held`, the
+// flesh and bodies answer a handle displacement with those contact rows held
+// at their solved relative velocities (bilateral, by their Lagrange
+// multipliers), so the model keeps the contacts of the step (GO09). False if a solve fails.
 bool linearize_handles(const HandModel& model, const HandState& state, CoupledSolver& solver,
-                       HandleLinearization& out);
+                       HandleLinearization& out, const HeldContacts* held = nullptr);
 
 // The coupling wrench on each handle at a given state, exactly (seed 004 eq. 4-5), 6m.
 Eigen::VectorXd coupling_wrench(const HandModel& model, const Eigen::VectorXd& x_t, const Eigen::VectorXd& v_t,

@@ -89,13 +89,18 @@ bool point_penetration(dGeomID geom, const Eigen::Vector3d& p, double& depth, Ei
         }
       }
       if (depth > 0 && !entry_n.isZero()) {
-        // Inside: keep the entry face (the local axis closest to the entry normal).
+        // Inside: the face opposite the entry face never takes over (a point
+        // pushed past the middle of a thin plate is still pushed back out the
+        // way it came); a side face nearer than the entry face does (a point
+        // that slid over an edge).
         Eigen::Index k;
         const Eigen::Vector3d e = R.transpose() * entry_n;
         e.cwiseAbs().maxCoeff(&k);
         const double sign = e[k] >= 0 ? 1.0 : -1.0;
-        n_local = sign * Eigen::Vector3d::Unit(k);
-        depth = 0.5 * size[k] - sign * q[k];
+        if (n_local.dot(sign * Eigen::Vector3d::Unit(k)) < -0.5) {
+          n_local = sign * Eigen::Vector3d::Unit(k);
+          depth = 0.5 * size[k] - sign * q[k];
+        }
       }
       break;
     }
@@ -338,16 +343,6 @@ bool RigidWorld::penetration(int i, const Eigen::Vector3d& p, double& depth, Eig
   return true;
 }
 
-void RigidWorld::add_force_at(int i, const Eigen::Vector3d& f, const Eigen::Vector3d& p) {
-  if (objects_[i].body) dBodyAddForceAtPos(objects_[i].body, f.x(), f.y(), f.z(), p.x(), p.y(), p.z());
-}
-
-void RigidWorld::add_wrench(int i, const Eigen::Vector3d& f, const Eigen::Vector3d& tau) {
-  if (!objects_[i].body) return;
-  dBodyAddForce(objects_[i].body, f.x(), f.y(), f.z());
-  dBodyAddTorque(objects_[i].body, tau.x(), tau.y(), tau.z());
-}
-
 ContactBody RigidWorld::contact_body(int i) const {
   ContactBody b;
   dBodyID body = objects_[i].body;
@@ -364,6 +359,39 @@ ContactBody RigidWorld::contact_body(int i) const {
   b.v_W = from_ode(dBodyGetLinearVel(body));
   b.w_W = from_ode(dBodyGetAngularVel(body));
   return b;
+}
+
+void RigidWorld::add_velocity(int i, const Eigen::Vector3d& dv_W, const Eigen::Vector3d& dw_W) {
+  dBodyID body = objects_[i].body;
+  if (!body || !dv_W.allFinite() || !dw_W.allFinite()) return;
+  const Eigen::Vector3d v = from_ode(dBodyGetLinearVel(body)) + dv_W, w = from_ode(dBodyGetAngularVel(body)) + dw_W;
+  dBodySetLinearVel(body, v.x(), v.y(), v.z());
+  dBodySetAngularVel(body, w.x(), w.y(), w.z());
+}
+
+void RigidWorld::contacts_of(int i, std::vector<BodyContact>& out) const {
+  out.clear();
+  struct Query {
+    const RigidWorld* world;
+    dGeomID self;
+    std::vector<BodyContact>* out;
+  } query{this, objects_[i].geom, &out};
+  auto callback = [](void* data, dGeomID a, dGeomID b) {
+    const Query& q = *static_cast<Query*>(data);
+    const dGeomID other = a == q.self ? b : a;
+    if (other == q.self) return;
+    dContactGeom contacts[kMaxContactsPerPair];
+    // Geom order (self, other): ODE's normal then points out of the other into self.
+    const int n = dCollide(q.self, other, kMaxContactsPerPair, contacts, sizeof(dContactGeom));
+    const int j = q.world->object_of(other);
+    if (j < 0) return;
+    const Object& oa = q.world->objects_[q.world->object_of(q.self)];
+    const Object& ob = q.world->objects_[j];
+    for (int k = 0; k < n; ++k)
+      q.out->push_back({j, from_ode(contacts[k].pos), from_ode(contacts[k].normal), contacts[k].depth,
+                        std::sqrt(oa.friction * ob.friction)});
+  };
+  dSpaceCollide2(objects_[i].geom, reinterpret_cast<dGeomID>(space_), &query, callback);
 }
 
 void RigidWorld::near_callback(void* data, dGeomID a, dGeomID b) {

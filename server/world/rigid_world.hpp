@@ -51,10 +51,8 @@ class RigidWorld {
   double mass_kg(int i) const;
   RigidBodyState state(int i) const;
   void set_state(int i, const RigidBodyState& s);
-  // Adds a force (N) at a world point to body i for the next step (rigid bodies only).
-  void add_force_at(int i, const Eigen::Vector3d& f_W, const Eigen::Vector3d& p_W);
-  // Adds a force (N) at the centre of mass and a torque (N m) for the next step.
-  void add_wrench(int i, const Eigen::Vector3d& f_W, const Eigen::Vector3d& tau_W);
+  // Changes body i's velocity (centre of mass, m/s) and angular velocity (rad/s) by these amounts now.
+  void add_velocity(int i, const Eigen::Vector3d& dv_W, const Eigen::Vector3d& dw_W);
   // Mass, world inertia, centre of mass and velocity of rigid body i, for a hand
   // that solves its contacts with the body implicitly.
   ContactBody contact_body(int i) const;
@@ -71,6 +69,16 @@ class RigidWorld {
   // `margin_m` > 0 also reports points up to that far outside (depth < 0: a gap).
   bool penetration(int i, const Eigen::Vector3d& p_W, double& depth_m, Eigen::Vector3d& n_W,
                    const Eigen::Vector3d& entry_n_W = Eigen::Vector3d::Zero(), double margin_m = 0) const;
+
+  // Contacts of rigid body i with every other object (ODE's collision, the
+  // same as its own step would find): normal out of the other object into body
+  // i, depth >= 0, friction the pair's kinetic coefficient, `other` its index.
+  struct BodyContact {
+    int other = -1;
+    Eigen::Vector3d p_W = Eigen::Vector3d::Zero(), n_W = Eigen::Vector3d::UnitZ();
+    double depth_m = 0, friction = 0.5;
+  };
+  void contacts_of(int i, std::vector<BodyContact>& out) const;
 
   dSpaceID space() const { return space_; }
   dGeomID geom(int i) const { return objects_[i].geom; }

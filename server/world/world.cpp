@@ -2,7 +2,9 @@
 
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <stdexcept>
+#include <unordered_map>
 
 namespace hapticd {
 namespace {
@@ -13,6 +15,16 @@ double ms_since(Clock::time_point t0) {
 }
 
 constexpr double kSpeculativeMargin_m = 0.002;
+
+// The cluster cell of a contact: object and integer cell coordinates packed in 64 bits.
+std::uint64_t cluster_key(int object, const Eigen::Vector3d& p_W, double cell_m) {
+  std::uint64_t key = static_cast<std::uint64_t>(object) & 0xffff;
+  for (int k = 0; k < 3; ++k) {
+    const auto cell = static_cast<std::int64_t>(std::floor(p_W[k] / cell_m));
+    key = (key << 16) | (static_cast<std::uint64_t>(cell) & 0xffff);
+  }
+  return key;
+}
 
 int handle_count(HandleSet set) {
   switch (set) {
@@ -27,6 +39,7 @@ int handle_count(HandleSet set) {
 
 World::World(const SceneDesc& scene, const WorldOptions& options)
     : dt_(scene.dt_s),
+      gravity_m_s2_(scene.gravity_m_s2),
       constraint_contact_(options.contact.value_or(scene.contact) == ContactModel::constraint),
       options_(options) {
   if (scene.needs_deformable_objects())
@@ -65,6 +78,8 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
     hands_.push_back(std::move(h));
   }
   contact_points_.resize(hands_.size());
+  contact_keys_.resize(hands_.size());
+  warm_impulse_.resize(hands_.size());
   last_contact_.resize(hands_.size());
   for (size_t h = 0; h < hands_.size(); ++h) last_contact_[h].resize(hands_[h]->shape.skin_vertices.size());
   for (int h = 0; h < num_hands(); ++h) collide(h);
@@ -81,6 +96,9 @@ void World::collide(int hi) {
   WorldHand& h = *hands_[hi];
   h.state.contacts.clear();
   h.state.bodies.clear();
+  h.state.supports.clear();
+  contact_keys_[hi].clear();
+  std::unordered_map<std::uint64_t, int> cluster;
   std::vector<int> body_of_object(rigid_ ? rigid_->num_objects() : 0, -1);
   contact_points_[hi].clear();
   if (!rigid_ || !options_.hand_contacts) return;
@@ -130,8 +148,43 @@ void World::collide(int hi) {
       c.friction = std::sqrt(h.friction * rigid_->friction(g));
       c.other = g;
       c.constraint = constraint_contact_;
+      if (!constraint_contact_) {
+        h.state.contacts.push_back(c);
+        contact_points_[hi].push_back(p);
+        continue;
+      }
+      // Constraint contacts are reduced to the deepest point per object and
+      // cluster cell: a patch of skin on a face needs a few non-penetration
+      // rows, not one per skin vertex (each row costs a column of A^-1 J^T).
+      const std::uint64_t key = cluster_key(g, p, options_.contact_cluster_m);
+      const auto warm = warm_impulse_[hi].find(key);
+      if (warm != warm_impulse_[hi].end()) c.warm_impulse_W = warm->second;
+      const auto [it, fresh] = cluster.try_emplace(key, static_cast<int>(h.state.contacts.size()));
+      if (!fresh) {
+        if (h.state.contacts[it->second].depth_m >= depth) continue;
+        h.state.contacts[it->second] = c;
+        contact_points_[hi][it->second] = p;
+        continue;
+      }
       h.state.contacts.push_back(c);
       contact_points_[hi].push_back(p);
+      contact_keys_[hi].push_back(key);
+    }
+  }
+  // The bodies the hand touches bring their own contacts (table, other bodies) as supports.
+  std::vector<RigidWorld::BodyContact> found;
+  for (int g = 0; g < rigid_->num_objects(); ++g) {
+    if (body_of_object[g] < 0) continue;
+    rigid_->contacts_of(g, found);
+    for (const RigidWorld::BodyContact& bc : found) {
+      BodySupport support;
+      support.body = body_of_object[g];
+      support.p_W = bc.p_W;
+      support.n_W = bc.n_W;
+      support.depth_m = bc.depth_m;
+      support.friction = bc.friction;
+      support.v_other_W = rigid_->point_velocity(bc.other, bc.p_W);
+      h.state.supports.push_back(support);
     }
   }
 }
@@ -147,8 +200,13 @@ void World::step() {
     hapticd::step(*hand.model, hand.state, *hand.solver, &snapshot_.linear_models[h]);
     snapshot_.linear_model_valid[h] = snapshot_.linear_models[h].K.size() > 0;
     timings.linearize_ms += hand.state.timings.linearize_ms;
+    timings.contact_ms += hand.state.timings.contact_ms;
+    // This step's impulses warm-start the next step's contacts in the same cells.
+    warm_impulse_[h].clear();
+    for (size_t k = 0; k < contact_keys_[h].size(); ++k)
+      warm_impulse_[h][contact_keys_[h][k]] = hand.state.contacts[k].f_W * dt_;
   }
-  timings.hands_ms = ms_since(t0) - timings.linearize_ms;
+  timings.hands_ms = ms_since(t0) - timings.linearize_ms - timings.contact_ms;
   const auto t1 = Clock::now();
   if (rigid_) {
     apply_reactions();
@@ -165,18 +223,19 @@ void World::step() {
 }
 
 void World::apply_reactions() {
-  // Each body a hand touched was solved implicitly with that hand: the velocity
-  // change it got is the contact impulse, applied to ODE as a wrench over the next
-  // step (ODE then adds gravity and the body's other contacts).
+  // Each body a hand touched was solved implicitly with that hand, with its
+  // gravity and supports: its end-of-step velocity is the result, handed to ODE
+  // less the gravity ODE adds again (ODE's own contacts then find nothing to
+  // correct where the hand's solve already satisfied them).
   for (int h = 0; h < num_hands(); ++h) {
     const HandState& s = hands_[h]->state;
     std::vector<int> object_of_body(s.bodies.size(), -1);
     for (const PointContact& c : s.contacts)
       if (c.body >= 0) object_of_body[c.body] = c.other;
     for (size_t b = 0; b < s.bodies.size(); ++b) {
-      const ContactBody& B = s.bodies[b];
       if (object_of_body[b] < 0) continue;
-      rigid_->add_wrench(object_of_body[b], B.mass_kg * B.dv_W / dt_, B.inertia_W * B.dw_W / dt_);
+      const ContactBody& B = s.bodies[b];
+      rigid_->add_velocity(object_of_body[b], B.dv_W - dt_ * gravity_m_s2_, B.dw_W);
     }
   }
 }

@@ -7,9 +7,11 @@
 // scene names. Contact is the implicit penalty baseline by default, or constraint
 // contact (experimental, see WorldOptions::contact); rigid bodies a hand touches
 // are solved implicitly with it either way.
+#include <cstdint>
 #include <memory>
 #include <optional>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
 #include "hand_models/coupled_solver.hpp"
@@ -35,6 +37,8 @@ struct WorldOptions {
   // without penetration, but every skin point near a surface is a contact and the
   // step slows to ~150 ms until skin points are clustered. Unset: follow the scene.
   std::optional<ContactModel> contact = ContactModel::penalty;
+  // Constraint contacts keep the deepest skin point per object and cell of this size.
+  double contact_cluster_m = 0.01;
 };
 
 struct WorldHand {
@@ -53,7 +57,7 @@ struct ContactRecord {
 };
 
 struct WorldTimings {
-  double collide_ms = 0, hands_ms = 0, rigid_ms = 0, linearize_ms = 0, total_ms = 0;
+  double collide_ms = 0, hands_ms = 0, contact_ms = 0, rigid_ms = 0, linearize_ms = 0, total_ms = 0;
 };
 
 struct WorldSnapshot {
@@ -95,12 +99,17 @@ class World {
   void publish();
 
   double dt_;
+  Eigen::Vector3d gravity_m_s2_;
   bool constraint_contact_ = true;
   long steps_ = 0;
   WorldOptions options_;
   std::vector<std::unique_ptr<WorldHand>> hands_;
   std::unique_ptr<RigidWorld> rigid_;
   std::vector<std::vector<Eigen::Vector3d>> contact_points_;  // per hand, per contact: world point
+  // Constraint contacts: per hand, each contact's cluster cell, and the impulse
+  // (N s) each cell's contact had in the last step, the next step's first guess.
+  std::vector<std::vector<std::uint64_t>> contact_keys_;
+  std::vector<std::unordered_map<std::uint64_t, Eigen::Vector3d>> warm_impulse_;
   // Per hand, per skin vertex: the object and normal of its last contact. A point
   // keeps the face it entered through while inside (no tunnelling through thin boxes).
   struct LastContact {

@@ -2,6 +2,7 @@
 // with the handles prescribed at displaced poses: the error must be O(|dx|^2).
 #include <gtest/gtest.h>
 
+#include <Eigen/SparseLU>
 #include <cstdio>
 
 #include "hand_models/handle_linearization.hpp"
@@ -90,6 +91,106 @@ void expect_quadratic_error(int handles, bool floor) {
 TEST(HandleLinearization, MatchesResimulationToSecondOrderWithoutContacts) { expect_quadratic_error(1, false); }
 TEST(HandleLinearization, MatchesResimulationToSecondOrderWithFloorContacts) { expect_quadratic_error(1, true); }
 TEST(HandleLinearization, CouplesSeveralHandlesThroughTheFleshToSecondOrder) { expect_quadratic_error(2, true); }
+
+// Constraint contacts: the slab pressed and dragged on a floor of constraint
+// contacts (with friction, some sticking, some sliding). The reference solves
+// the step again with the handles prescribed and the held rows as bilateral
+// constraints, by a sparse LU of the saddle-point system [A_t J^T; J 0]. The
+// drag does not twist: the model's Jacobians are those of the step's start pose,
+// so a turning handle would add a first-order error of one step's rotation.
+TEST(HandleLinearization, HoldsConstraintContactsToSecondOrder) {
+  HandConfig c;
+  const HandModel model = slab_hand(1, c);
+  HandState s = make_rest_state(model);
+  auto solver = make_solver(SolverKind::schur_cholmod);
+  const double floor_z = 0.003, h = c.dt_s;
+  auto floor_contacts = [&] {
+    s.contacts.clear();
+    for (int i = 0; i < model.num_nodes(); ++i) {
+      const double depth = floor_z - s.x[3 * i + 2];
+      if (depth < -0.002) continue;  // speculative within 2 mm
+      PointContact pc;
+      const auto [tet, local] = model.node_tet(i);
+      pc.tet = tet;
+      pc.bary = Eigen::Vector4d::Unit(local);
+      pc.depth_m = depth;
+      pc.friction = 0.4;
+      pc.constraint = true;
+      s.contacts.push_back(pc);
+    }
+  };
+  HandleLinearization lin;
+  std::vector<HandleState> before;
+  Eigen::VectorXd x_before;
+  for (int k = 0; k < 20; ++k) {
+    set_target(s, 0, offset_target(model, 0, Eigen::Vector3d(0.0015 * k, 0, -0.0006 * k)));
+    floor_contacts();
+    before = s.handles;
+    x_before = s.x;
+    ASSERT_EQ(step(model, s, *solver, &lin), StepStatus::ok);
+  }
+  ASSERT_GT(s.held.rows(), 3) << "the slab rests on held contacts";
+  const int nh = s.system.handle_dofs(), nt = s.system.tool_dofs(), nc = s.held.rows();
+  ASSERT_EQ(nh, 6);
+  // Saddle-point matrix of the last step's system, handles prescribed.
+  const Eigen::SparseMatrix<double> J_t = s.held.J.rightCols(nt);
+  std::vector<Eigen::Triplet<double>> entries;
+  for (int col = 0; col < nt; ++col)
+    for (Eigen::SparseMatrix<double>::InnerIterator it(s.system.A_t, col); it; ++it)
+      entries.emplace_back(static_cast<int>(it.row()), col, it.value());
+  for (int col = 0; col < nt; ++col)
+    for (Eigen::SparseMatrix<double>::InnerIterator it(J_t, col); it; ++it) {
+      entries.emplace_back(nt + static_cast<int>(it.row()), col, it.value());
+      entries.emplace_back(col, nt + static_cast<int>(it.row()), it.value());
+    }
+  Eigen::SparseMatrix<double> KKT(nt + nc, nt + nc);
+  KKT.setFromTriplets(entries.begin(), entries.end());
+  Eigen::SparseLU<Eigen::SparseMatrix<double>> lu(KKT);
+  ASSERT_EQ(lu.info(), Eigen::Success);
+  const double k_c = c.coupling.stiffness_n_m, d_c = c.coupling.damping_ns_m;
+  auto exact = [&](const std::vector<HandleState>& end) -> Eigen::VectorXd {
+    Eigen::VectorXd rhs = Eigen::VectorXd::Zero(nt + nc);
+    rhs.head(nt) = s.system.b_t + s.held.impulse.tail(nt);
+    const RigidHandle& H = model.handles()[0];
+    for (size_t si = 0; si < H.nodes.size(); ++si) {
+      const Eigen::Vector3d x_B0 = before[0].p_WH + before[0].q_WH * H.r_B[si];
+      const Eigen::Vector3d rho = end[0].q_WH * H.r_B[si];
+      const Eigen::Vector3d x_B = end[0].p_WH + rho, v_B = end[0].v_WH + end[0].w_WH.cross(rho);
+      rhs.segment<3>(3 * H.nodes[si]) += h * (k_c * (x_B - x_B0) + d_c * v_B);
+    }
+    rhs.tail(nc) = s.held.u;
+    const Eigen::VectorXd v_t = lu.solve(rhs).head(nt);
+    return coupling_wrench(model, x_before + h * v_t, v_t, end);
+  };
+  const Eigen::VectorXd at_zero = exact(s.handles);
+  EXPECT_LT((lin.F0 - at_zero).norm(), 1e-6 * (1 + at_zero.norm()));  // PGS tolerance 1e-8 on the impulses
+  Eigen::VectorXd dir(12);
+  for (int i = 0; i < 12; ++i) dir[i] = std::sin(1.3 * i + 0.7);
+  double previous = 0;
+  for (double eps : {0.5, 0.25, 0.125}) {
+    std::vector<HandleState> end = s.handles;
+    end[0].p_WH += eps * 0.004 * dir.head<3>();
+    end[0].q_WH = rotate_by(end[0].q_WH, eps * 0.1 * dir.segment<3>(3));
+    end[0].v_WH += eps * 0.1 * dir.segment<3>(6);
+    end[0].w_WH += eps * 1.0 * dir.segment<3>(9);
+    const Eigen::VectorXd reference = exact(end);
+    const double err = (lin.evaluate(end) - reference).norm(), change = (reference - at_zero).norm();
+    std::printf("held contacts %d, eps %.3f: error %.3e, change %.3e\n", nc, eps, err, change);
+    EXPECT_LT(err, 0.1 * change) << "eps " << eps;
+    if (previous > 0) {
+      EXPECT_NEAR(previous / err, 4.0, 0.8) << "eps " << eps;  // O(|dx|^2)
+    }
+    previous = err;
+  }
+  // Held contacts stiffen the model: pushing the handle down costs more than in free space.
+  HandleLinearization free_lin;
+  assemble(model, s);
+  Eigen::VectorXd v_h, v_t;
+  SolveReport report;
+  ASSERT_TRUE(solver->solve(s.system, v_h, v_t, report));
+  ASSERT_TRUE(linearize_handles(model, s, *solver, free_lin));
+  EXPECT_GT(-lin.K(2, 2), 1.5 * -free_lin.K(2, 2));
+}
 
 TEST(HandleLinearization, EqualsTheSchurComplementOfTheCouplingOverOneStep) {
   // Moving every handle at v for one step: d F / d v_h = h K + D = -S_c / h, with
