@@ -58,7 +58,7 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
     h->shape = make_procedural_hand(shape_options);
     HandConfig config;
     config.dt_s = scene.dt_s;
-    config.gravity_m_s2 = scene.gravity_m_s2;
+    config.gravity_m_s2 = options.hand_gravity ? scene.gravity_m_s2 : Eigen::Vector3d::Zero();
     config.material.youngs_modulus_pa = d.material.youngs_modulus_pa;
     config.material.poisson_ratio = d.material.poisson_ratio;
     config.material.density_kg_m3 = embedding_density(h->shape, d.material.density_kg_m3);

@@ -32,6 +32,9 @@ struct WorldOptions {
   SolverKind solver = SolverKind::schur_cholmod;
   DriveParams drive;  // how each handle is pulled toward its target (zero: the hand is let go)
   bool hand_contacts = true;  // false: hands pass through everything (a cost baseline for benches)
+  // False: hands are weightless (their inertia stays), as the server runs them, so
+  // a device in free space feels no virtual hand weight; objects keep gravity.
+  bool hand_gravity = true;
   // Hand contact model. Penalty by default for now: constraint contacts (PGS on the
   // step's Delassus operator, speculative contacts within 2 mm) hold a resting hand
   // without penetration, but every skin point near a surface is a contact and the

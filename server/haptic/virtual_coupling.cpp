@@ -1,0 +1,175 @@
+#include "server/haptic/virtual_coupling.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include "hand_models/rigid_handle.hpp"
+
+namespace hapticd {
+namespace {
+
+// A proxy faster than this has diverged (no hand moves a handle at 20 m/s).
+constexpr double kMaxProxySpeed_m_s = 20.0;
+// Device velocity: first-order low-pass of the pose differences (about 150 Hz at 1 kHz).
+constexpr double kVelocityFilter = 0.6;
+
+// Limits |v| to `limit`; true if it had to.
+bool clamp_norm(Eigen::Vector3d& v, double limit) {
+  const double n = v.norm();
+  if (n <= limit) return false;
+  v *= limit / n;
+  return true;
+}
+
+}  // namespace
+
+HapticPose DeviceMap::to_world(const Eigen::Vector3d& p_D, const Eigen::Quaterniond& q_D) const {
+  return {offset_W + scale * (R_WD * p_D), (R_WD * q_D).normalized()};
+}
+
+CouplingGains coupling_gains_for(double device_stiffness_n_m, double scale, double period_s) {
+  CouplingGains g;
+  const double s2 = scale * scale;
+  g.k_n_m = device_stiffness_n_m / s2;
+  g.b_ns_m = std::max(1.5 * 0.5 * device_stiffness_n_m * period_s, 0.5) / s2;
+  return g;
+}
+
+void ProxyHand::configure(int handles, const double* mass_kg, const Eigen::Matrix3d* inertia_B,
+                          const CouplingGains& gains, const DeviceLimits& limits, const DeviceMap& map) {
+  handles_ = std::clamp(handles, 0, kMaxHapticHandles);
+  gains_ = gains;
+  limits_ = limits;
+  map_ = map;
+  for (int j = 0; j < handles_; ++j) {
+    mass_[j] = mass_kg[j];
+    inertia_B_[j] = inertia_B[j];
+  }
+  const int n = 6 * handles_;
+  A_.resize(n, n);
+  b_.resize(n);
+  x_rel_.resize(n);
+  v_next_.resize(n);
+  lu_ = Eigen::PartialPivLU<HapticMatrix>(n);
+  have_device_ = false;
+  for (int j = 0; j < kMaxHapticHandles; ++j) {
+    v_[j].setZero(), w_[j].setZero(), v_dev_[j].setZero(), w_dev_[j].setZero();
+    last_f_D_[j].setZero(), last_tau_D_[j].setZero();
+  }
+}
+
+void ProxyHand::resync() {
+  for (int j = 0; j < handles_; ++j) {
+    proxy_[j] = device_[j];
+    v_[j].setZero(), w_[j].setZero(), v_dev_[j].setZero(), w_dev_[j].setZero();
+  }
+}
+
+void ProxyHand::set_device_pose(int j, const Eigen::Vector3d& p_D, const Eigen::Quaterniond& q_D) {
+  if (j >= 0 && j < handles_) pending_[j] = map_.to_world(p_D, q_D);
+}
+
+bool ProxyHand::commit_sample(double t_s, double resync_gap_s) {
+  const double dt = t_s - t_dev_;
+  const bool resync_now = !have_device_ || !(dt <= resync_gap_s) || dt < 0;
+  for (int j = 0; j < handles_; ++j) {
+    if (!resync_now && dt > 0) {
+      const Eigen::Vector3d v = (pending_[j].p_W - device_[j].p_W) / dt;
+      const Eigen::Vector3d w = rotation_difference(pending_[j].q_W, device_[j].q_W) / dt;
+      v_dev_[j] += kVelocityFilter * (v - v_dev_[j]);
+      w_dev_[j] += kVelocityFilter * (w - w_dev_[j]);
+    }
+    device_[j] = pending_[j];
+  }
+  t_dev_ = t_s;
+  have_device_ = true;
+  if (resync_now) resync();
+  return resync_now;
+}
+
+void ProxyHand::integrate(const HapticModel& model, double dt) {
+  if (handles_ == 0 || !have_device_) return;
+  const bool use_model = model.handles == handles_;
+  // seed 004 section 3: implicit Euler of the proxies under F* and the coupling,
+  //   [M - h D - h^2 K + h B_c + h^2 K_c] v' = M v + h [F0 + K (x - x0) - D v0 + K_c (x_dev - x) + B_c v_dev].
+  A_.setZero();
+  b_.setZero();
+  for (int j = 0; j < handles_; ++j) {
+    const Eigen::Matrix3d R = proxy_[j].q_W.toRotationMatrix();
+    const Eigen::Matrix3d I_W = R * inertia_B_[j] * R.transpose();
+    A_.block<3, 3>(6 * j, 6 * j).diagonal().array() += mass_[j] + dt * gains_.b_ns_m + dt * dt * gains_.k_n_m;
+    A_.block<3, 3>(6 * j + 3, 6 * j + 3) += I_W;
+    A_.block<3, 3>(6 * j + 3, 6 * j + 3).diagonal().array() += dt * gains_.b_nms_rad + dt * dt * gains_.k_nm_rad;
+    b_.segment<3>(6 * j) = mass_[j] * v_[j] + dt * (gains_.k_n_m * (device_[j].p_W - proxy_[j].p_W) +
+                                                     gains_.b_ns_m * v_dev_[j]);
+    b_.segment<3>(6 * j + 3) =
+        I_W * w_[j] + dt * (gains_.k_nm_rad * rotation_difference(device_[j].q_W, proxy_[j].q_W) +
+                            gains_.b_nms_rad * w_dev_[j]);
+    if (use_model) {
+      x_rel_.segment<3>(6 * j) = proxy_[j].p_W - model.x0[j].p_W;
+      x_rel_.segment<3>(6 * j + 3) = rotation_difference(proxy_[j].q_W, model.x0[j].q_W);
+    }
+  }
+  if (use_model) {
+    A_.noalias() -= dt * model.D;
+    A_.noalias() -= (dt * dt) * model.K;
+    b_.noalias() += dt * model.F0;
+    b_.noalias() += dt * (model.K * x_rel_);
+    for (int j = 0; j < handles_; ++j) {
+      b_.segment<6>(6 * j).noalias() -= dt * model.D.middleCols<3>(6 * j) * model.v0[j];
+      b_.segment<6>(6 * j).noalias() -= dt * model.D.middleCols<3>(6 * j + 3) * model.w0[j];
+    }
+  }
+  bool ok = A_.allFinite() && b_.allFinite();
+  if (ok) {
+    lu_.compute(A_);
+    v_next_.noalias() = lu_.solve(b_);
+    ok = v_next_.allFinite();
+    for (int j = 0; ok && j < handles_; ++j) ok = v_next_.segment<3>(6 * j).norm() < kMaxProxySpeed_m_s;
+  }
+  if (!ok) {
+    // Safety (DESIGN.md section 5): a non-finite or absurd state never propagates.
+    ++resets_;
+    resync();
+    return;
+  }
+  for (int j = 0; j < handles_; ++j) {
+    v_[j] = v_next_.segment<3>(6 * j);
+    w_[j] = v_next_.segment<3>(6 * j + 3);
+    proxy_[j].p_W += dt * v_[j];
+    proxy_[j].q_W = rotate_by(proxy_[j].q_W, dt * w_[j]);
+  }
+}
+
+ReplyWrench ProxyHand::reply(int j, double output_scale, double dt_since_last_s) {
+  ReplyWrench r;
+  if (j < 0 || j >= handles_ || !have_device_) return r;
+  // The coupling wrench on the proxy; the device feels it reversed (f_D = s R^T f_W keeps power equal).
+  const Eigen::Vector3d f_W = gains_.k_n_m * (device_[j].p_W - proxy_[j].p_W) + gains_.b_ns_m * (v_dev_[j] - v_[j]);
+  const Eigen::Vector3d tau_W = gains_.k_nm_rad * rotation_difference(device_[j].q_W, proxy_[j].q_W) +
+                                gains_.b_nms_rad * (w_dev_[j] - w_[j]);
+  const Eigen::Matrix3d R_DW = map_.R_WD.toRotationMatrix().transpose();
+  Eigen::Vector3d f = -output_scale * map_.scale * (R_DW * f_W);
+  Eigen::Vector3d tau = -output_scale * (R_DW * tau_W);
+  if (!f.allFinite() || !tau.allFinite()) {
+    ++resets_;
+    resync();
+    f.setZero(), tau.setZero();
+  }
+  r.clamped = clamp_norm(f, limits_.max_force_n);
+  r.clamped = clamp_norm(tau, limits_.max_torque_nm) || r.clamped;
+  // Slew limit against the last reply: a jump of the target force becomes a ramp.
+  const double dt = std::clamp(dt_since_last_s, 1e-4, 0.1);
+  Eigen::Vector3d df = f - last_f_D_[j], dtau = tau - last_tau_D_[j];
+  const double torque_rate = limits_.max_force_rate_n_s * limits_.max_torque_nm / limits_.max_force_n;
+  r.clamped = clamp_norm(df, limits_.max_force_rate_n_s * dt) || r.clamped;
+  r.clamped = clamp_norm(dtau, torque_rate * dt) || r.clamped;
+  r.f_D = last_f_D_[j] + df;
+  r.tau_D = last_tau_D_[j] + dtau;
+  last_f_D_[j] = r.f_D;
+  last_tau_D_[j] = r.tau_D;
+  if (r.clamped) ++clamps_;
+  return r;
+}
+
+}  // namespace hapticd

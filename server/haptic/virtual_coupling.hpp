@@ -1,0 +1,122 @@
+#pragma once
+// The haptic loop's physics (seed 004 section 3, Fig. 2 bottom): per hand, a
+// proxy of its rigid handle(s) integrated implicitly under the visual loop's
+// linearized coupling force F*(x, v) = F0 + K (x - x0) + D (v - v0) and a
+// two-way viscoelastic virtual coupling to the device pose; the device gets the
+// coupling force reversed, mapped to device space, clamped and rate-limited
+// (DESIGN.md section 5). Fixed capacities: nothing here allocates.
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <Eigen/LU>
+#include <cstdint>
+
+namespace hapticd {
+
+constexpr int kMaxHapticHandles = 16;
+constexpr int kMaxHapticDofs = 6 * kMaxHapticHandles;
+using HapticVector = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, kMaxHapticDofs, 1>;
+using HapticMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kMaxHapticDofs, kMaxHapticDofs>;
+
+struct HapticPose {
+  Eigen::Vector3d p_W = Eigen::Vector3d::Zero();
+  Eigen::Quaterniond q_W = Eigen::Quaterniond::Identity();
+};
+
+// One hand's handle-space model as the visual loop publishes it.
+struct HapticModel {
+  int handles = 0;  // 0: no model yet (the proxy then feels only the device)
+  long step = -1;   // the visual step that produced it
+  HapticVector F0;  // 6m, N and N m on each handle
+  HapticMatrix K, D;
+  HapticPose x0[kMaxHapticHandles];
+  Eigen::Vector3d v0[kMaxHapticHandles], w0[kMaxHapticHandles];
+  bool in_contact = false;
+};
+
+// Virtual coupling and proxy parameters, in world units (the device's are mapped in).
+struct CouplingGains {
+  double k_n_m = 250.0, b_ns_m = 0.4;     // translational
+  double k_nm_rad = 1.0, b_nms_rad = 0.01;  // rotational
+};
+
+struct DeviceLimits {
+  double max_force_n = 8.0, max_torque_nm = 0.5, max_force_rate_n_s = 1000.0;
+};
+
+// Device space -> world: p_W = offset + scale R_WD p_D, R_W = R_WD R_D.
+struct DeviceMap {
+  double scale = 1.0;
+  Eigen::Vector3d offset_W = Eigen::Vector3d::Zero();
+  Eigen::Quaterniond R_WD = Eigen::Quaterniond::Identity();
+  HapticPose to_world(const Eigen::Vector3d& p_D, const Eigen::Quaterniond& q_D) const;
+};
+
+// Coupling gains for a device whose declared stiffness is k_dev (N/m in device
+// space): world stiffness k_dev / scale^2 keeps the device-side stiffness at its
+// limit, and the damping b > k T / 2 of a sampled spring (Colgate and Schenkel)
+// with a 1.5x margin at the haptic period T keeps the sampled coupling passive.
+CouplingGains coupling_gains_for(double device_stiffness_n_m, double scale, double haptic_period_s);
+
+struct ReplyWrench {
+  Eigen::Vector3d f_D = Eigen::Vector3d::Zero(), tau_D = Eigen::Vector3d::Zero();  // on the device, device frame
+  bool clamped = false;
+};
+
+// One hand's proxies and the device state that drives them.
+class ProxyHand {
+ public:
+  // `mass_kg` and `inertia_kg_m2` per handle (the simulated handles'); `handles` <= kMaxHapticHandles.
+  void configure(int handles, const double* mass_kg, const Eigen::Matrix3d* inertia_B, const CouplingGains& gains,
+                 const DeviceLimits& limits, const DeviceMap& map);
+
+  // A pose sample: the device pose of every handle in device space (set_device_pose
+  // for each, then commit_sample with the sample's time). A first sample, or one
+  // after a gap longer than `resync_gap_s`, re-syncs: the proxies jump onto the
+  // device so the coupling force starts from zero (no force jump); commit_sample
+  // returns true then.
+  void set_device_pose(int j, const Eigen::Vector3d& p_D, const Eigen::Quaterniond& q_D);
+  bool commit_sample(double t_s, double resync_gap_s);
+
+  // Advances the proxies by dt under `model` and the coupling (the 1 kHz tick).
+  // A non-finite model or state resets the proxies onto the device (counted).
+  void integrate(const HapticModel& model, double dt_s);
+
+  // The wrench for handle j now: coupling force reversed, in device space,
+  // scaled by `output_scale` (session ramp), clamped and rate-limited against
+  // the last reply for this handle, `dt_since_last_s` ago.
+  ReplyWrench reply(int j, double output_scale, double dt_since_last_s);
+
+  // Puts every proxy on its device pose and zeroes velocities.
+  void resync();
+
+  int handles() const { return handles_; }
+  const HapticPose& proxy(int j) const { return proxy_[j]; }
+  const Eigen::Vector3d& proxy_velocity(int j) const { return v_[j]; }
+  const Eigen::Vector3d& proxy_angular_velocity(int j) const { return w_[j]; }
+  const HapticPose& device(int j) const { return device_[j]; }
+  long resets() const { return resets_; }
+  long clamps() const { return clamps_; }
+  bool has_device_pose() const { return have_device_; }
+  const CouplingGains& gains() const { return gains_; }
+
+ private:
+  int handles_ = 0;
+  CouplingGains gains_;
+  DeviceLimits limits_;
+  DeviceMap map_;
+  double mass_[kMaxHapticHandles]{};
+  Eigen::Matrix3d inertia_B_[kMaxHapticHandles];
+  HapticPose proxy_[kMaxHapticHandles], device_[kMaxHapticHandles], pending_[kMaxHapticHandles];
+  Eigen::Vector3d v_[kMaxHapticHandles], w_[kMaxHapticHandles];
+  Eigen::Vector3d v_dev_[kMaxHapticHandles], w_dev_[kMaxHapticHandles];  // filtered device velocity
+  double t_dev_ = 0;
+  bool have_device_ = false;
+  Eigen::Vector3d last_f_D_[kMaxHapticHandles], last_tau_D_[kMaxHapticHandles];
+  long resets_ = 0, clamps_ = 0;
+  // Workspace of the implicit step, sized once.
+  HapticMatrix A_;
+  HapticVector b_, x_rel_, v_next_;
+  Eigen::PartialPivLU<HapticMatrix> lu_;
+};
+
+}  // namespace hapticd

@@ -1,0 +1,185 @@
+// hapticd: the haptic rendering server. Loads a scene, builds its world, and
+// runs the visual loop and the haptic loop (UDP) until --duration ends or
+// SIGINT / SIGTERM arrives; then writes --stats.
+#include <sys/mman.h>
+
+#include <CLI/CLI.hpp>
+#include <atomic>
+#include <chrono>
+#include <csignal>
+#include <cstdio>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <thread>
+
+#include "server/haptic/haptic_server.hpp"
+#include "server/haptic/visual_loop.hpp"
+#include "server/world/scene_loader.hpp"
+#include "server/world/world.hpp"
+
+namespace {
+
+std::atomic<bool> g_stop{false};
+void on_signal(int) { g_stop.store(true); }
+
+enum class Level { error, warn, info, debug };
+Level g_level = Level::info;
+void say(Level level, const std::string& text) {
+  if (level <= g_level) std::fprintf(stderr, "hapticd: %s\n", text.c_str());
+}
+
+hapticd::protocol::DeviceKind wire_kind(hapticd::DeviceKind kind) {
+  return kind == hapticd::DeviceKind::glove ? hapticd::protocol::DeviceKind::kGlove
+                                             : hapticd::protocol::DeviceKind::kStylus;
+}
+
+nlohmann::json histogram_json(const hapticd::MicrosecondHistogram& h) {
+  return {{"p50", h.percentile(50)}, {"p99", h.percentile(99)}, {"p999", h.percentile(99.9)},
+          {"max", h.max_us()},       {"count", h.count()}};
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  using namespace hapticd;
+  CLI::App app{"hapticd: real-time haptic rendering server (UDP, FlatBuffers)"};
+  std::string scene_path = std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json";
+  ServerOptions options;
+  double visual_rate = 60, duration = 0;
+  std::string stats_path, level = "info";
+  app.add_option("--scene", scene_path, "scene file (default: the stylus, bunny and blocks scene)")
+      ->check(CLI::ExistingFile);
+  app.add_option("--bind", options.bind, "address to listen on (default 127.0.0.1)");
+  app.add_option("--port", options.port, "UDP port; 0 picks a free one and prints it")->check(CLI::Range(0, 65535));
+  app.add_option("--haptic-rate", options.haptic_rate_hz, "haptic loop rate, Hz (default 1000)")
+      ->check(CLI::Range(100.0, 10000.0));
+  app.add_option("--visual-rate", visual_rate, "visual loop rate, Hz (default 60)")->check(CLI::Range(1.0, 1000.0));
+  app.add_option("--duration", duration, "seconds to run; 0 runs until SIGINT / SIGTERM")
+      ->check(CLI::Range(0.0, 1e7));
+  app.add_option("--stats", stats_path, "write the run's statistics as JSON to this file on exit");
+  app.add_option("--log-level", level, "error | warn | info | debug")
+      ->check(CLI::IsMember({"error", "warn", "info", "debug"}));
+  app.add_flag("--busy-poll", options.busy_poll, "spin on the socket instead of sleeping (for a dedicated core)");
+  app.add_option("--session-timeout", options.session_timeout_s, "drop a silent session after this many seconds")
+      ->check(CLI::Range(0.2, 3600.0));
+  CLI11_PARSE(app, argc, argv);
+  g_level = level == "error" ? Level::error : level == "warn" ? Level::warn : level == "debug" ? Level::debug : Level::info;
+
+  try {
+    SceneDesc scene = load_scene(scene_path);
+    scene.visual_rate_hz = visual_rate;
+    scene.dt_s = 1.0 / visual_rate;
+    if (scene.devices.empty()) throw std::runtime_error(scene_path + ": devices: the scene names no device to serve");
+    WorldOptions world_options;
+    world_options.hand_gravity = false;
+    World world(scene, world_options);
+    if (world.num_hands() > kMaxHands) throw std::runtime_error("hands: at most " + std::to_string(kMaxHands));
+    std::vector<DeviceLink> links;
+    for (const DeviceDesc& d : scene.devices) {
+      DeviceLink link;
+      link.name = d.name;
+      link.kind = wire_kind(d.kind);
+      link.hand = world.find_hand(d.hand);
+      const HandModel& model = *world.hand(link.hand).model;
+      link.handles = model.num_handles();
+      if (link.handles > kMaxHapticHandles) throw std::runtime_error("devices." + d.name + ": too many handles");
+      for (int j = 0; j < link.handles; ++j) {
+        link.mass_kg[j] = model.handles()[j].mass_kg;
+        link.inertia_B[j] = model.handles()[j].inertia_B;
+      }
+      link.map = {d.workspace.scale, d.workspace.offset_W, d.workspace.R_WD};
+      link.gains = coupling_gains_for(d.stiffness_n_m, d.workspace.scale, 1.0 / options.haptic_rate_hz);
+      link.limits = {d.max_force_n, d.max_torque_nm, d.max_force_rate_n_s};
+      links.push_back(link);
+    }
+    // Lock memory so a page fault never stalls the haptic thread (needs CAP_IPC_LOCK).
+    if (mlockall(MCL_CURRENT | MCL_FUTURE) != 0)
+      say(Level::warn, "memory not locked (mlockall not permitted): page faults may delay the haptic loop");
+
+    auto snapshots = std::make_unique<TripleBuffer<HapticSnapshot>>();
+    auto targets = std::make_unique<TripleBuffer<ProxyTargets>>();
+    {  // the first model before the first packet
+      HapticSnapshot& first = snapshots->back();
+      first.hands = world.num_hands();
+      for (int h = 0; h < first.hands; ++h) fill_haptic_model(world, h, first.model[h]);
+      snapshots->publish();
+    }
+    HapticServer server(links, options, *snapshots, *targets);
+    VisualLoop visual(world, visual_rate, *snapshots, *targets, &server);
+    std::signal(SIGINT, on_signal);
+    std::signal(SIGTERM, on_signal);
+    std::atomic<bool> stop_loops{false};
+    std::thread visual_thread([&] { visual.run(stop_loops); });
+    std::thread haptic_thread([&] { server.run(stop_loops); });
+    std::printf("hapticd listening on %s:%u\n", server.address().c_str(), static_cast<unsigned>(server.port()));
+    std::fflush(stdout);
+    say(Level::info, "scene " + scene.name + ": " + std::to_string(world.num_hands()) + " hand(s), " +
+                         std::to_string(links.size()) + " device(s); haptic " +
+                         std::to_string(static_cast<int>(options.haptic_rate_hz)) + " Hz, visual " +
+                         std::to_string(static_cast<int>(visual_rate)) + " Hz");
+    const auto start = std::chrono::steady_clock::now();
+    while (!g_stop.load()) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+      if (duration > 0 && std::chrono::steady_clock::now() - start >= std::chrono::duration<double>(duration)) break;
+    }
+    stop_loops.store(true);
+    haptic_thread.join();
+    visual_thread.join();
+    const ServerStats& st = server.stats();
+    const VisualStats& vs = visual.stats();
+    if (!st.realtime) say(Level::warn, "haptic thread ran without real-time priority (SCHED_FIFO not permitted)");
+    nlohmann::json rejected = nlohmann::json::object();
+    for (std::size_t i = 0; i < protocol::kRejectReasonCount; ++i)
+      if (st.rejected[i]) rejected[std::string(to_string(static_cast<protocol::RejectReason>(i)))] = st.rejected[i];
+    nlohmann::json doc = {
+        {"scene", scene.name},
+        {"elapsed_s", st.elapsed_s},
+        {"haptic",
+         {{"rate_hz_configured", options.haptic_rate_hz},
+          {"rate_hz_achieved", st.elapsed_s > 0 ? static_cast<double>(st.ticks) / st.elapsed_s : 0.0},
+          {"ticks", st.ticks},
+          {"overruns", st.overruns},
+          {"tick_compute_us", histogram_json(st.tick_compute_us)},
+          {"tick_jitter_us", histogram_json(st.tick_jitter_us)},
+          {"reply_compute_us", histogram_json(st.reply_compute_us)},
+          {"realtime", st.realtime},
+          {"busy_poll", options.busy_poll}}},
+        {"visual",
+         {{"rate_hz_configured", visual_rate},
+          {"rate_hz_achieved", vs.elapsed_s > 0 ? static_cast<double>(vs.steps) / vs.elapsed_s : 0.0},
+          {"steps", vs.steps},
+          {"late_steps", vs.late_steps},
+          {"step_ms_median", 1e-3 * vs.step_us.percentile(50)},
+          {"step_ms_p99", 1e-3 * vs.step_us.percentile(99)},
+          {"hand_resets", vs.resets}}},
+        {"packets",
+         {{"in", st.packets_in},
+          {"out", st.packets_out},
+          {"dropped", st.packets_dropped},
+          {"rejected", rejected},
+          {"unknown_session", st.unknown_session},
+          {"wrong_peer", st.wrong_peer},
+          {"duplicates", st.duplicates},
+          {"stale", st.stale},
+          {"gaps", st.gaps},
+          {"send_errors", st.send_errors}}},
+        {"replies", st.replies},
+        {"clamps", st.clamps},
+        {"proxy_resets", st.resets},
+        {"resyncs", st.resyncs},
+        {"sessions",
+         {{"opened", st.sessions_opened}, {"closed", st.sessions_closed}, {"timed_out", st.sessions_timed_out}}}};
+    if (!stats_path.empty()) {
+      std::ofstream out(stats_path);
+      if (!out) throw std::runtime_error("--stats " + stats_path + ": cannot write");
+      out << doc.dump(2) << "\n";
+    }
+    say(Level::info, "stopped after " + std::to_string(st.elapsed_s) + " s: " + std::to_string(st.replies) +
+                         " replies, " + std::to_string(st.overruns) + " overruns, visual " +
+                         std::to_string(doc["visual"]["rate_hz_achieved"].get<double>()) + " Hz");
+    return 0;
+  } catch (const std::exception& e) {
+    say(Level::error, e.what());
+    return 1;
+  }
+}
