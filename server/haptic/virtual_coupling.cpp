@@ -58,6 +58,12 @@ void ProxyHand::configure(int handles, const double* mass_kg, const Eigen::Matri
   }
 }
 
+void ProxyHand::reset() {
+  ++resets_;
+  resync();
+  for (int j = 0; j < handles_; ++j) last_f_D_[j].setZero(), last_tau_D_[j].setZero();
+}
+
 void ProxyHand::resync() {
   for (int j = 0; j < handles_; ++j) {
     proxy_[j] = device_[j];
@@ -128,9 +134,9 @@ void ProxyHand::integrate(const HapticModel& model, double dt) {
     for (int j = 0; ok && j < handles_; ++j) ok = v_next_.segment<3>(6 * j).norm() < kMaxProxySpeed_m_s;
   }
   if (!ok) {
-    // Safety (DESIGN.md section 5): a non-finite or absurd state never propagates.
-    ++resets_;
-    resync();
+    // Safety (DESIGN.md section 5): a non-finite or absurd state never propagates;
+    // the proxies restart on the device and the force drops to zero at once.
+    reset();
     return;
   }
   for (int j = 0; j < handles_; ++j) {
@@ -152,9 +158,8 @@ ReplyWrench ProxyHand::reply(int j, double output_scale, double dt_since_last_s)
   Eigen::Vector3d f = -output_scale * map_.scale * (R_DW * f_W);
   Eigen::Vector3d tau = -output_scale * (R_DW * tau_W);
   if (!f.allFinite() || !tau.allFinite()) {
-    ++resets_;
-    resync();
-    f.setZero(), tau.setZero();
+    reset();
+    return r;
   }
   r.clamped = clamp_norm(f, limits_.max_force_n);
   r.clamped = clamp_norm(tau, limits_.max_torque_nm) || r.clamped;

@@ -88,6 +88,8 @@ class ProxyHand {
 
   // Puts every proxy on its device pose and zeroes velocities.
   void resync();
+  // resync() after a fault: also zeroes the force at once (no ramp) and counts a reset.
+  void reset();
 
   int handles() const { return handles_; }
   const HapticPose& proxy(int j) const { return proxy_[j]; }

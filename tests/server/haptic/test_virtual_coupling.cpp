@@ -1,0 +1,216 @@
+// The haptic loop's physics against closed forms: series stiffness of the
+// virtual coupling and a wall, free-space force, passivity against a wall at
+// the device's declared stiffness, force clamps and slew limits, faults.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <numbers>
+
+#include "server/haptic/virtual_coupling.hpp"
+#include "server/haptic/visual_loop.hpp"
+#include "server/world/scene_loader.hpp"
+
+namespace hapticd {
+namespace {
+
+constexpr double kPeriod = 1e-3;  // 1 kHz
+
+// A handle of 50 g and the inertia of a 3 cm ball of it.
+ProxyHand make_proxy(const DeviceMap& map = {}, double device_stiffness = 1000.0, DeviceLimits limits = {}) {
+  ProxyHand p;
+  const double mass = 0.05;
+  const Eigen::Matrix3d inertia = 0.4 * mass * 0.015 * 0.015 * Eigen::Matrix3d::Identity();
+  p.configure(1, &mass, &inertia, coupling_gains_for(device_stiffness, map.scale, kPeriod), limits, map);
+  return p;
+}
+
+// A static wall z <= 0 as the visual loop would linearize it: restoring stiffness
+// k_wall and damping d_wall along z only, anchored on the surface.
+HapticModel wall_model(double k_wall, double d_wall = 0.0) {
+  HapticModel m;
+  m.handles = 1;
+  m.F0 = HapticVector::Zero(6);
+  m.K = HapticMatrix::Zero(6, 6);
+  m.D = HapticMatrix::Zero(6, 6);
+  m.K(2, 2) = -k_wall;
+  m.D(2, 2) = -d_wall;
+  m.v0[0].setZero();
+  m.w0[0].setZero();
+  m.in_contact = true;
+  return m;
+}
+
+// Runs the loop with the device held at p_D for `seconds` and returns the last reply.
+ReplyWrench hold(ProxyHand& p, const HapticModel& model, const Eigen::Vector3d& p_D, double seconds, double& t) {
+  ReplyWrench r;
+  for (int k = 0; k < static_cast<int>(seconds / kPeriod); ++k) {
+    t += kPeriod;
+    p.set_device_pose(0, p_D, Eigen::Quaterniond::Identity());
+    p.commit_sample(t, 0.05);
+    r = p.reply(0, 1.0, kPeriod);
+    p.integrate(model, kPeriod);
+  }
+  return r;
+}
+
+TEST(VirtualCoupling, SteadyPressOnAWallGivesTheSeriesStiffnessTimesPenetration) {
+  for (double scale : {1.0, 2.0}) {
+    DeviceMap map;
+    map.scale = scale;
+    const double k_dev = 1000.0, k_wall = 3000.0;
+    ProxyHand p = make_proxy(map, k_dev);
+    const HapticModel wall = wall_model(k_wall, 5.0);
+    double t = 0;
+    const double depth_D = 0.004;  // device 4 mm below the surface, in device space
+    hold(p, wall, Eigen::Vector3d(0, 0, 0.01), 0.2, t);
+    const ReplyWrench r = hold(p, wall, Eigen::Vector3d(0, 0, -depth_D), 1.0, t);
+    // Device-space springs in series: the coupling (k_dev) and the wall seen through the map (s^2 k_wall).
+    const double k_series = k_dev * scale * scale * k_wall / (k_dev + scale * scale * k_wall);
+    EXPECT_NEAR(r.f_D.z(), k_series * depth_D, 0.05 * k_series * depth_D) << "scale " << scale;
+    EXPECT_NEAR(r.f_D.z(), k_series * depth_D, 1e-6 * k_series * depth_D) << "the steady state is exact";
+    EXPECT_LT(r.f_D.head<2>().norm(), 1e-9);
+    EXPECT_FALSE(r.clamped);
+  }
+}
+
+TEST(VirtualCoupling, DeviceInFreeSpaceOfTheShippedSceneFeelsLessThanFiveCentinewtons) {
+  // The stylus scene's weightless hand in free space, its model from the world.
+  const SceneDesc scene = load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json");
+  WorldOptions options;
+  options.hand_gravity = false;
+  World world(scene, options);
+  for (int k = 0; k < 5; ++k) world.step();
+  HapticModel model;
+  fill_haptic_model(world, 0, model);
+  ASSERT_EQ(model.handles, 1);
+  const DeviceDesc& dev = scene.devices[0];
+  DeviceMap map{dev.workspace.scale, dev.workspace.offset_W, dev.workspace.R_WD};
+  ProxyHand p = make_proxy(map, dev.stiffness_n_m, {dev.max_force_n, dev.max_torque_nm, dev.max_force_rate_n_s});
+  // The device where the handle is.
+  const HandleState& h = world.snapshot().handles[0][0];
+  const Eigen::Vector3d p_D = map.R_WD.inverse() * (h.p_WH - map.offset_W) / map.scale;
+  const Eigen::Quaterniond q_D = map.R_WD.inverse() * h.q_WH;
+  double worst = 0, t = 0;
+  for (int k = 0; k < 1000; ++k) {
+    t += kPeriod;
+    p.set_device_pose(0, p_D, q_D);
+    p.commit_sample(t, 0.05);
+    const ReplyWrench r = p.reply(0, 1.0, kPeriod);
+    if (k > 100) worst = std::max(worst, r.f_D.norm());
+    p.integrate(model, kPeriod);
+  }
+  EXPECT_LT(worst, 0.05);
+}
+
+// The device: a 0.1 kg tip, pulled by the user's arm (200 N/m, 5 N s/m) toward
+// a press-and-release trajectory, pushed by the last force received (one servo
+// period late, as over the network). The wall's model is refreshed at 60 Hz as
+// the visual loop does: the wall while the proxy is in it, free space otherwise.
+struct PressResult {
+  double energy_j = 0, hold_force_mean = 0, hold_force_std = 0, max_force = 0;
+};
+PressResult press_and_release(const HapticModel& wall, double k_dev) {
+  ProxyHand p = make_proxy({}, k_dev);
+  HapticModel free_space = wall;
+  free_space.K.setZero();
+  free_space.D.setZero();
+  const HapticModel* model = &free_space;
+  const double m = 0.1, k_arm = 200.0, b_arm = 5.0;
+  double z = 0.01, v = 0, f = 0, t = 0;
+  PressResult out;
+  double sum = 0, sum2 = 0;
+  int n = 0;
+  for (int k = 0; k < 5000; ++k) {
+    t = k * kPeriod;
+    // 1 cm above, down to 1.5 cm into the wall by 1 s, hold to 3 s, back up by 4 s.
+    const double z_cmd = t < 1 ? 0.01 - 0.025 * t : t < 3 ? -0.015 : t < 4 ? -0.015 + 0.025 * (t - 3) : 0.01;
+    const double a = (k_arm * (z_cmd - z) - b_arm * v + f) / m;
+    v += kPeriod * a;
+    z += kPeriod * v;
+    out.energy_j += f * v * kPeriod;  // work of the rendered force on the device
+    p.set_device_pose(0, Eigen::Vector3d(0, 0, z), Eigen::Quaterniond::Identity());
+    p.commit_sample(t, 0.05);
+    f = p.reply(0, 1.0, kPeriod).f_D.z();
+    if (k % 16 == 0) model = p.proxy(0).p_W.z() < 0 ? &wall : &free_space;
+    p.integrate(*model, kPeriod);
+    out.max_force = std::max(out.max_force, std::abs(f));
+    if (t > 2.5 && t < 3.0) sum += f, sum2 += f * f, ++n;
+  }
+  out.hold_force_mean = sum / n;
+  out.hold_force_std = std::sqrt(std::max(0.0, sum2 / n - out.hold_force_mean * out.hold_force_mean));
+  return out;
+}
+
+TEST(VirtualCoupling, StiffWallAtTheDeclaredStiffnessIsPassiveAndDoesNotRing) {
+  const double k_dev = 1000.0;
+  // A wall far stiffer than the device: the coupling is what the user feels.
+  const PressResult r = press_and_release(wall_model(1e5), k_dev);
+  std::printf("energy %.3e J, hold force %.3f N +- %.2e, max %.3f N\n", r.energy_j, r.hold_force_mean,
+              r.hold_force_std, r.max_force);
+  EXPECT_LE(r.energy_j, 0.0);
+  EXPECT_GT(r.hold_force_mean, 1.0);                        // it pushes back
+  EXPECT_LT(r.hold_force_std, 1e-3 * r.hold_force_mean);  // no sustained oscillation while held
+  EXPECT_LE(r.max_force, 8.0 + 1e-9);
+}
+
+TEST(VirtualCoupling, ForceNeverExceedsTheLimitAndItsRateOfChangeIsBounded) {
+  DeviceLimits limits{3.0, 0.2, 500.0};
+  ProxyHand p = make_proxy({}, 1000.0, limits);
+  const HapticModel wall = wall_model(1e5);
+  double t = 0, previous = 0, worst_rate = 0, worst = 0;
+  bool clamped = false;
+  for (int k = 0; k < 1000; ++k) {
+    t += kPeriod;
+    // A teleport 10 cm into the wall after 0.1 s.
+    p.set_device_pose(0, Eigen::Vector3d(0, 0, k < 100 ? 0.01 : -0.1), Eigen::Quaterniond::Identity());
+    p.commit_sample(t, 0.05);
+    const ReplyWrench r = p.reply(0, 1.0, kPeriod);
+    clamped = clamped || r.clamped;
+    worst = std::max(worst, r.f_D.norm());
+    worst_rate = std::max(worst_rate, std::abs(r.f_D.z() - previous) / kPeriod);
+    previous = r.f_D.z();
+    p.integrate(wall, kPeriod);
+  }
+  EXPECT_TRUE(clamped);
+  EXPECT_LE(worst, limits.max_force_n * (1 + 1e-12));
+  EXPECT_NEAR(worst, limits.max_force_n, 1e-9);  // it does reach the limit
+  EXPECT_LE(worst_rate, limits.max_force_rate_n_s * (1 + 1e-9));
+  EXPECT_GT(p.clamps(), 0);
+}
+
+TEST(VirtualCoupling, NonFiniteModelZeroesTheForceAndResetsTheProxy) {
+  ProxyHand p = make_proxy();
+  HapticModel wall = wall_model(3000.0);
+  double t = 0;
+  const ReplyWrench pressed = hold(p, wall, Eigen::Vector3d(0, 0, -0.005), 0.5, t);
+  ASSERT_GT(pressed.f_D.z(), 1.0);
+  wall.K(2, 2) = std::numeric_limits<double>::quiet_NaN();
+  p.integrate(wall, kPeriod);
+  EXPECT_EQ(p.resets(), 1);
+  p.set_device_pose(0, Eigen::Vector3d(0, 0, -0.005), Eigen::Quaterniond::Identity());
+  p.commit_sample(t + kPeriod, 0.05);
+  const ReplyWrench after = p.reply(0, 1.0, kPeriod);
+  EXPECT_TRUE(after.f_D.allFinite());
+  EXPECT_LT(after.f_D.norm(), 1e-12);  // zero at once, not ramped down
+  EXPECT_TRUE((p.proxy(0).p_W - p.device(0).p_W).norm() < 1e-12);
+}
+
+TEST(VirtualCoupling, StreamResumedAfterATwoSecondGapResyncsWithoutAForceJump) {
+  ProxyHand p = make_proxy();
+  const HapticModel wall = wall_model(3000.0);
+  double t = 0;
+  const ReplyWrench before = hold(p, wall, Eigen::Vector3d(0, 0, -0.002), 0.5, t);
+  ASSERT_GT(before.f_D.z(), 0.5);
+  // The device comes back 2 s later, 3 cm deeper in the wall.
+  t += 2.0;
+  p.set_device_pose(0, Eigen::Vector3d(0, 0, -0.032), Eigen::Quaterniond::Identity());
+  EXPECT_TRUE(p.commit_sample(t, 0.05));
+  const ReplyWrench first = p.reply(0, 1.0, kPeriod);
+  EXPECT_LE(std::abs(first.f_D.z() - before.f_D.z()), 1000.0 * kPeriod + 1e-9);  // no step beyond the slew limit
+  // Then it settles to the wall's answer at the new depth.
+  const ReplyWrench settled = hold(p, wall, Eigen::Vector3d(0, 0, -0.032), 1.0, t);
+  EXPECT_NEAR(settled.f_D.z(), std::min(8.0, 1000.0 * 3000.0 / 4000.0 * 0.032), 1e-3);
+}
+
+}  // namespace
+}  // namespace hapticd
