@@ -1,0 +1,268 @@
+// The haptic loop's server on loopback: handshake, every pose answered, bad
+// datagrams rejected and counted while a good client is served, silence and
+// timeouts, and a thread that never allocates.
+#include <gtest/gtest.h>
+#include <poll.h>
+
+#include <atomic>
+#include <boost/asio/io_context.hpp>
+#include <boost/asio/ip/udp.hpp>
+#include <cmath>
+#include <cstring>
+#include <thread>
+
+#include "allocation_counter.hpp"
+#include "protocol/clock.hpp"
+#include "server/haptic/haptic_server.hpp"
+
+namespace hapticd {
+namespace {
+
+namespace asio = boost::asio;
+using protocol::Message;
+using protocol::MessageType;
+
+// A wall z <= 0 in world space (see test_virtual_coupling.cpp), 3000 N/m.
+HapticSnapshot wall_snapshot() {
+  HapticSnapshot s;
+  s.hands = 1;
+  HapticModel& m = s.model[0];
+  m.handles = 1;
+  m.F0 = HapticVector::Zero(6);
+  m.K = HapticMatrix::Zero(6, 6);
+  m.D = HapticMatrix::Zero(6, 6);
+  m.K(2, 2) = -3000.0;
+  m.v0[0].setZero();
+  m.w0[0].setZero();
+  m.in_contact = true;
+  return s;
+}
+
+DeviceLink stylus_link() {
+  DeviceLink l;
+  l.name = "stylus";
+  l.mass_kg[0] = 0.05;
+  l.inertia_B[0] = 1e-5 * Eigen::Matrix3d::Identity();
+  l.gains = coupling_gains_for(1000.0, 1.0, 1e-3);
+  return l;
+}
+
+struct RunningServer {
+  explicit RunningServer(const ServerOptions& options = {})
+      : snapshots(wall_snapshot()), server({stylus_link()}, options, snapshots, targets) {
+    thread = std::thread([this] {
+      testing_util::count_allocations_on_this_thread(true);
+      server.run(stop);
+      allocations = testing_util::allocations_on_this_thread();
+    });
+  }
+  ~RunningServer() { halt(); }
+  void halt() {
+    stop = true;
+    if (thread.joinable()) thread.join();
+  }
+  TripleBuffer<HapticSnapshot> snapshots;
+  TripleBuffer<ProxyTargets> targets;
+  HapticServer server;
+  std::atomic<bool> stop{false};
+  std::atomic<long> allocations{-1};
+  std::thread thread;
+};
+
+// A device's end of the wire, with the project's codec.
+struct TestClient {
+  explicit TestClient(std::uint16_t port) : server(asio::ip::make_address("127.0.0.1"), port) {
+    socket.open(asio::ip::udp::v4());
+  }
+  void send_bytes(const void* data, std::size_t n) { socket.send_to(asio::buffer(data, n), server); }
+  template <typename T>
+  void send(const T& m) {
+    const auto r = encoder.encode(m);
+    ASSERT_TRUE(r.ok());
+    send_bytes(r.bytes.data(), r.bytes.size());
+  }
+  // The next datagram within `timeout_ms`, decoded; type kNone on timeout.
+  Message receive(int timeout_ms = 200) {
+    Message m;
+    pollfd p{socket.native_handle(), POLLIN, 0};
+    if (poll(&p, 1, timeout_ms) <= 0) return m;
+    const std::size_t n = socket.receive(asio::buffer(rx.bytes));
+    const auto r = protocol::decode({rx.bytes.data(), n}, m);
+    EXPECT_TRUE(r.ok()) << to_string(r.reason);
+    return m;
+  }
+  std::uint64_t hello() {
+    protocol::Hello h;
+    h.client_name.assign("test");
+    h.device_kind = protocol::DeviceKind::kStylus;
+    protocol::TrackedFrame f;
+    f.id = 7;
+    f.name.assign("tip");
+    h.frames.push_back(f);
+    send(h);
+    const Message m = receive(1000);
+    EXPECT_EQ(m.type, MessageType::kWelcome);
+    session = m.welcome.session_id;
+    return session;
+  }
+  protocol::PoseSample pose_at(double z, std::uint64_t seq) const {
+    protocol::PoseSample p;
+    p.session_id = session;
+    p.sequence = seq;
+    p.client_timestamp_ns = protocol::now_ns();
+    protocol::FramePose f;
+    f.frame = 7;
+    f.position_m = {0.0f, 0.0f, static_cast<float>(z)};
+    p.poses.push_back(f);
+    return p;
+  }
+  // Sends a pose and returns the force reply's z force (NaN without a reply).
+  double press(double z, std::uint64_t seq) {
+    send(pose_at(z, seq));
+    const Message m = receive();
+    if (m.type != MessageType::kForceSample || m.force_sample.sequence != seq) return NAN;
+    last = m.force_sample;
+    return m.force_sample.wrenches[0].wrench.force_n.z;
+  }
+  asio::io_context io;
+  asio::ip::udp::socket socket{io};
+  asio::ip::udp::endpoint server;
+  protocol::Encoder encoder;
+  alignas(8) protocol::ReceiveBuffer rx;
+  std::uint64_t session = 0;
+  protocol::ForceSample last;
+};
+
+TEST(HapticServer, AnswersEveryPoseWithTheEchoedSequenceAndTheWallForce) {
+  RunningServer s;
+  TestClient c(s.server.port());
+  ASSERT_NE(c.hello(), 0u);
+  int answered = 0;
+  double f = 0;
+  for (std::uint64_t k = 1; k <= 300; ++k) {
+    f = c.press(-0.004, k);
+    answered += !std::isnan(f);
+    EXPECT_EQ(c.last.client_timestamp_ns, c.last.client_timestamp_ns);
+    std::this_thread::sleep_for(std::chrono::microseconds(500));
+  }
+  EXPECT_EQ(answered, 300);
+  // Steady: the coupling (1000 N/m) in series with the wall (3000 N/m), 4 mm deep.
+  EXPECT_NEAR(f, 750.0 * 0.004, 0.05 * 3.0);
+  EXPECT_TRUE(c.last.flags & protocol::ForceFlags::kInContact);
+  EXPECT_GE(c.last.server_send_ns, c.last.server_receive_ns);
+  s.halt();
+  EXPECT_EQ(s.server.stats().replies, 300u);
+  EXPECT_GT(s.server.stats().ticks, 100u);
+}
+
+// A float's bytes in a datagram, replaced (the codec refuses to encode a NaN).
+void patch_float(std::span<std::uint8_t> bytes, float from, float to) {
+  for (std::size_t i = 0; i + 4 <= bytes.size(); ++i)
+    if (std::memcmp(bytes.data() + i, &from, 4) == 0) std::memcpy(bytes.data() + i, &to, 4);
+}
+
+TEST(HapticServer, RejectsAndCountsBadDatagramsWhileServingAWellBehavedClient) {
+  RunningServer s;
+  TestClient good(s.server.port()), bad(s.server.port());
+  good.hello();
+  bad.hello();
+  int answered = 0;
+  std::array<std::uint8_t, 3000> junk{};
+  for (std::size_t i = 0; i < junk.size(); ++i) junk[i] = static_cast<std::uint8_t>(i * 37 + 11);
+  for (std::uint64_t k = 1; k <= 100; ++k) {
+    switch (k % 6) {
+      case 0: bad.send_bytes(junk.data(), 8); break;      // truncated
+      case 1: bad.send_bytes(junk.data(), 3000); break;   // oversized
+      case 2: bad.send_bytes(junk.data(), 256); break;    // garbage
+      case 3: {                                           // NaN position
+        const auto r = bad.encoder.encode(bad.pose_at(0.123, 1000 + k));
+        std::vector<std::uint8_t> copy(r.bytes.begin(), r.bytes.end());
+        patch_float(copy, 0.123f, NAN);
+        bad.send_bytes(copy.data(), copy.size());
+        break;
+      }
+      case 4: {  // unknown session
+        protocol::PoseSample p = bad.pose_at(0.0, k);
+        p.session_id = 12345;
+        bad.send(p);
+        break;
+      }
+      case 5: bad.send(bad.pose_at(0.0, 1)); break;  // replayed sequence
+    }
+    answered += !std::isnan(good.press(-0.002, k));
+  }
+  EXPECT_EQ(answered, 100);
+  // The bad client's replayed sequence 1 was answered once, and its NaN sample never.
+  int bad_replies = 0;
+  while (bad.receive(50).type == MessageType::kForceSample) ++bad_replies;
+  EXPECT_EQ(bad_replies, 1);
+  s.halt();
+  const ServerStats& st = s.server.stats();
+  using R = protocol::RejectReason;
+  EXPECT_EQ(st.rejected[static_cast<int>(R::kTooShort)], 16u);
+  EXPECT_EQ(st.rejected[static_cast<int>(R::kTooLong)], 17u);
+  EXPECT_EQ(st.rejected[static_cast<int>(R::kNonFinite)], 17u);
+  EXPECT_GE(st.rejected[static_cast<int>(R::kBadIdentifier)] + st.rejected[static_cast<int>(R::kVerifyFailed)], 1u);
+  EXPECT_EQ(st.unknown_session, 17u);
+  EXPECT_EQ(st.duplicates, 15u);
+  EXPECT_EQ(st.replies, 101u);
+}
+
+TEST(HapticServer, SilentSessionFadesToZeroForceThenTimesOut) {
+  ServerOptions o;
+  o.silence_s = 0.05;
+  o.ramp_s = 0.1;
+  o.resync_gap_s = 10;  // no resync: the fade alone must bring the force down
+  o.session_timeout_s = 0.5;
+  RunningServer s(o);
+  TestClient c(s.server.port());
+  c.hello();
+  double pressed = 0;
+  std::uint64_t seq = 0;
+  for (int k = 0; k < 300; ++k) {
+    pressed = c.press(-0.004, ++seq);
+    std::this_thread::sleep_for(std::chrono::microseconds(500));
+  }
+  ASSERT_NEAR(pressed, 3.0, 0.15);
+  std::this_thread::sleep_for(std::chrono::milliseconds(250));  // silent: faded out by 0.15 s
+  const double after_silence = c.press(-0.004, ++seq);
+  EXPECT_LT(std::abs(after_silence), 0.05 * pressed);
+  // Poses again: the force comes back over the ramp, not in one step.
+  double halfway = 0;
+  const std::uint64_t t0 = protocol::now_ns();
+  while (protocol::now_ns() - t0 < 50'000'000ull) {
+    halfway = c.press(-0.004, ++seq);
+    std::this_thread::sleep_for(std::chrono::microseconds(500));
+  }
+  EXPECT_GT(halfway, 0.2 * pressed);
+  EXPECT_LT(halfway, 0.8 * pressed);
+  std::this_thread::sleep_for(std::chrono::milliseconds(700));  // past the session timeout
+  EXPECT_TRUE(std::isnan(c.press(-0.004, ++seq)));
+  s.halt();
+  EXPECT_EQ(s.server.stats().sessions_timed_out, 1u);
+  EXPECT_EQ(s.server.stats().unknown_session, 1u);
+}
+
+TEST(HapticServer, TheHapticThreadNeverAllocates) {
+  RunningServer s;
+  TestClient c(s.server.port());
+  c.hello();
+  for (std::uint64_t k = 1; k <= 200; ++k) c.press(k < 100 ? 0.01 : -0.004, k);
+  protocol::Heartbeat hb{c.session, protocol::now_ns(), 0};
+  c.send(hb);
+  EXPECT_EQ(c.receive().type, MessageType::kHeartbeat);
+  c.send(protocol::StatsRequest{c.session});
+  const Message stats = c.receive();
+  ASSERT_EQ(stats.type, MessageType::kStats);
+  EXPECT_EQ(stats.stats.sessions_active, 1u);
+  EXPECT_GE(stats.stats.packets_in, 202u);
+  c.send_bytes("garbage!", 8);
+  c.send(protocol::Bye{c.session});
+  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  s.halt();
+  EXPECT_EQ(s.allocations.load(), 0);
+  EXPECT_EQ(s.server.stats().sessions_closed, 1u);
+}
+
+}  // namespace
+}  // namespace hapticd
