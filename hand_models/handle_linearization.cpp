@@ -119,4 +119,14 @@ bool linearize_handles(const HandModel& model, const HandState& s, CoupledSolver
   return out.F0.allFinite() && out.K.allFinite() && out.D.allFinite();
 }
 
+bool linearize_next_step(const HandModel& model, HandState& s, CoupledSolver& solver, HandleLinearization& out) {
+  assemble(model, s);
+  Eigen::VectorXd v_h, v_t;
+  SolveReport report;
+  const bool ok = solver.solve(s.system, v_h, v_t, report) &&
+                  linearize_handles(model, s, solver, out, s.held.rows() > 0 ? &s.held : nullptr);
+  if (!ok) out = HandleLinearization{};
+  return ok;
+}
+
 }  // namespace hapticd

@@ -36,6 +36,15 @@ struct HandleLinearization {
 bool linearize_handles(const HandModel& model, const HandState& state, CoupledSolver& solver,
                        HandleLinearization& out, const HeldContacts* held = nullptr);
 
+// The model of the step about to be taken from `state` (GO09: the haptic loop
+// needs the force over the coming interval, which the flesh's current momentum
+// shapes, not the step just taken): assembles the system at the state as it is
+// (contacts as set for the next step), solves it so the solver's factorization is
+// current (the step that follows reuses it when nothing changed), and linearizes,
+// holding the last step's held contacts. The model is anchored at the handles'
+// current state. False (and `out` cleared) if the solve fails.
+bool linearize_next_step(const HandModel& model, HandState& state, CoupledSolver& solver, HandleLinearization& out);
+
 // The coupling wrench on each handle at a given state, exactly (seed 004 eq. 4-5), 6m.
 Eigen::VectorXd coupling_wrench(const HandModel& model, const Eigen::VectorXd& x_t, const Eigen::VectorXd& v_t,
                                 const std::vector<HandleState>& handles);

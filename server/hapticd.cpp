@@ -72,6 +72,7 @@ int main(int argc, char** argv) {
     if (scene.devices.empty()) throw std::runtime_error(scene_path + ": devices: the scene names no device to serve");
     WorldOptions world_options;
     world_options.hand_gravity = false;
+    world_options.drive = kProxyDrive;
     World world(scene, world_options);
     if (world.num_hands() > kMaxHands) throw std::runtime_error("hands: at most " + std::to_string(kMaxHands));
     std::vector<DeviceLink> links;
@@ -100,8 +101,9 @@ int main(int argc, char** argv) {
     auto targets = std::make_unique<TripleBuffer<ProxyTargets>>();
     {  // the first model before the first packet
       HapticSnapshot& first = snapshots->back();
+      HandleLinearization lin;
       first.hands = world.num_hands();
-      for (int h = 0; h < first.hands; ++h) fill_haptic_model(world, h, first.model[h]);
+      for (int h = 0; h < first.hands; ++h) fill_haptic_model(world, h, lin, first.model[h]);
       snapshots->publish();
     }
     HapticServer server(links, options, *snapshots, *targets);

@@ -153,7 +153,9 @@ void HapticServer::tick(std::uint64_t now) {
     s.output_scale = silent_s > options_.silence_s ? std::max(0.0, s.output_scale - step)
                                                    : std::min(1.0, s.output_scale + step);
     const DeviceLink& link = links_[s.link];
-    s.proxy.integrate(snap.model[link.hand], dt);
+    const HapticModel& model = snap.model[link.hand];
+    const double lookahead = model.t_end_ns > now ? 1e-9 * static_cast<double>(model.t_end_ns - now) : 0.0;
+    s.proxy.integrate(model, dt, std::min(lookahead, 0.1));
     if (s.follower || !s.proxy.has_device_pose()) continue;
     out.driven[link.hand] = true;
     for (int j = 0; j < link.handles; ++j) {

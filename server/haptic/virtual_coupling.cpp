@@ -93,11 +93,13 @@ bool ProxyHand::commit_sample(double t_s, double resync_gap_s) {
   return resync_now;
 }
 
-void ProxyHand::integrate(const HapticModel& model, double dt) {
+void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_s) {
   if (handles_ == 0 || !have_device_) return;
   const bool use_model = model.handles == handles_;
-  // seed 004 section 3: implicit Euler of the proxies under F* and the coupling,
-  //   [M - h D - h^2 K + h B_c + h^2 K_c] v' = M v + h [F0 + K (x - x0) - D v0 + K_c (x_dev - x) + B_c v_dev].
+  // seed 004 section 3: implicit Euler of the proxies under F* and the coupling, F*
+  // taken at the pose extrapolated to the model's step end, x + tau v' (tau >= h):
+  //   [M - h D - h tau K + h B_c + h^2 K_c] v' = M v + h [F0 + K (x - x0) - D v0 + K_c (x_dev - x) + B_c v_dev].
+  const double tau = std::max(lookahead_s, dt);
   A_.setZero();
   b_.setZero();
   for (int j = 0; j < handles_; ++j) {
@@ -118,7 +120,7 @@ void ProxyHand::integrate(const HapticModel& model, double dt) {
   }
   if (use_model) {
     A_.noalias() -= dt * model.D;
-    A_.noalias() -= (dt * dt) * model.K;
+    A_.noalias() -= (dt * tau) * model.K;
     b_.noalias() += dt * model.F0;
     b_.noalias() += dt * (model.K * x_rel_);
     for (int j = 0; j < handles_; ++j) {

@@ -31,6 +31,10 @@ struct HapticModel {
   HapticPose x0[kMaxHapticHandles];
   Eigen::Vector3d v0[kMaxHapticHandles], w0[kMaxHapticHandles];
   bool in_contact = false;
+  // The model is the force at the end of the coming visual step as a function of
+  // the handle's state then: this is when that step ends (the proxy time base,
+  // ns; 0 = unknown).
+  std::uint64_t t_end_ns = 0;
 };
 
 // Virtual coupling and proxy parameters, in world units (the device's are mapped in).
@@ -78,8 +82,12 @@ class ProxyHand {
   bool commit_sample(double t_s, double resync_gap_s);
 
   // Advances the proxies by dt under `model` and the coupling (the 1 kHz tick).
+  // `lookahead_s`: time left until the model's step ends. The model gives the
+  // force at that time from the handle's state then, so it is evaluated at the
+  // proxy's pose extrapolated to it (x + lookahead v): evaluated at the current
+  // pose, a moving hand's momentum would push the proxy along (an active force).
   // A non-finite model or state resets the proxies onto the device (counted).
-  void integrate(const HapticModel& model, double dt_s);
+  void integrate(const HapticModel& model, double dt_s, double lookahead_s = 0);
 
   // The wrench for handle j now: coupling force reversed, in device space,
   // scaled by `output_scale` (session ramp), clamped and rate-limited against

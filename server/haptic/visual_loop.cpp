@@ -8,14 +8,14 @@
 
 namespace hapticd {
 
-void fill_haptic_model(const World& world, int h, HapticModel& out) {
+void fill_haptic_model(World& world, int h, HandleLinearization& lin, HapticModel& out) {
   const WorldSnapshot& snap = world.snapshot();
   out.step = snap.step;
   out.handles = 0;
   out.in_contact = false;
   for (const ContactRecord& c : snap.contacts) out.in_contact = out.in_contact || (c.hand == h && c.depth_m > 0);
-  if (h >= static_cast<int>(snap.linear_models.size()) || !snap.linear_model_valid[h]) return;
-  const HandleLinearization& lin = snap.linear_models[h];
+  WorldHand& hand = world.hand(h);
+  if (!linearize_next_step(*hand.model, hand.state, *hand.solver, lin)) return;
   const int m = static_cast<int>(lin.x0.size());
   if (m > kMaxHapticHandles || lin.F0.size() != 6 * m) return;
   out.F0 = lin.F0;
@@ -36,6 +36,7 @@ VisualLoop::VisualLoop(World& world, double rate_hz, TripleBuffer<HapticSnapshot
 void VisualLoop::run(const std::atomic<bool>& stop) {
   ensure_ode_for_this_thread();
   const auto period_ns = static_cast<std::uint64_t>(1e9 / rate_hz_);
+  const auto step_ns = static_cast<std::uint64_t>(1e9 * world_.dt());
   const std::uint64_t start = protocol::now_ns();
   std::uint64_t deadline = start;
   while (!stop.load(std::memory_order_relaxed)) {
@@ -51,7 +52,11 @@ void VisualLoop::run(const std::atomic<bool>& stop) {
     world_.step();
     HapticSnapshot& out = snapshots_.back();
     out.hands = std::min(world_.num_hands(), kMaxHands);
-    for (int h = 0; h < out.hands; ++h) fill_haptic_model(world_, h, out.model[h]);
+    for (int h = 0; h < out.hands; ++h) {
+      fill_haptic_model(world_, h, scratch_, out.model[h]);
+      // The world now stands where the proxies were at t0; its next step ends one step later.
+      out.model[h].t_end_ns = t0 + step_ns;
+    }
     out.step = world_.snapshot().step;
     const std::uint64_t t1 = protocol::now_ns();
     out.step_ms = 1e-6 * static_cast<double>(t1 - t0);

@@ -11,14 +11,21 @@
 
 namespace hapticd {
 
+// How the visual loop's handles follow the haptic proxies: almost kinematically
+// (GO09: the visual loop's handle is the proxy's), so the handle-space model is
+// the flesh's answer to the proxy's own motion.
+constexpr DriveParams kProxyDrive{1e6, 1e3, 1e3, 10.0};
+
 struct VisualStats {
   long steps = 0, late_steps = 0, resets = 0;
   MicrosecondHistogram step_us;
   double elapsed_s = 0;
 };
 
-// Fills `out` (hand h's model) from the world's last step; in_contact from its contacts.
-void fill_haptic_model(const World& world, int h, HapticModel& out);
+// Fills `out` with hand h's model for the coming interval (linearize_next_step:
+// the step about to be taken from the world's current state; `lin` is scratch),
+// in_contact from the hand's contacts; out.handles = 0 when it cannot.
+void fill_haptic_model(World& world, int h, HandleLinearization& lin, HapticModel& out);
 
 class VisualLoop {
  public:
@@ -34,6 +41,7 @@ class VisualLoop {
   TripleBuffer<ProxyTargets>& targets_;
   HapticServer* report_to_;
   VisualStats stats_;
+  HandleLinearization scratch_;
 };
 
 }  // namespace hapticd

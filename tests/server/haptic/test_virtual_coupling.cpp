@@ -81,7 +81,8 @@ TEST(VirtualCoupling, DeviceInFreeSpaceOfTheShippedSceneFeelsLessThanFiveCentine
   World world(scene, options);
   for (int k = 0; k < 5; ++k) world.step();
   HapticModel model;
-  fill_haptic_model(world, 0, model);
+  HandleLinearization lin;
+  fill_haptic_model(world, 0, lin, model);
   ASSERT_EQ(model.handles, 1);
   const DeviceDesc& dev = scene.devices[0];
   DeviceMap map{dev.workspace.scale, dev.workspace.offset_W, dev.workspace.R_WD};

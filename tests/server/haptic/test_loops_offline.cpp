@@ -1,0 +1,102 @@
+// The two loops run in step, deterministically, in one thread: the shipped
+// stylus scene's world stepped every 1/60 s with the proxy as the handle's
+// target, the proxy integrated every 1 ms under the last published model, and
+// a simulated device (0.1 kg tip held by the user's arm, 200 N/m, 5 N s/m)
+// feeling the replies. Free space must feel free and put (almost) no energy in.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <numbers>
+
+#include "server/haptic/visual_loop.hpp"
+#include "server/world/scene_loader.hpp"
+
+namespace hapticd {
+namespace {
+
+struct LoopRun {
+  double max_force_n = 0, max_force_late_n = 0;
+  double energy_j = 0;        // net work of the rendered force on the device
+  double gross_energy_j = 0;  // the work exchanged either way, sum |f . v| dt
+  long resets = 0;
+};
+
+// `command(t)`: where the user's arm pulls the device tip (device space).
+template <typename Command>
+LoopRun run_loops(double seconds, Command command) {
+  SceneDesc scene = load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json");
+  scene.dt_s = 0.017;  // 17 ticks of 1 ms: world time keeps pace with the proxies
+  WorldOptions options;
+  options.hand_gravity = false;
+  options.drive = kProxyDrive;
+  World world(scene, options);
+  const DeviceDesc& dev = scene.devices[0];
+  const double period = 1e-3;
+  const HandModel& model = *world.hand(0).model;
+  const double mass = model.handles()[0].mass_kg;
+  const Eigen::Matrix3d inertia = model.handles()[0].inertia_B;
+  ProxyHand proxy;
+  proxy.configure(1, &mass, &inertia, coupling_gains_for(dev.stiffness_n_m, dev.workspace.scale, period),
+                  {dev.max_force_n, dev.max_torque_nm, dev.max_force_rate_n_s},
+                  {dev.workspace.scale, dev.workspace.offset_W, dev.workspace.R_WD});
+  HapticModel haptic;
+  HandleLinearization lin;
+  fill_haptic_model(world, 0, lin, haptic);
+  const int ticks_per_step = static_cast<int>(std::lround(world.dt() / period));
+  // The device starts where the handle is (no jump to excite the flesh); `command` is an offset from there.
+  const HandleState& h0 = world.snapshot().handles[0][0];
+  const Eigen::Vector3d start_D = dev.workspace.R_WD.inverse() * (h0.p_WH - dev.workspace.offset_W) / dev.workspace.scale;
+  Eigen::Vector3d p = start_D + command(0.0), v = Eigen::Vector3d::Zero(), f = Eigen::Vector3d::Zero();
+  LoopRun out;
+  double t_end = world.dt();
+  const double m = 0.1, k_arm = 200, b_arm = 5;
+  for (int k = 0; k < static_cast<int>(seconds / period); ++k) {
+    const double t = k * period;
+    v += period * (k_arm * (start_D + command(t) - p) - b_arm * v + f) / m;
+    p += period * v;
+    out.energy_j += f.dot(v) * period;
+    out.gross_energy_j += std::abs(f.dot(v)) * period;
+    proxy.set_device_pose(0, p, Eigen::Quaterniond::Identity());
+    proxy.commit_sample(t, 0.05);
+    f = proxy.reply(0, 1.0, period).f_D;
+    out.max_force_n = std::max(out.max_force_n, f.norm());
+    if (t > 0.5 * seconds) out.max_force_late_n = std::max(out.max_force_late_n, f.norm());
+    proxy.integrate(haptic, period, t_end - t);
+    if (k % ticks_per_step == 0) {
+      t_end = t + world.dt();
+      HandleTarget target{proxy.proxy(0).p_W, proxy.proxy(0).q_W, proxy.proxy_velocity(0),
+                          proxy.proxy_angular_velocity(0)};
+      set_target(world.hand(0).state, 0, target);
+      world.step();
+      fill_haptic_model(world, 0, lin, haptic);
+    }
+  }
+  out.resets = proxy.resets() + world.snapshot().resets;
+  return out;
+}
+
+TEST(LoopsOffline, DeviceHeldStillInFreeSpaceFeelsNothing) {
+  const LoopRun r = run_loops(2.0, [](double) { return Eigen::Vector3d::Zero(); });
+  std::printf("held: max force %.4f N (late %.4f N), energy %.2e J\n", r.max_force_n, r.max_force_late_n, r.energy_j);
+  EXPECT_LT(r.max_force_late_n, 0.05);
+  EXPECT_EQ(r.resets, 0);
+}
+
+TEST(LoopsOffline, DeviceSweptThroughFreeSpaceFeelsTheHandsInertiaAndPutsInAlmostNoEnergy) {
+  // A 2 cm, 1 Hz sweep along y for 6 s (4 cm in the world: the 0.4 kg hand at 1.6 m/s^2).
+  const LoopRun r = run_loops(6.0, [](double t) { return Eigen::Vector3d(0, 0.02 * std::sin(2 * std::numbers::pi * t), 0); });
+  std::printf("swept: max force %.3f N, net energy %.2e J of %.2e J exchanged\n", r.max_force_n, r.energy_j,
+              r.gross_energy_j);
+  EXPECT_GT(r.max_force_n, 0.5);  // the hand's inertia is felt (2 x 0.4 kg x 1.6 m/s^2 on the device side)...
+  EXPECT_LT(r.max_force_n, 3.0);  // ...and nothing more
+  // Known shortfall, measured: the loops are not exactly passive in free space
+  // (net gain 5.6 % of the energy exchanged at this revision, the 60 Hz model
+  // against the flesh's own modes); the user's arm absorbs it. A regression
+  // beyond 10 % fails here.
+  EXPECT_LT(r.energy_j, 0.10 * r.gross_energy_j);
+  EXPECT_EQ(r.resets, 0);
+}
+
+}  // namespace
+}  // namespace hapticd
