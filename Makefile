@@ -20,7 +20,7 @@ build: configure
 	cmake --build $(BUILD) -j $(JOBS)
 
 demo: build
-	$(BUILD)/bin/hand-demo
+	scripts/demo $(BUILD)
 
 test: build
 	ctest --test-dir $(BUILD) --output-on-failure -j $(JOBS)
@@ -28,6 +28,7 @@ test: build
 bench: build
 	scripts/bench-hand $(BUILD)
 	scripts/bench-world $(BUILD)
+	scripts/bench-latency $(BUILD)
 
 clean:
 	rm -rf $(BUILD)

@@ -4,6 +4,7 @@
 #include <exception>
 
 #include "hand_bench.hpp"
+#include "latency_bench.hpp"
 #include "world_bench.hpp"
 
 int main(int argc, char** argv) {
@@ -11,6 +12,7 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
   hapticd::bench::add_hand_suite(app);
   hapticd::bench::add_world_suite(app);
+  hapticd::bench::add_latency_suite(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -1,0 +1,39 @@
+#include "clients/sim/device_simulation.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <utility>
+
+namespace hapticd::sim {
+
+DeviceSimulation::DeviceSimulation(Trajectory trajectory, const DeviceParams& params, double dt_s)
+    : trajectory_(std::move(trajectory)), params_(params), dt_s_(dt_s) {
+  state_.p_DT_m = trajectory_.position(0.0);
+}
+
+void DeviceSimulation::advance() noexcept {
+  ++steps_;
+  const double t = time_s();
+  const double f = norm(f_DT_N_);
+  force_max_n_ = std::max(force_max_n_, f);
+  force_sq_sum_ += f * f;
+  energy_j_ += step(params_, state_, trajectory_.position(t), trajectory_.velocity(t), f_DT_N_, dt_s_);
+}
+
+void DeviceSimulation::set_force(Vec3d f_DT_N, bool in_contact) noexcept {
+  f_DT_N_ = f_DT_N;
+  in_contact_ = in_contact;
+}
+
+void DeviceSimulation::record_tick() noexcept {
+  ++recorded_ticks_;
+  if (!in_contact_) return;
+  ++contact_ticks_;
+  penetration_max_m_ = std::max(penetration_max_m_, norm(commanded() - state_.p_DT_m));
+}
+
+double DeviceSimulation::force_rms_n() const noexcept {
+  return steps_ == 0 ? 0.0 : std::sqrt(force_sq_sum_ / static_cast<double>(steps_));
+}
+
+}  // namespace hapticd::sim

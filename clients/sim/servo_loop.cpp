@@ -1,0 +1,146 @@
+#include "clients/sim/servo_loop.hpp"
+
+#include <sys/prctl.h>
+#include <time.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cmath>
+#include <limits>
+
+#include "clients/sim/device_simulation.hpp"
+#include "protocol/clock.hpp"
+
+namespace hapticd::sim {
+namespace {
+
+void sleep_until(std::uint64_t deadline_ns) noexcept {
+  const timespec t{static_cast<time_t>(deadline_ns / 1'000'000'000ull),
+                   static_cast<long>(deadline_ns % 1'000'000'000ull)};
+  while (::clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &t, nullptr) == EINTR) {
+  }
+}
+
+double fraction(std::uint64_t part, std::uint64_t whole) noexcept {
+  return whole == 0 ? 0.0 : static_cast<double>(part) / static_cast<double>(whole);
+}
+
+}  // namespace
+
+double ServoResult::late_fraction() const noexcept { return fraction(late, samples_sent); }
+double ServoResult::loss_fraction() const noexcept { return fraction(lost, samples_sent); }
+double ServoResult::contact_fraction() const noexcept { return fraction(contact_ticks, ticks); }
+
+ServoResult run_servo_loop(client::Client& client, const Trajectory& trajectory, const ServoConfig& config) {
+  // Default slack lets the kernel end a wait up to 50 us late: 5 % of a 1 kHz period.
+  ::prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);
+
+  const auto period_ns = static_cast<std::uint64_t>(std::llround(1e9 / config.rate_hz));
+  const double dt_s = static_cast<double>(period_ns) * 1e-9;
+  const auto ticks = static_cast<std::uint64_t>(std::max(1.0, std::round(config.duration_s * config.rate_hz)));
+
+  DeviceSimulation sim(trajectory, config.device, dt_s);
+  ServoResult r;
+  r.rtt_us.reserve(ticks);
+  if (config.trace != nullptr) config.trace->reserve(config.trace->size() + ticks);
+  const auto trace = [&](bool sent) {
+    if (config.trace == nullptr) return;
+    config.trace->push_back(
+        {sim.time_s(), sim.commanded(), sim.state().p_DT_m, sim.state().v_DT_m_s, sim.force(), sim.in_contact(), sent});
+  };
+  // End of the period each sequence was sent in, indexed by sequence - first_sequence.
+  std::vector<std::uint64_t> deadline_of(ticks, std::numeric_limits<std::uint64_t>::max());
+  const std::uint64_t first_sequence = client.last_sequence_sent() + 1;
+
+  protocol::PoseSample pose;
+  pose.poses.resize(1);
+  pose.poses[0].frame = config.frame_id;
+  pose.poses[0].orientation = {};  // the simulated stylus tracks the tip position only
+
+  const auto apply = [&](const client::ForceReply& reply) {
+    const std::uint64_t index = reply.sample.sequence - first_sequence;
+    if (index >= deadline_of.size()) return;  // answers a pose sent before this loop
+    ++r.replies;
+    r.rtt_us.push_back(static_cast<double>(reply.rtt_ns()) * 1e-3);
+    if (reply.received_ns > deadline_of[index]) ++r.late;
+    const protocol::FrameWrench* wrench = &reply.sample.wrenches[0];
+    for (const protocol::FrameWrench& w : reply.sample.wrenches)
+      if (w.frame == config.frame_id) wrench = &w;
+    const protocol::Vec3& f = wrench->wrench.force_n;
+    if (reply.sample.flags & protocol::ForceFlags::kClamped) ++r.clamped_replies;
+    if (reply.sample.flags & protocol::ForceFlags::kStale) ++r.stale_replies;
+    sim.set_force({f.x, f.y, f.z}, (wrench->flags | reply.sample.flags) & protocol::ForceFlags::kInContact);
+  };
+
+  const std::uint64_t start = protocol::now_ns() + period_ns;
+  std::uint64_t end = start;
+  for (std::uint64_t k = 0; k < ticks; ++k) {
+    if (config.stop != nullptr && config.stop->load(std::memory_order_relaxed)) break;
+    const std::uint64_t tick_start = start + k * period_ns;
+    const std::uint64_t tick_end = tick_start + period_ns;
+    sleep_until(tick_start);
+    ++r.ticks;
+    if (k > 0) sim.advance();
+    end = tick_end;
+    if (protocol::now_ns() >= tick_end) {
+      ++r.missed_ticks;
+      sim.record_tick();
+      trace(false);
+      continue;
+    }
+
+    const Vec3d p = sim.state().p_DT_m;
+    pose.poses[0].position_m = {static_cast<float>(p.x), static_cast<float>(p.y), static_cast<float>(p.z)};
+    pose.client_timestamp_ns = 0;  // stamped by the client as it sends
+    const client::SendResult sent = client.send_pose(pose);
+    if (sent == client::SendResult::kSent) {
+      ++r.samples_sent;
+    } else {
+      ++r.send_failures;
+    }
+    if (sent == client::SendResult::kSent || sent == client::SendResult::kWouldBlock ||
+        sent == client::SendResult::kFailed) {
+      const std::uint64_t index = pose.sequence - first_sequence;
+      if (index < deadline_of.size()) deadline_of[index] = tick_end;
+    }
+    while (const auto reply = client.poll_force_until(tick_end)) {
+      apply(*reply);
+      if (reply->sample.sequence == pose.sequence) break;
+    }
+    sim.record_tick();
+    trace(true);
+  }
+  const std::uint64_t drain_end = protocol::now_ns() + static_cast<std::uint64_t>(config.drain_s * 1e9);
+  while (r.replies < r.samples_sent) {
+    const auto reply = client.poll_force_until(drain_end);
+    if (!reply) break;
+    apply(*reply);
+  }
+
+  r.lost = r.samples_sent - std::min(r.samples_sent, r.replies);
+  r.contact_ticks = sim.contact_ticks();
+  r.force_max_n = sim.force_max_n();
+  r.force_rms_n = sim.force_rms_n();
+  r.passivity_energy_j = sim.passivity_energy_j();
+  r.penetration_max_m = sim.penetration_max_m();
+  r.elapsed_s = static_cast<double>(end - start) * 1e-9;
+  r.rate_hz_achieved = r.elapsed_s > 0.0 ? static_cast<double>(r.samples_sent) / r.elapsed_s : 0.0;
+  r.counters = client.counters();
+  return r;
+}
+
+double percentile_of_sorted(const std::vector<double>& v, double p) noexcept {
+  if (v.empty()) return std::numeric_limits<double>::quiet_NaN();
+  const double rank = std::clamp(p, 0.0, 100.0) / 100.0 * static_cast<double>(v.size() - 1);
+  const auto lo = static_cast<std::size_t>(std::floor(rank));
+  const std::size_t hi = std::min(lo + 1, v.size() - 1);
+  return v[lo] + (rank - static_cast<double>(lo)) * (v[hi] - v[lo]);
+}
+
+RttSummary summarize_rtt(std::vector<double> rtt_us) {
+  std::sort(rtt_us.begin(), rtt_us.end());
+  return {percentile_of_sorted(rtt_us, 50.0), percentile_of_sorted(rtt_us, 90.0), percentile_of_sorted(rtt_us, 99.0),
+          percentile_of_sorted(rtt_us, 99.9), percentile_of_sorted(rtt_us, 100.0)};
+}
+
+}  // namespace hapticd::sim

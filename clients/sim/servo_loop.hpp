@@ -1,0 +1,89 @@
+#pragma once
+
+// The device's servo loop, shared by haptic-device and `haptic-bench latency`: at a fixed rate on
+// absolute CLOCK_MONOTONIC deadlines, each tick
+//   1. steps the simulated tip under the force last received (DeviceSimulation::advance),
+//   2. sends the tip pose (Client::send_pose),
+//   3. waits for its ForceSample until the end of the period; replies to earlier poses met on the
+//      way are applied too (the newest force is the one a device would render).
+// A reply that arrives after its pose's period ended is late; a pose never answered is lost (a
+// reply overtaken by a newer one is dropped as stale by the Client, so it counts as lost: an old
+// force is never applied). A tick whose whole period passed before the loop woke up is missed:
+// the tip is still stepped, no pose is sent.
+
+#include <atomic>
+#include <cstdint>
+#include <vector>
+
+#include "clients/cpp/client.hpp"
+#include "clients/sim/device_model.hpp"
+#include "clients/sim/trajectory.hpp"
+
+namespace hapticd::sim {
+
+// One tick as the device saw it, for --trace: time, commanded and actual tip, the force held.
+struct TraceRow {
+  double t_s = 0.0;
+  Vec3d p_DC_m;
+  Vec3d p_DT_m;
+  Vec3d v_DT_m_s;
+  Vec3d f_DT_N;
+  bool in_contact = false;
+  bool sent = false;  // false: a missed tick
+};
+
+struct ServoConfig {
+  double rate_hz = 1000.0;  // use the Welcome's negotiated rate
+  double duration_s = 10.0;
+  DeviceParams device;
+  std::uint16_t frame_id = 0;               // the Hello's frame the tip pose is sent as
+  double drain_s = 0.1;                     // after the last tick, how long outstanding replies may still arrive
+  const std::atomic<bool>* stop = nullptr;  // set from elsewhere (a signal) to end early
+  // When set, one row per tick is appended (reserved by run_servo_loop before the first tick).
+  std::vector<TraceRow>* trace = nullptr;
+};
+
+struct ServoResult {
+  std::uint64_t ticks = 0;         // periods run, sent or missed
+  std::uint64_t missed_ticks = 0;  // woke up after the period had ended: nothing sent
+  std::uint64_t samples_sent = 0;
+  std::uint64_t send_failures = 0;  // send_pose() other than kSent
+  std::uint64_t replies = 0;        // poses answered (each at most once)
+  std::uint64_t late = 0;           // answered after the end of their period (included in replies)
+  std::uint64_t lost = 0;           // samples_sent - replies
+  std::uint64_t contact_ticks = 0;  // ticks whose latest force reported InContact
+  std::uint64_t clamped_replies = 0;
+  std::uint64_t stale_replies = 0;  // replies flagged Stale by the server (no fresh snapshot)
+  std::vector<double> rtt_us;       // one per reply, in arrival order
+  double force_max_n = 0.0;
+  double force_rms_n = 0.0;
+  double passivity_energy_j = 0.0;
+  double penetration_max_m = 0.0;
+  double elapsed_s = 0.0;  // first tick to the end of the last period
+  double rate_hz_achieved = 0.0;
+  client::ClientCounters counters;
+
+  [[nodiscard]] double late_fraction() const noexcept;
+  [[nodiscard]] double loss_fraction() const noexcept;
+  [[nodiscard]] double contact_fraction() const noexcept;
+};
+
+// Runs the loop on the calling thread over `client`'s open session. Allocates only before the
+// first tick (the result's buffers are reserved for every tick). Sets this thread's timer slack to
+// 1 ns so that waits end at their deadline rather than up to 50 us after it.
+ServoResult run_servo_loop(client::Client& client, const Trajectory& trajectory, const ServoConfig& config);
+
+// Percentiles of round trips (linear interpolation between order statistics, as bench/ does).
+struct RttSummary {
+  double p50_us = 0.0;
+  double p90_us = 0.0;
+  double p99_us = 0.0;
+  double p999_us = 0.0;
+  double max_us = 0.0;
+};
+// NaN everywhere for an empty sample.
+RttSummary summarize_rtt(std::vector<double> rtt_us);
+// p in [0, 100] of an ascending sample; NaN for an empty one.
+double percentile_of_sorted(const std::vector<double>& sorted, double p) noexcept;
+
+}  // namespace hapticd::sim

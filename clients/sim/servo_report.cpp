@@ -1,0 +1,36 @@
+#include "clients/sim/servo_report.hpp"
+
+namespace hapticd::sim {
+
+nlohmann::json to_json(const RttSummary& rtt) {
+  return {{"p50", rtt.p50_us}, {"p90", rtt.p90_us}, {"p99", rtt.p99_us}, {"p999", rtt.p999_us}, {"max", rtt.max_us}};
+}
+
+nlohmann::json to_json(const ServoResult& r) {
+  const client::ClientCounters& c = r.counters;
+  return {{"rtt_us", to_json(summarize_rtt(r.rtt_us))},
+          {"late_fraction", r.late_fraction()},
+          {"loss_fraction", r.loss_fraction()},
+          {"force_n", {{"max", r.force_max_n}, {"rms", r.force_rms_n}}},
+          {"passivity_energy_j", r.passivity_energy_j},
+          {"penetration_mm_max", 1e3 * r.penetration_max_m},
+          {"rate_hz_achieved", r.rate_hz_achieved},
+          {"elapsed_s", r.elapsed_s},
+          {"ticks", r.ticks},
+          {"missed_ticks", r.missed_ticks},
+          {"samples_sent", r.samples_sent},
+          {"send_failures", r.send_failures},
+          {"replies", r.replies},
+          {"late", r.late},
+          {"lost", r.lost},
+          {"contact_fraction", r.contact_fraction()},
+          {"clamped_replies", r.clamped_replies},
+          {"stale_replies", r.stale_replies},
+          {"client",
+           {{"forces_stale_dropped", c.forces_stale},
+            {"datagrams_rejected", c.datagrams_rejected},
+            {"datagrams_unexpected", c.datagrams_unexpected},
+            {"refused", c.refused}}}};
+}
+
+}  // namespace hapticd::sim

@@ -1,0 +1,274 @@
+// haptic-device: a simulated stylus held by a simulated hand. It opens a session with hapticd,
+// runs the servo loop (clients/sim/servo_loop.hpp) along a trajectory at the session rate, lets the
+// returned forces act on the simulated tip, and reports round trips, late and lost replies, force,
+// the energy the rendering put into the device and how far the hand pushed past the surface.
+
+#include <CLI/CLI.hpp>
+#include <atomic>
+#include <cmath>
+#include <csignal>
+#include <cstdio>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+#include <tuple>
+#include <vector>
+
+#include "clients/cpp/client.hpp"
+#include "clients/sim/servo_loop.hpp"
+#include "clients/sim/servo_report.hpp"
+#include "clients/sim/trajectory.hpp"
+
+namespace {
+
+using namespace hapticd;
+
+std::atomic<bool> g_stop{false};
+
+void request_stop(int) { g_stop.store(true); }
+
+struct HostPort {
+  std::string host;
+  std::uint16_t port = 0;
+};
+
+// "HOST:PORT" or "[IPv6]:PORT"; throws CLI::ValidationError with what was expected.
+HostPort parse_server(const std::string& text) {
+  const auto fail = [&] {
+    throw CLI::ValidationError("--server",
+                               "expected HOST:PORT with PORT in 1..65535 (e.g. 127.0.0.1:7000), got '" + text + "'");
+  };
+  const auto colon = text.rfind(':');
+  if (colon == std::string::npos || colon == 0 || colon + 1 == text.size()) fail();
+  HostPort hp;
+  hp.host = text.substr(0, colon);
+  if (hp.host.front() == '[') {
+    if (hp.host.size() < 3 || hp.host.back() != ']') fail();
+    hp.host = hp.host.substr(1, hp.host.size() - 2);
+  } else if (hp.host.find(':') != std::string::npos) {
+    fail();  // an IPv6 address needs brackets, or the port is ambiguous
+  }
+  const std::string port = text.substr(colon + 1);
+  if (port.size() > 5 || port.find_first_not_of("0123456789") != std::string::npos) fail();
+  const unsigned long value = std::stoul(port);
+  if (value == 0 || value > 65535) fail();
+  hp.port = static_cast<std::uint16_t>(value);
+  return hp;
+}
+
+std::string quoted_command_line(int argc, char** argv) {
+  std::string line;
+  for (int i = 0; i < argc; ++i) {
+    std::string arg = argv[i];
+    if (arg.empty() || arg.find_first_of(" \t\"'\\$") != std::string::npos) {
+      std::string q = "'";
+      for (char c : arg) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
+      arg = q + "'";
+    }
+    line += (i ? " " : "") + arg;
+  }
+  return line;
+}
+
+nlohmann::json to_json(const protocol::Stats& s) {
+  return {{"packets_in", s.packets_in},
+          {"packets_out", s.packets_out},
+          {"packets_dropped", s.packets_dropped},
+          {"clamps", s.clamps},
+          {"resets", s.resets},
+          {"overruns", s.overruns},
+          {"tick_compute_p50_us", s.tick_compute_p50_us},
+          {"tick_compute_p99_us", s.tick_compute_p99_us},
+          {"tick_jitter_p99_us", s.tick_jitter_p99_us},
+          {"visual_step_median_ms", s.visual_step_median_ms},
+          {"haptic_rate_hz", s.haptic_rate_hz},
+          {"visual_rate_hz", s.visual_rate_hz},
+          {"sessions_active", s.sessions_active}};
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "haptic-device: a simulated stylus (tip mass, damping and the user's arm impedance) streaming poses to hapticd "
+      "and feeling its forces"};
+  std::string server_text;
+  std::string device = "stylus";
+  std::string trajectory_spec = "press";
+  unsigned rate_hz = 1000;
+  double duration_s = 10.0;
+  std::string report_path;
+  std::string trace_path;
+  std::vector<double> origin{0.0, 0.0, 0.0};
+  std::string client_name = "haptic-device";
+  std::string frame_name = "stylus";
+  double handshake_timeout_s = 2.0;
+  sim::DeviceParams params;
+
+  app.add_option("--server", server_text, "hapticd address HOST:PORT")->required();
+  app.add_option("--device", device, "simulated device (gloves are not simulated yet)")
+      ->check(CLI::IsMember({"stylus"}))
+      ->capture_default_str();
+  app.add_option("--trajectory", trajectory_spec,
+                 "press | stroke | press-stroke | tap | circle | CSV file (t_s,x_m,y_m,z_m)")
+      ->capture_default_str();
+  app.add_option("--rate", rate_hz, "servo rate requested, Hz (the server may grant another)")
+      ->check(CLI::Range(10u, 10000u))
+      ->capture_default_str();
+  app.add_option("--duration", duration_s, "run length, s")->check(CLI::Range(0.001, 86400.0))->capture_default_str();
+  app.add_option("--report", report_path, "write the run's figures as JSON to this file");
+  app.add_option("--trace", trace_path,
+                 "write one CSV row per tick: t_s, commanded x y z, tip x y z, tip velocity, force, contact, sent");
+  app.add_option("--origin", origin, "trajectory origin x,y,z in the device frame, m")
+      ->delimiter(',')
+      ->expected(3)
+      ->check(CLI::Range(-10.0, 10.0));
+  app.add_option("--name", client_name, "client name sent in the Hello (1..64 printable bytes)")->capture_default_str();
+  app.add_option("--frame-name", frame_name, "name of the tracked frame in the Hello (1..31 printable bytes)")
+      ->capture_default_str();
+  app.add_option("--handshake-timeout", handshake_timeout_s, "seconds to wait for the Welcome")
+      ->check(CLI::Range(0.01, 60.0))
+      ->capture_default_str();
+  app.add_option("--mass", params.mass_kg, "effective tip mass, kg")
+      ->check(CLI::Range(1e-4, 100.0))
+      ->capture_default_str();
+  app.add_option("--arm-stiffness", params.arm_stiffness_n_per_m, "user's arm stiffness toward the trajectory, N/m")
+      ->check(CLI::Range(0.0, 1e5))
+      ->capture_default_str();
+  app.add_option("--arm-damping", params.arm_damping_n_s_per_m, "user's arm damping, N s/m")
+      ->check(CLI::Range(0.0, 1e4))
+      ->capture_default_str();
+  app.add_option("--device-damping", params.device_damping_n_s_per_m, "device linkage damping, N s/m")
+      ->check(CLI::Range(0.0, 1e4))
+      ->capture_default_str();
+  CLI11_PARSE(app, argc, argv);
+
+  HostPort server;
+  std::optional<sim::Trajectory> trajectory;
+  protocol::Hello hello;
+  try {
+    server = parse_server(server_text);
+    trajectory = sim::Trajectory::parse(trajectory_spec, {origin[0], origin[1], origin[2]});
+    hello.device_kind = protocol::DeviceKind::kStylus;
+    hello.requested_rate_hz = rate_hz;
+    protocol::TrackedFrame frame;
+    frame.id = 0;
+    frame.dof = 6;  // a Phantom-class stylus senses position and orientation; the tip sends identity
+    if (!hello.client_name.assign(client_name) || !frame.name.assign(frame_name))
+      throw CLI::ValidationError("--name/--frame-name", "too long (client name <= 64, frame name <= 31 bytes)");
+    hello.frames.push_back(frame);
+    if (const protocol::RejectReason r = protocol::validate(hello); r != protocol::RejectReason::kNone)
+      throw CLI::ValidationError("--name/--frame-name",
+                                 "the Hello would be refused: " + std::string(protocol::to_string(r)));
+  } catch (const CLI::ValidationError& e) {
+    std::fprintf(stderr, "haptic-device: %s\n", e.what());
+    return 2;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "haptic-device: --trajectory: %s\n", e.what());
+    return 2;
+  }
+  // Opened now, so a bad path fails before the run rather than after it.
+  std::ofstream report, trace;
+  for (auto [stream, path, flag] : {std::tuple{&report, &report_path, "--report"}, {&trace, &trace_path, "--trace"}}) {
+    if (path->empty()) continue;
+    stream->open(*path);
+    if (!*stream) {
+      std::fprintf(stderr, "haptic-device: %s: cannot write '%s'\n", flag, path->c_str());
+      return 2;
+    }
+  }
+
+  client::Client client;
+  protocol::Welcome welcome;
+  try {
+    welcome = client.connect(server.host, server.port, hello,
+                             std::chrono::nanoseconds(static_cast<std::int64_t>(handshake_timeout_s * 1e9)));
+  } catch (const client::ClientError& e) {
+    std::fprintf(stderr, "haptic-device: %s\n", e.what());
+    return 1;
+  }
+  if (welcome.rate_hz != rate_hz)
+    std::fprintf(stderr, "haptic-device: asked for %u Hz, the server granted %u Hz: running at %u Hz\n", rate_hz,
+                 welcome.rate_hz, welcome.rate_hz);
+
+  std::signal(SIGINT, request_stop);
+  std::signal(SIGTERM, request_stop);
+  sim::ServoConfig config;
+  config.rate_hz = welcome.rate_hz;
+  config.duration_s = duration_s;
+  config.device = params;
+  config.frame_id = hello.frames[0].id;
+  config.stop = &g_stop;
+  std::vector<sim::TraceRow> rows;
+  if (trace.is_open()) config.trace = &rows;
+  const sim::ServoResult result = sim::run_servo_loop(client, *trajectory, config);
+
+  nlohmann::json server_stats = nullptr;
+  try {
+    server_stats = to_json(client.request_stats(std::chrono::milliseconds(200)));
+  } catch (const client::ClientError& e) {
+    std::fprintf(stderr, "haptic-device: no server stats: %s\n", e.what());
+  }
+  client.bye();
+
+  const sim::RttSummary rtt = sim::summarize_rtt(result.rtt_us);
+  std::printf("haptic-device: %s, trajectory %s, %.2f s at %u Hz against %s (session %llu)%s\n", device.c_str(),
+              trajectory->name().c_str(), result.elapsed_s, welcome.rate_hz, client.server_address().c_str(),
+              static_cast<unsigned long long>(welcome.session_id), g_stop.load() ? ", stopped early" : "");
+  std::printf(
+      "  sent %llu, replies %llu, late %llu (%.3f %%), lost %llu (%.3f %%), missed ticks %llu, %.1f Hz achieved\n",
+      static_cast<unsigned long long>(result.samples_sent), static_cast<unsigned long long>(result.replies),
+      static_cast<unsigned long long>(result.late), 100.0 * result.late_fraction(),
+      static_cast<unsigned long long>(result.lost), 100.0 * result.loss_fraction(),
+      static_cast<unsigned long long>(result.missed_ticks), result.rate_hz_achieved);
+  std::printf("  rtt us: p50 %.1f  p90 %.1f  p99 %.1f  p99.9 %.1f  max %.1f\n", rtt.p50_us, rtt.p90_us, rtt.p99_us,
+              rtt.p999_us, rtt.max_us);
+  std::printf(
+      "  force N: max %.3f rms %.3f; contact %.1f %% of ticks; penetration max %.2f mm; passivity energy %.4g J\n",
+      result.force_max_n, result.force_rms_n, 100.0 * result.contact_fraction(), 1e3 * result.penetration_max_m,
+      result.passivity_energy_j);
+
+  if (trace.is_open()) {
+    trace << "t_s,pc_x_m,pc_y_m,pc_z_m,p_x_m,p_y_m,p_z_m,v_x_m_s,v_y_m_s,v_z_m_s,f_x_n,f_y_n,f_z_n,in_contact,sent\n";
+    trace.precision(9);
+    for (const sim::TraceRow& t : rows)
+      trace << t.t_s << ',' << t.p_DC_m.x << ',' << t.p_DC_m.y << ',' << t.p_DC_m.z << ',' << t.p_DT_m.x << ','
+            << t.p_DT_m.y << ',' << t.p_DT_m.z << ',' << t.v_DT_m_s.x << ',' << t.v_DT_m_s.y << ',' << t.v_DT_m_s.z
+            << ',' << t.f_DT_N.x << ',' << t.f_DT_N.y << ',' << t.f_DT_N.z << ',' << t.in_contact << ',' << t.sent
+            << '\n';
+    if (!trace.flush()) {
+      std::fprintf(stderr, "haptic-device: --trace: failed writing '%s'\n", trace_path.c_str());
+      return 1;
+    }
+    std::printf("  trace: %s (%zu ticks)\n", trace_path.c_str(), rows.size());
+  }
+  if (report.is_open()) {
+    nlohmann::json doc = sim::to_json(result);
+    doc["server"] = client.server_address();
+    doc["command_line"] = quoted_command_line(argc, argv);
+    doc["device"] = device;
+    doc["trajectory"] = trajectory->name();
+    doc["origin_m"] = origin;
+    doc["rate_hz_requested"] = rate_hz;
+    doc["rate_hz"] = welcome.rate_hz;
+    doc["duration_s"] = duration_s;
+    doc["session_id"] = welcome.session_id;
+    doc["welcome"] = {{"force_limit_n", welcome.force_limit_n},
+                      {"torque_limit_nm", welcome.torque_limit_nm},
+                      {"max_force_rate_n_per_s", welcome.max_force_rate_n_per_s}};
+    doc["device_model"] = {{"mass_kg", params.mass_kg},
+                           {"arm_stiffness_n_per_m", params.arm_stiffness_n_per_m},
+                           {"arm_damping_n_s_per_m", params.arm_damping_n_s_per_m},
+                           {"device_damping_n_s_per_m", params.device_damping_n_s_per_m}};
+    doc["server_stats"] = server_stats;
+    doc["stopped_early"] = g_stop.load();
+    report << doc.dump(2) << "\n";
+    if (!report.flush()) {
+      std::fprintf(stderr, "haptic-device: --report: failed writing '%s'\n", report_path.c_str());
+      return 1;
+    }
+    std::printf("  report: %s\n", report_path.c_str());
+  }
+  return 0;
+}
