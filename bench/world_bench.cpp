@@ -1,5 +1,6 @@
 #include "world_bench.hpp"
 
+#include <Eigen/Geometry>
 #include <cmath>
 #include <cstdio>
 #include <memory>
@@ -22,7 +23,7 @@ struct WorldBenchArgs {
 };
 
 struct RunStats {
-  std::vector<double> total, collide, hands, contact, rigid, linearize, contacts;
+  std::vector<double> total, collide, hands, contact, rigid, linearize, deformable, contacts;
   // |F of the last step's handle-space model at this step's handle states - this
   // step's coupling force|, N: what the haptic loop renders against what the
   // next visual step finds (hand 0, the force part of all handles).
@@ -32,15 +33,27 @@ struct RunStats {
 };
 
 // Every hand's handles travel in the first second to 6 cm above the scene's
-// first rigid object, come down onto it in the next half second (palm centre
-// 5 mm above its top surface, so the palm's skin presses into it), then stroke
-// 2 cm along x with a 2 s period.
+// first rigid or deformable object (file order), come down onto it in the next
+// half second (palm centre 5 mm above its top surface, so the palm's skin
+// presses into it), then stroke 2 cm along x with a 2 s period.
 RunStats run(const SceneDesc& scene, const WorldOptions& options, int steps) {
   World world(scene, options);
   std::vector<std::vector<HandleState>> start;
   for (int h = 0; h < world.num_hands(); ++h) start.push_back(world.hand(h).state.handles);
   Eigen::Vector3d goal = start.empty() ? Eigen::Vector3d::Zero() : start[0][0].p_WH;
-  for (const ObjectDesc& o : scene.objects)
+  for (const ObjectDesc& o : scene.objects) {
+    if (o.kind == BodyKind::deformable) {
+      // The highest surface point within 1 cm of the vertical through the centre of its bounding box.
+      const std::vector<Eigen::Vector3d>& surface =
+          world.snapshot().deformables[world.find_deformable(o.name)].surface_W;
+      Eigen::AlignedBox3d box;
+      for (const Eigen::Vector3d& p : surface) box.extend(p);
+      goal = Eigen::Vector3d(box.center().x(), box.center().y(), box.min().z());
+      for (const Eigen::Vector3d& p : surface)
+        if ((p - box.center()).head<2>().norm() < 0.01) goal.z() = std::max(goal.z(), p.z());
+      goal.z() += 0.005;
+      break;
+    }
     if (o.kind == BodyKind::rigid && world.rigid()) {
       // The object's top surface under the centre of its bounding box.
       const int i = world.rigid()->find(o.name);
@@ -53,6 +66,7 @@ RunStats run(const SceneDesc& scene, const WorldOptions& options, int steps) {
       goal.z() += 0.005;
       break;
     }
+  }
   const Eigen::Vector3d above = goal + Eigen::Vector3d(0, 0, 0.06);
   auto approach = [&](double t) -> Eigen::Vector3d {
     if (t < 1.0) return t * (above - start[0][0].p_WH);
@@ -89,6 +103,7 @@ RunStats run(const SceneDesc& scene, const WorldOptions& options, int steps) {
     r.contact.push_back(s.timings.contact_ms);
     r.rigid.push_back(s.timings.rigid_ms);
     r.linearize.push_back(s.timings.linearize_ms);
+    r.deformable.push_back(s.timings.deformable_ms);
     r.contacts.push_back(static_cast<double>(s.contacts.size()));
     r.max_penetration_m = std::max(r.max_penetration_m, s.max_penetration_m);
     r.resets = s.resets;
@@ -103,6 +118,7 @@ nlohmann::json to_json(const RunStats& r) {
           {"force_error_n_median", r.force_error_n.empty() ? 0.0 : median(r.force_error_n)},
           {"force_error_n_p99", r.force_error_n.empty() ? 0.0 : percentile(r.force_error_n, 99)},
           {"ode_ms", median(r.rigid)},               {"linearization_ms", median(r.linearize)},
+          {"deformable_ms", median(r.deformable)},
           {"contacts_median", median(r.contacts)},   {"contacts_max", percentile(r.contacts, 100)},
           {"max_penetration_mm", 1e3 * r.max_penetration_m}, {"resets", r.resets}};
 }
@@ -133,15 +149,15 @@ void run_world_bench(const WorldBenchArgs& a) {
                         {"threads", 1},
                         {"cpu", machine.cpu},
                         {"machine", to_json(machine)}};
-  std::printf("%-18s %-10s %9s %9s %9s %9s %9s %9s %9s %9s %9s %9s\n", "scene", "contact", "step_med", "step_p99",
-              "collide", "hand", "contact", "ode", "linearize", "contacts", "pen_mm", "ferr_N");
+  std::printf("%-18s %-10s %9s %9s %9s %9s %9s %9s %9s %9s %9s %9s %9s\n", "scene", "contact", "step_med", "step_p99",
+              "collide", "hand", "contact", "ode", "linearize", "deform", "contacts", "pen_mm", "ferr_N");
   for (const auto& [label, r] : {std::pair<const char*, const RunStats&>{"penalty", penalty},
                                  {"constraint", constraint},
                                  {"off", without}})
-    std::printf("%-18s %-10s %9.3f %9.3f %9.3f %9.3f %9.3f %9.3f %9.3f %9.0f %9.3f %9.4f\n", scene.name.c_str(), label,
-                median(r.total), percentile(r.total, 99), median(r.collide), median(r.hands), median(r.contact),
-                median(r.rigid), median(r.linearize), median(r.contacts), 1e3 * r.max_penetration_m,
-                r.force_error_n.empty() ? 0.0 : median(r.force_error_n));
+    std::printf("%-18s %-10s %9.3f %9.3f %9.3f %9.3f %9.3f %9.3f %9.3f %9.3f %9.0f %9.3f %9.4f\n", scene.name.c_str(),
+                label, median(r.total), percentile(r.total, 99), median(r.collide), median(r.hands), median(r.contact),
+                median(r.rigid), median(r.linearize), median(r.deformable), median(r.contacts),
+                1e3 * r.max_penetration_m, r.force_error_n.empty() ? 0.0 : median(r.force_error_n));
   std::printf("machine: %s, %d cores, BLAS %s, revision %s (times in ms, one thread)\n", machine.cpu.c_str(),
               machine.cores, machine.blas.c_str(), machine.git_revision.c_str());
   if (!a.json.empty()) write_json(a.json, doc);

@@ -24,6 +24,11 @@ double ms_since(Clock::time_point t0) {
 // r = b_h - A_ht y0 (S is small and, with the rotational terms, not symmetric:
 // LU with partial pivoting; a singular S shows as an inaccurate solution).
 bool solve_handles(const CoupledSystem& s, const Eigen::MatrixXd& Y, const Eigen::VectorXd& y0, Eigen::VectorXd& v_h) {
+  // A free body (no handles, no bodies in contact): eq. 7 is A_t v_t = b_t alone.
+  if (s.handle_dofs() == 0) {
+    v_h.resize(0);
+    return true;
+  }
   const Eigen::MatrixXd S = s.A_h - s.A_ht * Y;
   const Eigen::VectorXd r = s.b_h - s.A_ht * y0;
   v_h = S.partialPivLu().solve(r);
@@ -70,7 +75,7 @@ class CholmodSchur {
     Y_ = chol_.solve(rhs_);
     A_ht_ = s.A_ht;
     S_ = s.A_h - A_ht_ * Y_.rightCols(nh);
-    lu_.compute(S_);
+    if (nh > 0) lu_.compute(S_);
     report.schur_ms += ms_since(t1);
     return Y_.allFinite();
   }
@@ -97,6 +102,10 @@ class CholmodSchur {
   void apply(const In& r, Out& z) const {
     const Eigen::Index nh = S_.rows(), n = r.rows();
     const Eigen::MatrixXd y = chol_.solve(Eigen::MatrixXd(r.bottomRows(n - nh)));
+    if (nh == 0) {
+      z = y;
+      return;
+    }
     const Eigen::MatrixXd z_h = lu_.solve(Eigen::MatrixXd(r.topRows(nh) - A_ht_ * y));
     z.resize(n, r.cols());
     z.topRows(nh) = z_h;

@@ -138,7 +138,10 @@ void validate(const HandConfig& c) {
   require(c.gravity_m_s2.allFinite(), "gravity_m_s2", "must be finite");
   require(std::isfinite(c.dt_s) && c.dt_s > 0 && c.dt_s <= 1.0, "dt_s", "must be in (0, 1] s");
   require(std::isfinite(c.max_speed_m_s) && c.max_speed_m_s > 0, "max_speed_m_s", "must be > 0");
-  require(!c.handles.empty(), "handles", "a hand needs at least one handle");
+  if (c.free_body)
+    require(c.handles.empty(), "handles", "a free body has no handles");
+  else
+    require(!c.handles.empty(), "handles", "a hand needs at least one handle");
   for (size_t i = 0; i < c.handles.size(); ++i) {
     const std::string path = "handles[" + std::to_string(i) + "]";
     require(c.handles[i].seed.allFinite(), path + ".seed", "must be finite");
@@ -198,6 +201,7 @@ HandState make_rest_state(const HandModel& model) {
   }
   s.R.assign(model.mesh().tets.size(), Eigen::Matrix3d::Identity());  // warm start of the polar iteration
   s.f_t = Eigen::VectorXd::Zero(3 * n);
+  s.f_ext = Eigen::VectorXd::Zero(3 * n);
   s.system.A_t = model.tool_pattern();
   s.system.A_th.resize(3 * n, 6 * m);
   s.system.A_ht.resize(6 * m, 3 * n);
@@ -264,6 +268,8 @@ void assemble(const HandModel& model, HandState& s) {
   s.f_t.setZero();
   fem.add_elastic_forces(s.x, s.R, s.f_t);
   for (int i = 0; i < n; ++i) s.f_t.segment<3>(3 * i) += mass[i] * cfg.gravity_m_s2;
+  // External forces come from outside too: a malformed set is dropped, never assembled.
+  if (s.f_ext.size() == 3 * n && s.f_ext.allFinite()) s.f_t += s.f_ext;
 
   // A_t = (1 + h alpha) M + (h beta + h^2) K_el + coupling and floor blocks.
   double* values = sys.A_t.valuePtr();
@@ -381,7 +387,39 @@ void assemble(const HandModel& model, HandState& s) {
 
 namespace {
 
+// A free body has no target: its rest shape is fitted rigidly onto the nodes
+// (mass-weighted centroid, polar rotation of the best linear map), at rest; the
+// rest pose itself when the nodes are not finite.
+void reset_free_body(const HandModel& model, HandState& s) {
+  const Eigen::VectorXd& mass = model.fem().lumped_mass();
+  const std::vector<Eigen::Vector3d>& X = model.mesh().X;
+  const int n = model.num_nodes();
+  Eigen::Vector3d c_x = Eigen::Vector3d::Zero(), c_X = Eigen::Vector3d::Zero();
+  const double total = mass.sum();
+  for (int i = 0; i < n; ++i) c_x += mass[i] * s.x.segment<3>(3 * i), c_X += mass[i] * X[i];
+  c_x /= total, c_X /= total;
+  Eigen::Matrix3d A = Eigen::Matrix3d::Zero(), B = Eigen::Matrix3d::Zero();
+  for (int i = 0; i < n; ++i) {
+    A += mass[i] * (s.x.segment<3>(3 * i) - c_x) * (X[i] - c_X).transpose();
+    B += mass[i] * (X[i] - c_X) * (X[i] - c_X).transpose();
+  }
+  Eigen::Matrix3d R = Eigen::Matrix3d::Identity();
+  if (c_x.allFinite() && A.allFinite()) {
+    R = rotation_of(A * B.inverse());
+  } else {
+    c_x = c_X;
+  }
+  for (int i = 0; i < n; ++i) s.x.segment<3>(3 * i) = c_x + R * (X[i] - c_X);
+  s.v.setZero();
+  s.held = HeldContacts{};
+  ++s.resets;
+}
+
 void reset_to_target(const HandModel& model, HandState& s) {
+  if (model.num_handles() == 0) {
+    reset_free_body(model, s);
+    return;
+  }
   const HandleTarget t = s.targets[0];
   const bool usable = t.p_W.allFinite() && t.q_W.coeffs().allFinite();
   std::vector<HandleTarget> targets = s.targets;
@@ -567,7 +605,7 @@ StepStatus step(const HandModel& model, HandState& s, CoupledSolver& solver, Han
   }
   for (ContactBody& b : s.bodies) b.dv_W.setZero(), b.dw_W.setZero();
   bool linearized = false;
-  if (linearization && status == StepStatus::ok) {
+  if (linearization && status == StepStatus::ok && model.num_handles() > 0) {
     const auto t_lin = Clock::now();
     linearized = linearize_handles(model, s, solver, *linearization, s.held.rows() > 0 ? &s.held : nullptr);
     s.timings.linearize_ms = ms_since(t_lin);
@@ -576,8 +614,12 @@ StepStatus step(const HandModel& model, HandState& s, CoupledSolver& solver, Han
     reset_to_target(model, s);
   } else {
     const double h = model.config().dt_s;
-    s.v = s.v_t_next;
-    s.x += h * s.v;
+    // Checked before the update, so a reset still sees the start-of-step nodes.
+    const bool finite_end = (s.x + h * s.v_t_next).allFinite();
+    if (finite_end) {
+      s.v = s.v_t_next;
+      s.x += h * s.v;
+    }
     for (size_t b = 0; b < s.bodies.size(); ++b) {
       ContactBody& B = s.bodies[b];
       const int col = 6 * (model.num_handles() + static_cast<int>(b));
@@ -591,7 +633,7 @@ StepStatus step(const HandModel& model, HandState& s, CoupledSolver& solver, Han
       hs.p_WH += h * hs.v_WH;
       hs.q_WH = rotate_by(hs.q_WH, h * hs.w_WH);
     }
-    if (!s.x.allFinite()) {
+    if (!finite_end) {
       status = StepStatus::reset_diverged;
       for (ContactBody& b : s.bodies) b.dv_W.setZero(), b.dw_W.setZero();
       reset_to_target(model, s);

@@ -2,6 +2,10 @@
 // A deformable co-rotational FEM hand tied to m >= 1 rigid handles (seed 004
 // sections 4-5): the constant HandModel, the mutable HandState, and one implicit
 // Euler step (Baraff-Witkin: one linearization per step) split in named stages.
+// The same body with m = 0 handles (HandConfig::free_body) is a free deformable
+// object (seed 004 section 7's bunny and letters; DESIGN.md section 3: FEM bodies
+// like the hand, without handles): eq. 7 then reduces to A_t v_t = b_t, plus the
+// 6-DOF blocks of any rigid bodies it touches.
 #include <Eigen/Core>
 #include <string>
 #include <vector>
@@ -87,6 +91,9 @@ struct HandConfig {
   double dt_s = 1.0 / 60.0;
   // Safety: a step whose node or handle speed exceeds this is a divergence.
   double max_speed_m_s = 50.0;
+  // A free deformable object instead of a hand: no handles (and then `handles`
+  // must be empty); a hand has at least one.
+  bool free_body = false;
   std::vector<HandleSpec> handles;
 };
 
@@ -197,6 +204,10 @@ struct HandState {
   // Contacts against other bodies for the next step, set by the world; their
   // f_W is filled by the step. Floor contacts are added internally each step.
   std::vector<PointContact> contacts;
+  // External nodal forces for the next step, N, 3n (zero at rest; the caller
+  // sets and clears them): e.g. another soft body's contact reactions handed
+  // over by operator splitting. Explicit: they enter b, not A.
+  Eigen::VectorXd f_ext;
   std::vector<ContactBody> bodies;            // the dynamic bodies contacts refer to
   std::vector<BodySupport> supports;          // those bodies' other contacts, for the next step
   std::vector<PointContact> active_contacts;  // valid contacts + floor, as last assembled
@@ -227,11 +238,13 @@ void assemble(const HandModel& model, HandState& state);
 enum class StepStatus { ok, reset_solver_failed, reset_diverged };
 
 // One implicit Euler step: assemble, solve (with `solver`), linearize (when
-// `linearization` is given: the handle-space force model of this step's system,
-// computed while its factorization is current, re-anchored at the handles'
-// end-of-step state; cleared to zero size if it fails), integrate, check.
-// A failed solve or a diverging/non-finite result resets the hand to rest at its
-// first handle's target (state.resets counts it) instead of propagating.
+// `linearization` is given and the model has handles: the handle-space force
+// model of this step's system, computed while its factorization is current,
+// re-anchored at the handles' end-of-step state; cleared to zero size if it
+// fails), integrate, check. A failed solve or a diverging/non-finite result
+// resets the hand to rest at its first handle's target (a free body: to its rest
+// shape fitted rigidly onto its start-of-step nodes, at rest) and state.resets
+// counts it, instead of propagating.
 StepStatus step(const HandModel& model, HandState& state, CoupledSolver& solver,
                 HandleLinearization* linearization = nullptr);
 

@@ -43,8 +43,11 @@ struct ShapeDesc {
   Eigen::Vector3d normal{0, 0, 1};  // plane: unit normal (normalised on load); default +z
   double offset = 0;                // plane: the points x with normal . x = offset, m; default 0
   std::string file;  // mesh: OBJ surface; tet_mesh: TetGen .node (its .ele beside it) or Gmsh .msh; absolute path
-  std::string embedding_file;  // tet_mesh, optional: barycentric surface embedding, absolute path; "" if none
-  double scale = 1.0;          // mesh, tet_mesh: uniform scale applied to the file's coordinates, > 0; default 1
+  // tet_mesh, optional and only together: the closed OBJ surface (collision and display) and its
+  // barycentric embedding in the tets (.embed), absolute paths; "" if none (the mesh's own boundary is the surface).
+  std::string surface_file;
+  std::string embedding_file;
+  double scale = 1.0;  // mesh, tet_mesh: uniform scale applied to the file's coordinates, > 0; default 1
 };
 
 enum class BodyKind {

@@ -427,7 +427,7 @@ MaterialDesc get_material_ref(const Obj& owner, const MaterialTable& table, cons
 }
 
 ShapeDesc parse_shape(const Obj& o, BodyKind kind, const fs::path& base_dir) {
-  o.allow({"type", "size", "radius", "length", "normal", "offset", "file", "scale", "embedding"});
+  o.allow({"type", "size", "radius", "length", "normal", "offset", "file", "scale", "surface", "embedding"});
   ShapeDesc s;
   s.type = o.choice("type", kShapeTypeNames, "shape");
   const std::string type_path = o.at("type");
@@ -463,9 +463,15 @@ ShapeDesc parse_shape(const Obj& o, BodyKind kind, const fs::path& base_dir) {
       s.scale = o.number("scale", kPositive, 1.0);
       break;
     case ShapeType::tet_mesh:
-      o.allow({"type", "file", "scale", "embedding"}, "a tet_mesh");
+      o.allow({"type", "file", "scale", "surface", "embedding"}, "a tet_mesh");
       s.file = get_file(o, "file", base_dir, {".node", ".msh"});
       s.scale = o.number("scale", kPositive, 1.0);
+      // An embedding places a surface's vertices in the tets: one is no use without the other.
+      if (o.has("surface") != o.has("embedding"))
+        fail(o.at(o.has("surface") ? "surface" : "embedding"),
+             o.has("surface") ? "needs \"embedding\" (the surface's barycentric embedding in the tets)"
+                              : "needs \"surface\" (the OBJ surface it embeds)");
+      if (o.has("surface")) s.surface_file = get_file(o, "surface", base_dir, {".obj"});
       if (o.has("embedding")) s.embedding_file = get_file(o, "embedding", base_dir, {});
       break;
   }

@@ -23,8 +23,10 @@
 //               | { "type": "capsule" | "cylinder", "radius", "length" }
 //               | { "type": "plane", "normal": [x, y, z], "offset" }
 //               | { "type": "mesh", "file": "*.obj", "scale" }
-//               | { "type": "tet_mesh", "file": "*.node" | "*.msh", "scale", "embedding": "<file>" }
-//               (every shape key is required except "scale", default 1, and "embedding")
+//               | { "type": "tet_mesh", "file": "*.node" | "*.msh", "scale", "surface": "*.obj",
+//                   "embedding": "<file>" }
+//               (every shape key is required except "scale", default 1, and "surface" with
+//               "embedding", which come together or not at all)
 //   <joint>     { "name", "type": hinge | ball | fixed | slider, "body_a", "body_b", "anchor": [x, y, z],
 //                 "axis": [x, y, z], "limits": [lo, hi] }
 //   <hand>      { "name", "model": fem | spring | soft_pad | contact_point, "side": right | left,

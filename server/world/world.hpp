@@ -1,12 +1,14 @@
 #pragma once
-// The world of a scene, stepped once per visual frame in named stages:
-// collide (hand skin vs static and rigid geometry), hands (implicit FEM step
-// with the contacts), reactions (contact forces onto ODE bodies), rigid (ODE
-// step, with each hand's handle-space force model), reactions, rigid (ODE),
-// collide (for the next step), publish (snapshot). Built from a SceneDesc, building only what the
-// scene names. Contact is the implicit penalty baseline by default, or constraint
-// contact (experimental, see WorldOptions::contact); rigid bodies a hand touches
-// are solved implicitly with it either way.
+// The world of a scene, stepped once per visual frame in named stages: hands
+// (implicit FEM step with the contacts found at the end of the last step, and
+// each hand's handle-space force model), deformables (the deformable objects'
+// implicit FEM steps, with the hands' contact reactions), reactions (contact
+// impulses onto ODE bodies), rigid (ODE step), collide (hand skin and deformable
+// surfaces vs static and rigid geometry, hand skin vs deformable objects, for
+// the next step), publish (snapshot). Built from a SceneDesc, building only what
+// the scene names. Contact is the implicit penalty baseline by default, or
+// constraint contact (see WorldOptions::contact); rigid bodies a hand or a
+// deformable object touches are solved implicitly with it either way.
 #include <cstdint>
 #include <memory>
 #include <optional>
@@ -19,6 +21,7 @@
 #include "hand_models/hand_model.hpp"
 #include "hand_models/press_scenario.hpp"
 #include "hand_models/procedural_hand.hpp"
+#include "server/world/deformable_object.hpp"
 #include "server/world/rigid_world.hpp"
 #include "server/world/scene.hpp"
 
@@ -53,14 +56,29 @@ struct WorldHand {
   double friction = 0.5;
 };
 
+// One contact of a point of flesh: a hand's skin point (hand >= 0) or a
+// deformable object's surface point (deformable >= 0), against a RigidWorld
+// object (object >= 0) or, for hand points, a deformable object
+// (other_deformable >= 0). f_W is the force on the point's body, N; n_W points
+// out of the other side.
 struct ContactRecord {
   int hand = -1, object = -1;
   Eigen::Vector3d p_W = Eigen::Vector3d::Zero(), n_W = Eigen::Vector3d::Zero(), f_W = Eigen::Vector3d::Zero();
   double depth_m = 0;
+  int deformable = -1, other_deformable = -1;
 };
 
 struct WorldTimings {
-  double collide_ms = 0, hands_ms = 0, contact_ms = 0, rigid_ms = 0, linearize_ms = 0, total_ms = 0;
+  // deformable_ms: the deformable objects' implicit steps (their contact solves
+  // included); collide_ms includes rebuilding their point-location grids.
+  double collide_ms = 0, hands_ms = 0, contact_ms = 0, rigid_ms = 0, linearize_ms = 0, deformable_ms = 0, total_ms = 0;
+};
+
+// A deformable object's shape at the end of the last step (world frame, m);
+// its surface triangles are constant: World::deformable(i).body.surface.triangles.
+struct DeformableSnapshot {
+  std::vector<Eigen::Vector3d> surface_W;  // surface vertices
+  std::vector<Eigen::Vector3d> nodes_W;    // tet nodes
 };
 
 struct WorldSnapshot {
@@ -72,7 +90,10 @@ struct WorldSnapshot {
   // step's system and anchored at its end state; empty before the first step.
   std::vector<HandleLinearization> linear_models;
   std::vector<bool> linear_model_valid;
-  std::vector<RigidBodyState> bodies;             // per RigidWorld object
+  std::vector<RigidBodyState> bodies;           // per RigidWorld object
+  std::vector<DeformableSnapshot> deformables;  // per deformable object
+  // The contacts the last step solved, with their forces and their depths at
+  // the start of the step (before the first step: those found for it, no force).
   std::vector<ContactRecord> contacts;
   double max_penetration_m = 0;
   long resets = 0;
@@ -91,14 +112,61 @@ class World {
   WorldHand& hand(int i) { return *hands_[i]; }
   const WorldHand& hand(int i) const { return *hands_[i]; }
   int find_hand(const std::string& name) const;
+  int num_deformables() const { return static_cast<int>(deformables_.size()); }
+  DeformableObject& deformable(int i) { return *deformables_[i]; }
+  const DeformableObject& deformable(int i) const { return *deformables_[i]; }
+  int find_deformable(const std::string& name) const;
   // Null when the scene has no static or rigid object.
   RigidWorld* rigid() { return rigid_.get(); }
   const WorldSnapshot& snapshot() const { return snapshot_; }
   double dt() const { return dt_; }
 
  private:
-  void collide(int h);
+  // A point of a hand that touches a deformable object: where in the object.
+  struct DeformableTouch {
+    int object = -1;  // index of the deformable object, -1: the contact is with a RigidWorld object
+    int tet = 0;
+    Eigen::Vector4d bary = Eigen::Vector4d::Zero();
+  };
+  struct LastContact {
+    int object = -1;
+    Eigen::Vector3d n_W = Eigen::Vector3d::Zero();
+  };
+  // What collision needs of a body of flesh (a hand, or a deformable object),
+  // and what it keeps of its contacts between steps.
+  struct SoftBody {
+    const HandModel* model = nullptr;
+    HandState* state = nullptr;
+    // The points that collide: the skin or surface vertices, each in a tet.
+    const std::vector<int>* point_tet = nullptr;
+    const std::vector<Eigen::Vector4d>* point_bary = nullptr;
+    double friction = 0.5;
+    int hand = -1, deformable = -1;  // which body it is
+    // Per contact of state->contacts: world point, and for hands the deformable object touched.
+    std::vector<Eigen::Vector3d> points;
+    std::vector<DeformableTouch> touches;
+    // Constraint contacts: each contact's cluster cell, and the impulse (N s)
+    // each cell's contact had in the last step, the next step's first guess.
+    std::vector<std::uint64_t> keys;
+    std::vector<int> point_of;  // the point each contact is at
+    std::unordered_map<std::uint64_t, Eigen::Vector3d> warm_impulse;
+    std::unordered_map<std::uint64_t, int> kept_point;  // per cell, the point its contact was at last step
+    // Per point: the object and normal of its last contact. A point keeps the
+    // face it entered through while inside (no tunnelling through thin boxes).
+    std::vector<LastContact> last;
+  };
+
+  void collide_all();
+  void collide(SoftBody& body);
+  int add_rigid_proxy(HandState& state, int deformable);
+  void collide_with_deformables(SoftBody& body, std::unordered_map<std::uint64_t, int>& cluster);
+  void remember_impulses(SoftBody& body);
+  // Adds a found contact to the body, clustered per other body and cell for constraint contacts.
+  void add_contact(SoftBody& body, const PointContact& c, int point, const Eigen::Vector3d& p_W, int other_key,
+                   const DeformableTouch& touch, std::unordered_map<std::uint64_t, int>& cluster);
+  void step_deformables();
   void apply_reactions();
+  void record_contacts();
   void publish();
 
   double dt_;
@@ -107,19 +175,10 @@ class World {
   long steps_ = 0;
   WorldOptions options_;
   std::vector<std::unique_ptr<WorldHand>> hands_;
+  std::vector<std::unique_ptr<DeformableObject>> deformables_;
   std::unique_ptr<RigidWorld> rigid_;
-  std::vector<std::vector<Eigen::Vector3d>> contact_points_;  // per hand, per contact: world point
-  // Constraint contacts: per hand, each contact's cluster cell, and the impulse
-  // (N s) each cell's contact had in the last step, the next step's first guess.
-  std::vector<std::vector<std::uint64_t>> contact_keys_;
-  std::vector<std::unordered_map<std::uint64_t, Eigen::Vector3d>> warm_impulse_;
-  // Per hand, per skin vertex: the object and normal of its last contact. A point
-  // keeps the face it entered through while inside (no tunnelling through thin boxes).
-  struct LastContact {
-    int object = -1;
-    Eigen::Vector3d n_W = Eigen::Vector3d::Zero();
-  };
-  std::vector<std::vector<LastContact>> last_contact_;
+  std::vector<SoftBody> soft_;          // the hands, then the deformable objects
+  std::vector<PointContact> mirrored_;  // workspace: hand contacts seen from a deformable object
   WorldSnapshot snapshot_;
 };
 

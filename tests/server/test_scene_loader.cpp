@@ -229,7 +229,7 @@ TEST_F(SceneLoaderTest, ExplicitValuesAreReadAndNormalised) {
        "material": "rubber"},
       {"name": "can", "kind": "static", "shape": {"type": "cylinder", "radius": 0.03, "length": 0.1}},
       {"name": "jelly", "kind": "deformable", "shape": {"type": "tet_mesh", "file": "assets/../assets/tiny.node",
-       "scale": 0.5, "embedding": "assets/tiny.embed"}},
+       "scale": 0.5, "surface": "assets/tiny.obj", "embedding": "assets/tiny.embed"}},
       {"name": "gel", "kind": "deformable", "shape": {"type": "tet_mesh", "file": "assets/tiny.msh"}},
       {"name": "slab", "kind": "deformable", "shape": {"type": "box", "size": [0.1, 0.1, 0.02]}}
     ],
@@ -272,6 +272,7 @@ TEST_F(SceneLoaderTest, ExplicitValuesAreReadAndNormalised) {
 
   const ObjectDesc& jelly = *scene.find_object("jelly");
   EXPECT_EQ(jelly.shape.file, (dir_ / "assets/tiny.node").lexically_normal().string());
+  EXPECT_EQ(jelly.shape.surface_file, (dir_ / "assets/tiny.obj").lexically_normal().string());
   EXPECT_EQ(jelly.shape.embedding_file, (dir_ / "assets/tiny.embed").lexically_normal().string());
   EXPECT_EQ(jelly.shape.scale, 0.5);
   EXPECT_EQ(scene.find_object("slab")->kind, BodyKind::deformable);
@@ -350,7 +351,8 @@ TEST(ShippedScenes, StylusBunnyLoads) {
 }
 
 TEST(ShippedScenes, DeformableBunnyLoads) {
-  for (const char* asset : {"assets/bunny_271.node", "assets/bunny_271.ele", "assets/bunny_271.embed"})
+  for (const char* asset :
+       {"assets/bunny.obj", "assets/bunny_271.node", "assets/bunny_271.ele", "assets/bunny_271.embed"})
     SKIP_IF_MISSING(asset);
   const SceneDesc scene = load_scene((kScenes / "deformable_bunny.json").string());
   expect_stylus_drives_right_fem_hand(scene);
@@ -359,6 +361,7 @@ TEST(ShippedScenes, DeformableBunnyLoads) {
   EXPECT_EQ(bunny->kind, BodyKind::deformable);
   EXPECT_EQ(bunny->shape.type, ShapeType::tet_mesh);
   EXPECT_EQ(fs::path(bunny->shape.file), (kScenes / "assets/bunny_271.node").lexically_normal());
+  EXPECT_EQ(fs::path(bunny->shape.surface_file), (kScenes / "assets/bunny.obj").lexically_normal());
   EXPECT_EQ(fs::path(bunny->shape.embedding_file), (kScenes / "assets/bunny_271.embed").lexically_normal());
   EXPECT_TRUE(scene.needs_deformable_objects());
   EXPECT_TRUE(scene.needs_rigid_world());  // the blocks
@@ -664,8 +667,22 @@ TEST_F(SceneLoaderTest, RejectsMissingMeshFile) {
   doc["objects"][1]["kind"] = "deformable";
   doc["objects"][1]["shape"] = {{"type", "tet_mesh"}, {"file", "assets/lonely.node"}};
   EXPECT_TRUE(fails_at(doc, "objects[1].shape.file", "cannot open '" + (dir_ / "assets/lonely.ele").string() + "'"));
-  doc["objects"][1]["shape"] = {{"type", "tet_mesh"}, {"file", "assets/tiny.node"}, {"embedding", "nope.embed"}};
+  doc["objects"][1]["shape"] = {
+      {"type", "tet_mesh"}, {"file", "assets/tiny.node"}, {"surface", "assets/tiny.obj"}, {"embedding", "nope.embed"}};
   EXPECT_TRUE(fails_at(doc, "objects[1].shape.embedding", "cannot open"));
+  doc["objects"][1]["shape"]["surface"] = "assets/tiny.node";
+  EXPECT_TRUE(fails_at(doc, "objects[1].shape.surface", "expected a .obj file"));
+}
+
+TEST_F(SceneLoaderTest, SurfaceAndEmbeddingComeTogether) {
+  json doc = valid();
+  doc["objects"][1]["kind"] = "deformable";
+  doc["objects"][1]["shape"] = {{"type", "tet_mesh"}, {"file", "assets/tiny.node"}, {"embedding", "assets/tiny.embed"}};
+  EXPECT_TRUE(fails_at(doc, "objects[1].shape.embedding", "needs \"surface\" (the OBJ surface it embeds)"));
+  doc["objects"][1]["shape"] = {{"type", "tet_mesh"}, {"file", "assets/tiny.node"}, {"surface", "assets/tiny.obj"}};
+  EXPECT_TRUE(fails_at(doc, "objects[1].shape.surface", "needs \"embedding\""));
+  doc["objects"][1]["shape"] = {{"type", "box"}, {"size", {0.1, 0.1, 0.1}}, {"surface", "assets/tiny.obj"}};
+  EXPECT_TRUE(fails_at(doc, "objects[1].shape.surface", "unknown key for a box"));
 }
 
 TEST_F(SceneLoaderTest, RejectsBadVersion) {

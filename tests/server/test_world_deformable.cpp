@@ -1,0 +1,262 @@
+// Deformable objects in the world: a soft cube dropped on a floor comes to rest
+// on it, the hand pushes a soft bunny across a floor (it deforms, gains no
+// energy it was not given, passes every reaction on), in both contact models.
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <cstdio>
+
+#include "server/world/scene_loader.hpp"
+#include "server/world/world.hpp"
+#include "world_test_util.hpp"
+
+namespace hapticd {
+namespace {
+
+class DeformableWorld : public testing::TestWithParam<ContactModel> {
+ protected:
+  WorldOptions options() const {
+    WorldOptions o;
+    o.contact = GetParam();
+    return o;
+  }
+};
+
+ObjectDesc static_floor() {
+  ObjectDesc floor;
+  floor.name = "floor";
+  floor.kind = BodyKind::static_body;
+  floor.shape.type = ShapeType::plane;
+  floor.material.friction = 0.5;
+  return floor;
+}
+
+Eigen::Vector3d centroid(const DeformableObject& o) {
+  Eigen::Vector3d c = Eigen::Vector3d::Zero();
+  for (int i = 0; i < o.model->num_nodes(); ++i) c += o.state.x.segment<3>(3 * i);
+  return c / o.model->num_nodes();
+}
+
+double lowest_surface_z(const WorldSnapshot& s, int d) {
+  double z = 1e300;
+  for (const Eigen::Vector3d& p : s.deformables[d].surface_W) z = std::min(z, p.z());
+  return z;
+}
+
+// Largest distance of a node from the best rigid placement of the rest shape
+// (mass-weighted Kabsch fit): what the body deformed, without its motion.
+double max_deformation(const DeformableObject& o) {
+  const Eigen::VectorXd& m = o.model->fem().lumped_mass();
+  const std::vector<Eigen::Vector3d>& X = o.model->mesh().X;
+  const int n = o.model->num_nodes();
+  Eigen::Vector3d cx = Eigen::Vector3d::Zero(), cX = Eigen::Vector3d::Zero();
+  for (int i = 0; i < n; ++i) cx += m[i] * o.state.x.segment<3>(3 * i), cX += m[i] * X[i];
+  cx /= m.sum(), cX /= m.sum();
+  Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
+  for (int i = 0; i < n; ++i) H += m[i] * (X[i] - cX) * (o.state.x.segment<3>(3 * i) - cx).transpose();
+  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(H, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
+  D(2, 2) = (svd.matrixV() * svd.matrixU().transpose()).determinant() > 0 ? 1 : -1;
+  const Eigen::Matrix3d R = svd.matrixV() * D * svd.matrixU().transpose();
+  double worst = 0;
+  for (int i = 0; i < n; ++i) worst = std::max(worst, (o.state.x.segment<3>(3 * i) - cx - R * (X[i] - cX)).norm());
+  return worst;
+}
+
+TEST_P(DeformableWorld, SoftCubeDroppedOnTheFloorComesToRestOnItWithoutDrift) {
+  SceneDesc scene;
+  scene.objects.push_back(static_floor());
+  ObjectDesc cube;
+  cube.name = "cube";
+  cube.kind = BodyKind::deformable;
+  cube.shape.type = ShapeType::box;
+  cube.shape.size = {0.04, 0.04, 0.04};
+  cube.pose.p_W = {0, 0, 0.04};                                      // falls 2 cm
+  cube.pose.q_W = Eigen::AngleAxisd(0.1, Eigen::Vector3d::UnitX());  // lands on an edge first
+  scene.objects.push_back(cube);
+  World world(scene, options());
+  ASSERT_EQ(world.num_deformables(), 1);
+  ASSERT_EQ(world.num_hands(), 0);
+  ASSERT_FALSE(world.rigid()->has_dynamics());  // no rigid body: no ODE dynamics world
+  const DeformableObject& o = world.deformable(0);
+  EXPECT_EQ(o.model->num_handles(), 0);
+  EXPECT_EQ(o.query, nullptr);  // no hand to touch it: no hand-contact query
+  EXPECT_NEAR(o.model->fem().lumped_mass().sum(), 1000 * 0.04 * 0.04 * 0.04, 1e-12);  // default density
+  double max_penetration_late = 0, max_speed_late = 0;
+  Eigen::Vector3d c_at_2s = Eigen::Vector3d::Zero();
+  for (int k = 0; k < 240; ++k) {  // 4 s
+    world.step();
+    ASSERT_TRUE(o.state.x.allFinite()) << "step " << k;
+    if (k == 120) c_at_2s = centroid(o);
+    if (k >= 90) {
+      max_penetration_late = std::max(max_penetration_late, world.snapshot().max_penetration_m);
+      max_penetration_late = std::max(max_penetration_late, -lowest_surface_z(world.snapshot(), 0));
+    }
+    if (k >= 180) max_speed_late = std::max(max_speed_late, o.state.v.cwiseAbs().maxCoeff());
+  }
+  const WorldSnapshot& s = world.snapshot();
+  EXPECT_EQ(s.resets, 0);
+  int floor_contacts = 0;
+  for (const ContactRecord& c : s.contacts) floor_contacts += c.deformable == 0 && c.object == 0 && c.hand < 0;
+  EXPECT_GE(floor_contacts, 4);  // it stands on its face
+  std::printf("penetration %.3f mm, lowest surface point %.3f mm, drift %.4f mm, speed %.2e m/s\n",
+              1e3 * max_penetration_late, 1e3 * lowest_surface_z(s, 0), 1e3 * (centroid(o) - c_at_2s).norm(),
+              max_speed_late);
+  EXPECT_LT(max_penetration_late, 1e-3);
+  EXPECT_LT(lowest_surface_z(s, 0), 1e-3);            // and not hovering either
+  EXPECT_LT((centroid(o) - c_at_2s).norm(), 0.1e-3);  // no drift over the last 2 s
+  EXPECT_LT(max_speed_late, 1e-3);                    // m/s: at rest, no jitter
+  // It sags under its own weight a little and stands where it fell.
+  EXPECT_NEAR(centroid(o).z(), 0.02, 2e-3);
+  EXPECT_LT(centroid(o).head<2>().norm(), 5e-3);
+}
+
+// Deformable vs rigid: the cube's surface points against a dynamic ODE box,
+// solved implicitly in the cube's step (a ContactBody with its supports), the
+// box's velocity change handed back to ODE.
+TEST_P(DeformableWorld, RigidBoxDroppedOnASoftCubeRestsOnIt) {
+  SceneDesc scene;
+  scene.objects.push_back(static_floor());
+  ObjectDesc cube;
+  cube.name = "cube";
+  cube.kind = BodyKind::deformable;
+  cube.shape.type = ShapeType::box;
+  cube.shape.size = {0.06, 0.06, 0.04};
+  cube.pose.p_W = {0, 0, 0.02};
+  cube.material.youngs_modulus_pa = 100e3;
+  scene.objects.push_back(cube);
+  ObjectDesc box;
+  box.name = "box";
+  box.kind = BodyKind::rigid;
+  box.shape.type = ShapeType::box;
+  box.shape.size = {0.03, 0.03, 0.03};
+  box.mass_kg = 0.1;
+  box.pose.p_W = {0.005, -0.003, 0.04 + 0.015 + 0.01};  // 1 cm above the cube
+  scene.objects.push_back(box);
+  World world(scene, options());
+  ASSERT_TRUE(world.rigid()->has_dynamics());
+  const int b = world.rigid()->find("box");
+  double max_penetration_late = 0;
+  for (int k = 0; k < 180; ++k) {  // 3 s
+    world.step();
+    ASSERT_TRUE(world.deformable(0).state.x.allFinite()) << "step " << k;
+    if (k >= 120) max_penetration_late = std::max(max_penetration_late, world.snapshot().max_penetration_m);
+  }
+  const RigidBodyState s = world.rigid()->state(b);
+  double top = -1e300;  // the cube's top under the box
+  for (const Eigen::Vector3d& p : world.snapshot().deformables[0].surface_W)
+    if (std::abs(p.x() - s.p_WO.x()) < 0.01 && std::abs(p.y() - s.p_WO.y()) < 0.01) top = std::max(top, p.z());
+  std::printf("box at z %.4f m, cube top under it %.4f m, v %.2e m/s, penetration %.3f mm\n", s.p_WO.z(), top,
+              s.v_WO.norm(), 1e3 * max_penetration_late);
+  EXPECT_EQ(world.snapshot().resets, 0);
+  EXPECT_NEAR(s.p_WO.z() - 0.015, top, 1.5e-3);  // resting on the cube's top, within 1.5 mm
+  EXPECT_LT(top, 0.04);                          // which it presses in
+  EXPECT_LT(s.v_WO.norm(), 5e-3);
+  EXPECT_LT(max_penetration_late, 1.5e-3);
+}
+
+// The test hand (palm 3 cm above the floor, fingers along +y) 1.5 cm behind a
+// soft bunny standing on the floor, a static wall 10 cm ahead of the bunny; the
+// hand pushes 15 cm along +y: the bunny across the floor, then into the wall.
+constexpr double kWallGap = 0.10;
+constexpr double kBunnyFrontY = 0.19 + 0.0469;  // the bunny is 9.37 cm deep along y
+
+SceneDesc bunny_push_scene() {
+  SceneDesc scene;
+  scene.objects.push_back(static_floor());
+  ObjectDesc wall;
+  wall.name = "wall";
+  wall.kind = BodyKind::static_body;
+  wall.shape.type = ShapeType::box;
+  wall.shape.size = {0.3, 0.02, 0.2};
+  wall.pose.p_W = {0, kBunnyFrontY + kWallGap + 0.01, 0.1};
+  scene.objects.push_back(wall);
+  ObjectDesc bunny;
+  bunny.name = "bunny";
+  bunny.kind = BodyKind::deformable;
+  bunny.shape.type = ShapeType::tet_mesh;
+  const std::string assets = std::string(HAPTICD_SCENES_DIR) + "/assets/";
+  bunny.shape.file = assets + "bunny_271.node";
+  bunny.shape.surface_file = assets + "bunny.obj";
+  bunny.shape.embedding_file = assets + "bunny_271.embed";
+  bunny.pose.p_W = {0, 0.19, 0.0005};  // its back 1.5 cm ahead of the fingertips, just above the floor
+  bunny.mass_kg = 0.2;
+  bunny.material.youngs_modulus_pa = 10e3;  // soft silicone
+  bunny.material.poisson_ratio = 0.45;
+  bunny.material.friction = 0.8;
+  scene.objects.push_back(bunny);
+  testing_util::add_test_hand(scene);
+  return scene;
+}
+
+TEST_P(DeformableWorld, PushingASoftBunnyDeformsItAndCreatesNoEnergy) {
+  World world(bunny_push_scene(), options());
+  WorldHand& hand = world.hand(0);
+  const DeformableObject& bunny = world.deformable(0);
+  ASSERT_NE(bunny.query, nullptr);
+  EXPECT_EQ(bunny.body.surface.triangles.size(), 3674u);
+  // Settle on the floor first (0.5 s), hand held where it is.
+  for (int k = 0; k < 30; ++k) world.step();
+  const Eigen::Vector3d c0 = centroid(bunny);
+  const double settled_deformation = max_deformation(bunny);  // its own weight
+  const double E0 = total_energy(*bunny.model, bunny.state);
+  const HandleState start = hand.state.handles[0];
+  double work = 0, worst_excess = -1e300, max_deform = 0, max_reaction_error = 0;
+  int touching_steps = 0;
+  double max_bunny_penetration = 0, max_front = -1e300;
+  for (int k = 0; k < 120; ++k) {  // 2 s: 1.5 s pushing at 10 cm/s, then holding
+    set_target(hand.state, 0, testing_util::push_along_y(start, std::min(k, 89), world.dt()));
+    world.step();
+    const WorldSnapshot& s = world.snapshot();
+    ASSERT_TRUE(bunny.state.x.allFinite() && hand.state.x.allFinite()) << "step " << k;
+    // Every hand contact on the bunny comes back to it, reversed, as nodal forces.
+    Eigen::Vector3d on_hand = Eigen::Vector3d::Zero();
+    bool touching = false;
+    for (const ContactRecord& c : s.contacts)
+      if (c.hand == 0 && c.other_deformable == 0) on_hand += c.f_W, touching = true;
+    touching_steps += touching;
+    Eigen::Vector3d applied = Eigen::Vector3d::Zero();
+    for (int i = 0; i < bunny.model->num_nodes(); ++i) applied += bunny.f_hands_W.segment<3>(3 * i);
+    if (GetParam() == ContactModel::constraint) {
+      // Constraint contacts: exactly the impulses the hand got, reversed (1e-12 N: summation order).
+      max_reaction_error = std::max(max_reaction_error, (on_hand + applied).norm());
+    }
+    // Work of the hands' forces over the step: f . (x_end - x_start) = f . v_end h (implicit Euler).
+    work += world.dt() * bunny.f_hands_W.dot(bunny.state.v);
+    for (const ContactRecord& c : s.contacts)
+      if (c.deformable == 0) max_bunny_penetration = std::max(max_bunny_penetration, c.depth_m);
+    double front = -1e300;
+    for (const Eigen::Vector3d& p : s.deformables[0].surface_W) front = std::max(front, p.y());
+    max_front = std::max(max_front, front);
+    const double E = total_energy(*bunny.model, bunny.state);
+    worst_excess = std::max(worst_excess, E - E0 - work);
+    max_deform = std::max(max_deform, max_deformation(bunny));
+  }
+  const Eigen::Vector3d moved = centroid(bunny) - c0;
+  std::printf(
+      "bunny moved (%.4f, %.4f, %.4f) m, front %.1f mm from the wall, deformed up to %.2f mm (%.2f mm "
+      "settled), penetration %.2f mm; work %.4f J, energy excess %.2e J, touching %d steps, reaction error "
+      "%.1e N\n",
+      moved.x(), moved.y(), moved.z(), 1e3 * (kBunnyFrontY + kWallGap - max_front), 1e3 * max_deform,
+      1e3 * settled_deformation, 1e3 * max_bunny_penetration, work, worst_excess, touching_steps, max_reaction_error);
+  EXPECT_EQ(world.snapshot().resets, 0);
+  EXPECT_GT(touching_steps, 30);
+  EXPECT_GT(moved.y(), 0.03);                            // pushed along
+  EXPECT_LT(max_front, kBunnyFrontY + kWallGap + 2e-3);  // the wall stops it
+  EXPECT_LT(std::abs(moved.z()), 0.01);                  // still on the floor
+  EXPECT_LT(max_bunny_penetration, 2e-3);                // into the floor and the wall
+  EXPECT_GT(max_deform, settled_deformation + 2e-3);     // the push deformed it, not only its weight
+  EXPECT_GT(work, 0.0);
+  // Implicit Euler and Rayleigh damping only take energy out. 1e-5 of the work:
+  // the work is summed from the recorded end-of-step contact forces, whose
+  // regularized friction and push-only normal differ slightly from the
+  // linearized forces the penalty step solved with.
+  EXPECT_LT(worst_excess, 1e-5 * work);
+  EXPECT_LT(max_reaction_error, 1e-12);
+}
+
+INSTANTIATE_TEST_SUITE_P(Contact, DeformableWorld, testing::Values(ContactModel::penalty, ContactModel::constraint),
+                         [](const testing::TestParamInfo<ContactModel>& i) { return std::string(to_string(i.param)); });
+
+}  // namespace
+}  // namespace hapticd
