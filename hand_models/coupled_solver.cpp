@@ -11,6 +11,7 @@
 
 // libgomp (CHOLMOD's OpenMP runtime); declared here so the project itself builds without -fopenmp.
 extern "C" void omp_set_max_active_levels(int levels);
+extern "C" void omp_set_num_threads(int threads);
 
 namespace hapticd {
 namespace {
@@ -35,11 +36,19 @@ bool solve_handles(const CoupledSystem& s, const Eigen::MatrixXd& Y, const Eigen
   return v_h.allFinite() && (S * v_h - r).norm() <= 1e-8 * (r.norm() + S.norm() * v_h.norm());
 }
 
+}  // namespace
+
+void single_threaded_cholmod() {
+  // Per thread in libgomp: every thread that factors must say it.
+  omp_set_max_active_levels(0);
+  omp_set_num_threads(1);
+}
+
+namespace {
+
 void configure_cholmod(Eigen::CholmodDecomposition<Eigen::SparseMatrix<double>, Eigen::Lower>& chol,
                        const SolverOptions& o) {
-  // Debian's CHOLMOD opens OpenMP regions with a compiled-in 4 threads; the visual
-  // loop owns one core (the haptic loop needs the other), so no region may fork.
-  omp_set_max_active_levels(0);
+  single_threaded_cholmod();
   chol.setMode(o.supernodal ? Eigen::CholmodSupernodalLLt : Eigen::CholmodSimplicialLLt);
   cholmod_common& c = chol.cholmod();
   const int ordering[] = {0, CHOLMOD_AMD, CHOLMOD_METIS, CHOLMOD_NESDIS, CHOLMOD_NATURAL};

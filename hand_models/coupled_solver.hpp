@@ -61,6 +61,11 @@ Eigen::SparseMatrix<double> full_matrix(const CoupledSystem& system);
 
 std::unique_ptr<CoupledSolver> make_solver(SolverKind kind, const SolverOptions& options = {});
 
+// Debian's CHOLMOD opens OpenMP regions with a compiled-in thread count; the
+// visual loop owns one core (the haptic loop needs the other), so no region
+// may fork. libgomp keeps this per thread: a thread that steps a world calls it.
+void single_threaded_cholmod();
+
 // "monolithic" | "cg" | "cholmod" | "lagged"; throws std::invalid_argument otherwise.
 SolverKind parse_solver_kind(const std::string& name);
 const char* to_string(SolverKind kind);

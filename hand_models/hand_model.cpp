@@ -187,6 +187,10 @@ HandModel::HandModel(TetMesh mesh, HandConfig config)
   }
 }
 
+double step_length(const HandModel& model, const HandState& s) {
+  return s.dt_s > 0 && std::isfinite(s.dt_s) ? s.dt_s : model.config().dt_s;
+}
+
 HandState make_rest_state(const HandModel& model) {
   HandState s;
   const int n = model.num_nodes(), m = model.num_handles();
@@ -258,7 +262,7 @@ void assemble(const HandModel& model, HandState& s) {
   const CorotationalFem& fem = model.fem();
   const AssemblyMap& map = model.assembly_map();
   const Eigen::VectorXd& mass = fem.lumped_mass();
-  const double h = cfg.dt_s, h2 = h * h;
+  const double h = step_length(model, s), h2 = h * h;
   const int n = model.num_nodes(), m = model.num_handles();
   CoupledSystem& sys = s.system;
 
@@ -433,7 +437,7 @@ void reset_to_target(const HandModel& model, HandState& s) {
 // The force each contact put on the body at the end of the step (its implicit
 // value), normal part clamped to push only; the world applies the reaction.
 void record_contact_forces(const HandModel& model, HandState& s) {
-  const double h = model.config().dt_s;
+  const double h = step_length(model, s);
   for (size_t i = 0; i < s.active_contacts.size(); ++i) {
     PointContact& c = s.active_contacts[i];
     const Eigen::Vector3d& n = c.n_W;
@@ -497,7 +501,7 @@ bool solve_constraint_contacts(const HandModel& model, HandState& s, CoupledSolv
   const int nh = sys.handle_dofs(), nt = sys.tool_dofs();
   const int nc = static_cast<int>(rows.size()), c = nc + static_cast<int>(supports.size());
   const int m = model.num_handles();
-  const double h = model.config().dt_s;
+  const double h = step_length(model, s);
   std::vector<Eigen::Triplet<double>> entries;  // of J^T: row = DOF, column = contact direction
   entries.reserve(c * 3 * 18);
   ContactProblem problem;
@@ -613,7 +617,7 @@ StepStatus step(const HandModel& model, HandState& s, CoupledSolver& solver, Han
   if (status != StepStatus::ok) {
     reset_to_target(model, s);
   } else {
-    const double h = model.config().dt_s;
+    const double h = step_length(model, s);
     // Checked before the update, so a reset still sees the start-of-step nodes.
     const bool finite_end = (s.x + h * s.v_t_next).allFinite();
     if (finite_end) {

@@ -214,10 +214,17 @@ struct HandState {
   std::vector<int> active_source;            // index into contacts, -1 for the floor
   HeldContacts held;                          // the last step's held constraint contacts
 
+  // The step length, s: the model's dt_s unless the caller sets another (a
+  // visual loop that keeps its simulated time on the wall clock).
+  double dt_s = 0;
+
   StepTimings timings;
   int floor_contacts = 0;
   long resets = 0;
 };
+
+// The length of the state's next step: state.dt_s when set (> 0), else the model's dt_s.
+double step_length(const HandModel& model, const HandState& state);
 
 // Rest shape, at rest, handles at their rest poses and targets on them.
 HandState make_rest_state(const HandModel& model);

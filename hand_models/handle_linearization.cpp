@@ -39,7 +39,7 @@ bool linearize_handles(const HandModel& model, const HandState& s, CoupledSolver
   const CoupledSystem& sys = s.system;
   const int m = model.num_handles(), nh = 6 * m, nt = sys.tool_dofs();
   const int nb = (sys.handle_dofs() - nh) / 6;  // rigid bodies solved with the hand
-  const double h = model.config().dt_s;
+  const double h = step_length(model, s);
   const CouplingParams& cp = model.config().coupling;
 
   // The coupling Jacobians split into their K and D parts (eq. 11), which the

@@ -154,8 +154,8 @@ void HapticServer::tick(std::uint64_t now) {
                                                    : std::min(1.0, s.output_scale + step);
     const DeviceLink& link = links_[s.link];
     const HapticModel& model = snap.model[link.hand];
-    const double lookahead = model.t_end_ns > now ? 1e-9 * static_cast<double>(model.t_end_ns - now) : 0.0;
-    s.proxy.integrate(model, dt, std::min(lookahead, 0.1));
+    const double lookahead = 1e-9 * (static_cast<double>(model.t_end_ns) - static_cast<double>(now));
+    s.proxy.integrate(model, dt, model.t_end_ns ? std::clamp(lookahead, -0.1, 0.1) : 0.0);
     if (s.follower || !s.proxy.has_device_pose()) continue;
     out.driven[link.hand] = true;
     for (int j = 0; j < link.handles; ++j) {

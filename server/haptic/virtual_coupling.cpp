@@ -100,6 +100,10 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
   // taken at the pose extrapolated to the model's step end, x + tau v' (tau >= h):
   //   [M - h D - h tau K + h B_c + h^2 K_c] v' = M v + h [F0 + K (x - x0) - D v0 + K_c (x_dev - x) + B_c v_dev].
   const double tau = std::max(lookahead_s, dt);
+  // A model that arrives after its step's end (the visual step took longer than
+  // the step it simulated) has its anchor carried along by the handle's
+  // velocity for the time since: the flesh kept moving meanwhile.
+  const double late = std::max(0.0, -lookahead_s);
   A_.setZero();
   b_.setZero();
   for (int j = 0; j < handles_; ++j) {
@@ -114,8 +118,8 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
         I_W * w_[j] + dt * (gains_.k_nm_rad * rotation_difference(device_[j].q_W, proxy_[j].q_W) +
                             gains_.b_nms_rad * w_dev_[j]);
     if (use_model) {
-      x_rel_.segment<3>(6 * j) = proxy_[j].p_W - model.x0[j].p_W;
-      x_rel_.segment<3>(6 * j + 3) = rotation_difference(proxy_[j].q_W, model.x0[j].q_W);
+      x_rel_.segment<3>(6 * j) = proxy_[j].p_W - model.x0[j].p_W - late * model.v0[j];
+      x_rel_.segment<3>(6 * j + 3) = rotation_difference(proxy_[j].q_W, model.x0[j].q_W) - late * model.w0[j];
     }
   }
   if (use_model) {

@@ -86,6 +86,8 @@ class ProxyHand {
   // force at that time from the handle's state then, so it is evaluated at the
   // proxy's pose extrapolated to it (x + lookahead v): evaluated at the current
   // pose, a moving hand's momentum would push the proxy along (an active force).
+  // Negative: the model's step ended that long ago; its anchor moves on with
+  // the handle's velocity.
   // A non-finite model or state resets the proxies onto the device (counted).
   void integrate(const HapticModel& model, double dt_s, double lookahead_s = 0);
 

@@ -16,9 +16,17 @@ namespace hapticd {
 // the flesh's answer to the proxy's own motion.
 constexpr DriveParams kProxyDrive{1e6, 1e3, 1e3, 10.0};
 
+// The longest step the visual loop takes after a stall, s (beyond, the world slows down).
+constexpr double kMaxStep_s = 0.1;
+// A visual step spans at least this many times the loop's latency (its model
+// then reaches the haptic loop before the step it describes is half over).
+constexpr double kLatencyMargin = 2.0;
+
 struct VisualStats {
   long steps = 0, late_steps = 0, resets = 0;
-  MicrosecondHistogram step_us;
+  MicrosecondHistogram step_us;   // the whole iteration: world step and model
+  MicrosecondHistogram world_us;  // of which the world step
+  MicrosecondHistogram model_us;  // of which the next step's handle-space model
   double elapsed_s = 0;
 };
 

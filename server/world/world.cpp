@@ -45,6 +45,7 @@ int handle_count(HandleSet set) {
 
 World::World(const SceneDesc& scene, const WorldOptions& options)
     : dt_(scene.dt_s),
+      step_dt_(scene.dt_s),
       gravity_m_s2_(scene.gravity_m_s2),
       constraint_contact_(options.contact.value_or(scene.contact) == ContactModel::constraint),
       options_(options) {
@@ -335,15 +336,17 @@ int World::add_rigid_proxy(HandState& s, int d) {
   return index;
 }
 
-void World::step() {
+void World::step(double dt_s) {
   // Contacts were detected at the end of the previous step.
   const auto t0 = Clock::now();
+  step_dt_ = dt_s > 0 && std::isfinite(dt_s) ? dt_s : dt_;
+  for (SoftBody& b : soft_) b.state->dt_s = step_dt_;
   WorldTimings timings;
   snapshot_.linear_models.resize(hands_.size());
   snapshot_.linear_model_valid.assign(hands_.size(), false);
   for (int h = 0; h < num_hands(); ++h) {
     WorldHand& hand = *hands_[h];
-    hapticd::step(*hand.model, hand.state, *hand.solver, &snapshot_.linear_models[h]);
+    hapticd::step(*hand.model, hand.state, *hand.solver, options_.linearize ? &snapshot_.linear_models[h] : nullptr);
     snapshot_.linear_model_valid[h] = snapshot_.linear_models[h].K.size() > 0;
     timings.linearize_ms += hand.state.timings.linearize_ms;
     timings.contact_ms += hand.state.timings.contact_ms;
@@ -356,7 +359,7 @@ void World::step() {
   const auto t1 = Clock::now();
   if (rigid_) {
     apply_reactions();
-    rigid_->step(dt_);
+    rigid_->step(step_dt_);
   }
   timings.rigid_ms = ms_since(t1);
   record_contacts();
@@ -365,6 +368,7 @@ void World::step() {
   timings.collide_ms = ms_since(t2);
   timings.total_ms = ms_since(t0);
   ++steps_;
+  t_s_ += step_dt_;
   publish();
   snapshot_.timings = timings;
 }
@@ -372,7 +376,7 @@ void World::step() {
 void World::remember_impulses(SoftBody& b) {
   // This step's impulses warm-start the next step's contacts in the same cells.
   b.warm_impulse.clear();
-  for (size_t k = 0; k < b.keys.size(); ++k) b.warm_impulse[b.keys[k]] = b.state->contacts[k].f_W * dt_;
+  for (size_t k = 0; k < b.keys.size(); ++k) b.warm_impulse[b.keys[k]] = b.state->contacts[k].f_W * step_dt_;
 }
 
 // Hand-deformable contact by operator splitting. A rigid body a hand touches
@@ -457,7 +461,7 @@ void World::apply_reactions() {
     for (size_t i = 0; i < s.bodies.size(); ++i) {
       if (object_of_body[i] < 0) continue;
       const ContactBody& B = s.bodies[i];
-      rigid_->add_velocity(object_of_body[i], B.dv_W - dt_ * gravity_m_s2_, B.dw_W);
+      rigid_->add_velocity(object_of_body[i], B.dv_W - step_dt_ * gravity_m_s2_, B.dw_W);
     }
   }
 }
@@ -488,7 +492,7 @@ void World::record_contacts() {
 
 void World::publish() {
   snapshot_.step = steps_;
-  snapshot_.t_s = static_cast<double>(steps_) * dt_;
+  snapshot_.t_s = t_s_;
   snapshot_.handles.resize(hands_.size());
   snapshot_.resets = 0;
   for (int h = 0; h < num_hands(); ++h) snapshot_.handles[h] = hands_[h]->state.handles;

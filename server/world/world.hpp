@@ -38,6 +38,9 @@ struct WorldOptions {
   // False: hands are weightless (their inertia stays), as the server runs them, so
   // a device in free space feels no virtual hand weight; objects keep gravity.
   bool hand_gravity = true;
+  // False: no handle-space model in the snapshot (a caller that builds the model
+  // of the coming step itself, as the server's visual loop does, skips the cost).
+  bool linearize = true;
   // Hand contact model. Penalty by default for now: constraint contacts (PGS on the
   // step's Delassus operator, speculative contacts within 2 mm) hold a resting hand
   // without penetration, but every skin point near a surface is a contact and the
@@ -106,7 +109,10 @@ class World {
   // element it cannot build.
   explicit World(const SceneDesc& scene, const WorldOptions& options = {});
 
-  void step();
+  // One step of dt_s seconds (0: the scene's dt). A visual loop that falls
+  // behind its rate passes the wall-clock time since its last step, so the
+  // world keeps pace with the proxies that drive it.
+  void step(double dt_s = 0);
 
   int num_hands() const { return static_cast<int>(hands_.size()); }
   WorldHand& hand(int i) { return *hands_[i]; }
@@ -170,6 +176,7 @@ class World {
   void publish();
 
   double dt_;
+  double step_dt_ = 0, t_s_ = 0;
   Eigen::Vector3d gravity_m_s2_;
   bool constraint_contact_ = true;
   long steps_ = 0;

@@ -2,8 +2,8 @@
 # End to end on loopback: hapticd on the stylus scene and haptic-device pressing
 # and stroking for a few seconds. Asserts the issue's loose bounds (a shared
 # machine; haptic-bench latency holds the real targets): no loss, late replies
-# under 2 %, RTT p99 under 5 ms, forces within the device limit, and a rendering
-# that put no net energy into the device.
+# under 2 %, RTT p99 under 5 ms, forces within the device limit, contact with
+# the bunny, no resets, and a rendering that put no net energy into the device.
 # Usage: stylus_loopback.sh BIN_DIR SCENE [SECONDS]
 set -euo pipefail
 bin=$1
@@ -45,6 +45,9 @@ if not d["late_fraction"] < 0.02: failures.append(f"late fraction {d['late_fract
 if not d["rtt_us"]["p99"] < 5000: failures.append(f"rtt p99 {d['rtt_us']['p99']} us")
 if not d["force_n"]["max"] <= 8.0 + 1e-3: failures.append(f"force max {d['force_n']['max']} N over the 8 N limit")
 if s["replies"] < d["samples_sent"]: failures.append(f"server replied {s['replies']} of {d['samples_sent']}")
+if not d["passivity_energy_j"] <= 0: failures.append(f"the rendering put {d['passivity_energy_j']} J into the device")
+if not d.get("contact_fraction", 0) > 0.2: failures.append("the stylus never pressed on the bunny")
+if s["proxy_resets"] or s["visual"]["hand_resets"]: failures.append("resets")
 if failures:
     print("FAILED: " + "; ".join(failures)); sys.exit(1)
 PY

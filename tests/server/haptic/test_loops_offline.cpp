@@ -23,8 +23,9 @@ struct LoopRun {
 };
 
 // `command(t)`: where the user's arm pulls the device tip (device space).
+// `delay_ticks`: how long after its step a model reaches the haptic loop (the visual step's compute time).
 template <typename Command>
-LoopRun run_loops(double seconds, Command command) {
+LoopRun run_loops(double seconds, Command command, int delay_ticks = 0) {
   SceneDesc scene = load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json");
   scene.dt_s = 0.017;  // 17 ticks of 1 ms: world time keeps pace with the proxies
   WorldOptions options;
@@ -49,7 +50,10 @@ LoopRun run_loops(double seconds, Command command) {
   const Eigen::Vector3d start_D = dev.workspace.R_WD.inverse() * (h0.p_WH - dev.workspace.offset_W) / dev.workspace.scale;
   Eigen::Vector3d p = start_D + command(0.0), v = Eigen::Vector3d::Zero(), f = Eigen::Vector3d::Zero();
   LoopRun out;
-  double t_end = world.dt();
+  double t_end = world.dt(), next_t_end = 0;
+  HapticModel next;
+  bool pending = false;
+  int publish_at = 0;
   const double m = 0.1, k_arm = 200, b_arm = 5;
   for (int k = 0; k < static_cast<int>(seconds / period); ++k) {
     const double t = k * period;
@@ -62,14 +66,20 @@ LoopRun run_loops(double seconds, Command command) {
     f = proxy.reply(0, 1.0, period).f_D;
     out.max_force_n = std::max(out.max_force_n, f.norm());
     if (t > 0.5 * seconds) out.max_force_late_n = std::max(out.max_force_late_n, f.norm());
+    if (pending && k >= publish_at) haptic = next, t_end = next_t_end, pending = false;
     proxy.integrate(haptic, period, t_end - t);
     if (k % ticks_per_step == 0) {
-      t_end = t + world.dt();
-      HandleTarget target{proxy.proxy(0).p_W, proxy.proxy(0).q_W, proxy.proxy_velocity(0),
-                          proxy.proxy_angular_velocity(0)};
+      // As the visual loop does: the world simulates up to its publication, delay_ticks later.
+      const double latency = delay_ticks * period;
+      HandleTarget target{proxy.proxy(0).p_W + latency * proxy.proxy_velocity(0),
+                          rotate_by(proxy.proxy(0).q_W, latency * proxy.proxy_angular_velocity(0)),
+                          proxy.proxy_velocity(0), proxy.proxy_angular_velocity(0)};
       set_target(world.hand(0).state, 0, target);
       world.step();
-      fill_haptic_model(world, 0, lin, haptic);
+      fill_haptic_model(world, 0, lin, next);
+      next_t_end = t + delay_ticks * period + world.dt();
+      pending = true;
+      publish_at = k + delay_ticks;
     }
   }
   out.resets = proxy.resets() + world.snapshot().resets;
@@ -98,5 +108,23 @@ TEST(LoopsOffline, DeviceSweptThroughFreeSpaceFeelsTheHandsInertiaAndPutsInAlmos
   EXPECT_EQ(r.resets, 0);
 }
 
+TEST(LoopsOffline, PressAndStrokeOnTheBunnyWithModelsArrivingHalfAStepLateIsPassive) {
+  // Down 2 cm (4 cm in the world: the palm onto the bunny) in 1 s, then a 2 cm
+  // stroke along x; each model reaches the haptic loop 8 ms after its step (the
+  // visual step's own latency), as in the server.
+  const LoopRun r = run_loops(
+      5.0,
+      [](double t) {
+        return Eigen::Vector3d(t > 2 ? 0.02 * std::sin(std::numbers::pi * (t - 2)) : 0, 0, -0.02 * std::min(1.0, t));
+      },
+      8);
+  std::printf("press-stroke: max force %.3f N, net energy %.2e J of %.2e J exchanged\n", r.max_force_n, r.energy_j,
+              r.gross_energy_j);
+  EXPECT_GT(r.max_force_n, 0.2);  // it touches
+  EXPECT_LE(r.energy_j, 0.0);
+  EXPECT_EQ(r.resets, 0);
+}
+
 }  // namespace
 }  // namespace hapticd
+
