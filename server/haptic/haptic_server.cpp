@@ -80,7 +80,8 @@ HapticServer::Session* HapticServer::find_session(std::uint64_t id) {
 
 void HapticServer::run(const std::atomic<bool>& stop) {
   ServerStats& st = *stats_;
-  if (options_.realtime) {
+  // Spinning at real-time priority would starve every other thread of its core.
+  if (options_.realtime && !options_.busy_poll) {
     sched_param param{};
     param.sched_priority = 80;
     st.realtime = pthread_setschedparam(pthread_self(), SCHED_FIFO, &param) == 0;
@@ -370,9 +371,11 @@ void HapticServer::on_pose(const protocol::PoseSample& pose, std::uint64_t now) 
   if (snapshots_.front().model[links_[s->link].hand].handles == 0) out.flags |= protocol::ForceFlags::kStale;
   s->last_reply_ns = now;
   out.server_send_ns = protocol::now_ns();
-  send(encoder_.encode(out));
-  ++st.replies;
+  const protocol::EncodeResult encoded = encoder_.encode(out);
+  // Compute per sample: from the datagram read to the reply encoded (the send syscall is I/O).
   st.reply_compute_us.add(1e-3 * static_cast<double>(protocol::now_ns() - now));
+  send(encoded);
+  ++st.replies;
 }
 
 void HapticServer::fill_stats(protocol::Stats& out) const {

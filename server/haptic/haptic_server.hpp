@@ -62,7 +62,7 @@ struct ServerOptions {
   double silence_s = 0.1;         // no pose for this long: the session's force ramps to zero...
   double ramp_s = 0.1;            // ...over this time (and back up when poses resume)
   double session_timeout_s = 5.0; // then the session is dropped
-  bool realtime = true;           // try SCHED_FIFO for the haptic thread
+  bool realtime = true;           // try SCHED_FIFO for the haptic thread (not with busy_poll)
 };
 
 struct ServerStats {
