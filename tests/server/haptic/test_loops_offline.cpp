@@ -46,7 +46,7 @@ LoopRun run_loops(double seconds, Command command, int delay_ticks = 0) {
   fill_haptic_model(world, 0, lin, haptic);
   const int ticks_per_step = static_cast<int>(std::lround(world.dt() / period));
   // The device starts where the handle is (no jump to excite the flesh); `command` is an offset from there.
-  const HandleState& h0 = world.snapshot().handles[0][0];
+  const HandleState h0 = world.snapshot().handles[0][0];
   const Eigen::Vector3d start_D = dev.workspace.R_WD.inverse() * (h0.p_WH - dev.workspace.offset_W) / dev.workspace.scale;
   Eigen::Vector3d p = start_D + command(0.0), v = Eigen::Vector3d::Zero(), f = Eigen::Vector3d::Zero();
   LoopRun out;
