@@ -72,19 +72,6 @@ protocol::Hello device_hello(int index, unsigned rate_hz) {
   return h;
 }
 
-nlohmann::json stats_json(const protocol::Stats& s) {
-  return {{"packets_in", s.packets_in},
-          {"packets_out", s.packets_out},
-          {"packets_dropped", s.packets_dropped},
-          {"overruns", s.overruns},
-          {"tick_compute_p50_us", s.tick_compute_p50_us},
-          {"tick_compute_p99_us", s.tick_compute_p99_us},
-          {"tick_jitter_p99_us", s.tick_jitter_p99_us},
-          {"visual_step_median_ms", s.visual_step_median_ms},
-          {"haptic_rate_hz", s.haptic_rate_hz},
-          {"visual_rate_hz", s.visual_rate_hz},
-          {"sessions_active", s.sessions_active}};
-}
 
 // Starts `binary` with `args`, reads the port it prints, runs the devices, stops it.
 Phase run_phase(const std::string& name, const std::string& binary, const std::vector<std::string>& args,
@@ -128,7 +115,7 @@ Phase run_phase(const std::string& name, const std::string& binary, const std::v
       phase.devices[i] = sim::run_servo_loop(client, trajectory, config);
       if (i == 0) {
         try {
-          phase.server_stats = stats_json(client.request_stats(500ms));
+          phase.server_stats = sim::to_json(client.request_stats(500ms));
         } catch (const client::ClientError& e) {
           std::fprintf(stderr, "latency: %s: no stats: %s\n", name.c_str(), e.what());
         }

@@ -33,4 +33,20 @@ nlohmann::json to_json(const ServoResult& r) {
             {"refused", c.refused}}}};
 }
 
+nlohmann::json to_json(const protocol::Stats& s) {
+  return {{"packets_in", s.packets_in},
+          {"packets_out", s.packets_out},
+          {"packets_dropped", s.packets_dropped},
+          {"clamps", s.clamps},
+          {"resets", s.resets},
+          {"overruns", s.overruns},
+          {"tick_compute_p50_us", s.tick_compute_p50_us},
+          {"tick_compute_p99_us", s.tick_compute_p99_us},
+          {"tick_jitter_p99_us", s.tick_jitter_p99_us},
+          {"visual_step_median_ms", s.visual_step_median_ms},
+          {"haptic_rate_hz", s.haptic_rate_hz},
+          {"visual_rate_hz", s.visual_rate_hz},
+          {"sessions_active", s.sessions_active}};
+}
+
 }  // namespace hapticd::sim

@@ -5,6 +5,8 @@
 
 #include <nlohmann/json.hpp>
 
+#include "protocol/messages.hpp"
+
 #include "clients/sim/servo_loop.hpp"
 
 namespace hapticd::sim {
@@ -14,5 +16,7 @@ namespace hapticd::sim {
 // contact_fraction, and the remaining counters of ServoResult and the Client.
 nlohmann::json to_json(const ServoResult& result);
 nlohmann::json to_json(const RttSummary& rtt);
+// The server's Stats message (what a client can ask a running hapticd).
+nlohmann::json to_json(const protocol::Stats& stats);
 
 }  // namespace hapticd::sim

@@ -71,21 +71,6 @@ std::string quoted_command_line(int argc, char** argv) {
   return line;
 }
 
-nlohmann::json to_json(const protocol::Stats& s) {
-  return {{"packets_in", s.packets_in},
-          {"packets_out", s.packets_out},
-          {"packets_dropped", s.packets_dropped},
-          {"clamps", s.clamps},
-          {"resets", s.resets},
-          {"overruns", s.overruns},
-          {"tick_compute_p50_us", s.tick_compute_p50_us},
-          {"tick_compute_p99_us", s.tick_compute_p99_us},
-          {"tick_jitter_p99_us", s.tick_jitter_p99_us},
-          {"visual_step_median_ms", s.visual_step_median_ms},
-          {"haptic_rate_hz", s.haptic_rate_hz},
-          {"visual_rate_hz", s.visual_rate_hz},
-          {"sessions_active", s.sessions_active}};
-}
 
 }  // namespace
 
@@ -206,7 +191,7 @@ int main(int argc, char** argv) {
 
   nlohmann::json server_stats = nullptr;
   try {
-    server_stats = to_json(client.request_stats(std::chrono::milliseconds(200)));
+    server_stats = sim::to_json(client.request_stats(std::chrono::milliseconds(200)));
   } catch (const client::ClientError& e) {
     std::fprintf(stderr, "haptic-device: no server stats: %s\n", e.what());
   }
