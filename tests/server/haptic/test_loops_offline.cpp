@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdio>
 #include <numbers>
+#include <vector>
 
 #include "server/haptic/visual_loop.hpp"
 #include "server/world/scene_loader.hpp"
@@ -15,8 +16,15 @@
 namespace hapticd {
 namespace {
 
+// A settled moment of a run: the device's force and position (device space), the
+// proxy's height below its start and the world's coupling force on the handle (world).
+struct Settled {
+  double f_D = 0, p_D = 0, proxy_dz = 0, hand_force = 0;
+};
+
 struct LoopRun {
   double max_force_n = 0, max_force_late_n = 0;
+  std::vector<Settled> settled;  // at the times asked for
   double energy_j = 0;        // net work of the rendered force on the device
   double gross_energy_j = 0;  // the work exchanged either way, sum |f . v| dt
   long resets = 0;
@@ -24,9 +32,11 @@ struct LoopRun {
 
 // `command(t)`: where the user's arm pulls the device tip (device space).
 // `delay_ticks`: how long after its step a model reaches the haptic loop (the visual step's compute time).
+// `settle_at`: times (s) at which to record a Settled (z components).
 template <typename Command>
-LoopRun run_loops(double seconds, Command command, int delay_ticks = 0) {
-  SceneDesc scene = load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json");
+LoopRun run_loops(double seconds, Command command, int delay_ticks = 0,
+                  SceneDesc scene = load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json"),
+                  const std::vector<double>& settle_at = {}) {
   scene.dt_s = 0.017;  // 17 ticks of 1 ms: world time keeps pace with the proxies
   WorldOptions options;
   options.hand_gravity = false;
@@ -66,6 +76,12 @@ LoopRun run_loops(double seconds, Command command, int delay_ticks = 0) {
     f = proxy.reply(0, 1.0, period).f_D;
     out.max_force_n = std::max(out.max_force_n, f.norm());
     if (t > 0.5 * seconds) out.max_force_late_n = std::max(out.max_force_late_n, f.norm());
+    for (double at : settle_at)
+      if (k == static_cast<int>(std::lround(at / period))) {
+        const HandState& hs = world.hand(0).state;
+        out.settled.push_back({f.z(), p.z(), proxy.proxy(0).p_W.z() - h0.p_WH.z(),
+                               coupling_wrench(*world.hand(0).model, hs.x, hs.v, hs.handles)[2]});
+      }
     if (pending && k >= publish_at) haptic = next, t_end = next_t_end, pending = false;
     proxy.integrate(haptic, period, t_end - t);
     if (k % ticks_per_step == 0) {
@@ -106,6 +122,43 @@ TEST(LoopsOffline, DeviceSweptThroughFreeSpaceFeelsTheHandsInertiaAndPutsInAlmos
   // beyond 10 % fails here.
   EXPECT_LT(r.energy_j, 0.10 * r.gross_energy_j);
   EXPECT_EQ(r.resets, 0);
+}
+
+// The stylus scene with one static box under the hand instead of its objects
+// (top face 1 cm below the hand's lowest point).
+SceneDesc static_box_scene() {
+  SceneDesc scene = load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json");
+  scene.objects.clear();
+  ObjectDesc box;
+  box.name = "box";
+  box.kind = BodyKind::static_body;
+  box.shape.type = ShapeType::box;
+  box.shape.size = {0.3, 0.3, 0.04};
+  box.pose.p_W = {0.08, 0.1, 0.847};
+  scene.objects.push_back(box);
+  return scene;
+}
+
+TEST(LoopsOffline, StylusPressedOnAStaticBoxFeelsTheSeriesStiffnessOfCouplingAndHand) {
+  // Pressed 1.2 cm (device space) and settled, then 1 mm deeper and settled: the
+  // rendered stiffness is the device-side coupling in series with the hand on the
+  // box, whose stiffness the world shows between the same two settled states
+  // (contact makes the hand path dependent, so both come from one run).
+  const double scale = 2.0, k_dev = 1000.0;
+  const LoopRun r = run_loops(
+      6.0, [](double t) { return Eigen::Vector3d(0, 0, -0.012 * std::min(1.0, t) - 0.001 * std::clamp(2 * (t - 3), 0.0, 1.0)); },
+      0, static_box_scene(), {3.0, 5.99});
+  ASSERT_EQ(r.settled.size(), 2u);
+  const Settled &a = r.settled[0], &b = r.settled[1];
+  ASSERT_GT(a.f_D, 0.2) << "the stylus presses on the box";
+  const double k_rendered = (b.f_D - a.f_D) / (a.p_D - b.p_D);
+  const double k_hand = (b.hand_force - a.hand_force) / (a.proxy_dz - b.proxy_dz);
+  const double k_series = 1.0 / (1.0 / k_dev + 1.0 / (scale * scale * k_hand));
+  std::printf("rendered %.1f N/m; coupling %.0f N/m in series with the hand %.1f N/m (x s^2 = %.1f): %.1f N/m\n",
+              k_rendered, k_dev, k_hand, scale * scale * k_hand, k_series);
+  EXPECT_NEAR(k_rendered, k_series, 0.05 * k_series);
+  // And the force is the hand's, through the map: f_D = s F.
+  EXPECT_NEAR(b.f_D, scale * b.hand_force, 0.05 * scale * b.hand_force);
 }
 
 TEST(LoopsOffline, PressAndStrokeOnTheBunnyWithModelsArrivingHalfAStepLateIsPassive) {
