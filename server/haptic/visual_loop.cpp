@@ -5,7 +5,6 @@
 #include <algorithm>
 
 #include "hand_models/rigid_handle.hpp"
-
 #include "protocol/clock.hpp"
 
 namespace hapticd {
