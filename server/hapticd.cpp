@@ -130,7 +130,8 @@ int main(int argc, char** argv) {
     visual_thread.join();
     const ServerStats& st = server.stats();
     const VisualStats& vs = visual.stats();
-    if (!st.realtime) say(Level::warn, "haptic thread ran without real-time priority (SCHED_FIFO not permitted)");
+    if (!st.realtime && !options.busy_poll)
+      say(Level::warn, "haptic thread ran without real-time priority (SCHED_FIFO not permitted)");
     nlohmann::json rejected = nlohmann::json::object();
     for (std::size_t i = 0; i < protocol::kRejectReasonCount; ++i)
       if (st.rejected[i]) rejected[std::string(to_string(static_cast<protocol::RejectReason>(i)))] = st.rejected[i];
