@@ -130,7 +130,13 @@ void CorotationalFem::compute_rotations(const Eigen::VectorXd& x, std::vector<Ei
     const Eigen::Matrix3d F = deformation_gradient(static_cast<int>(e), x);
     // Warm start: the polar factor of R_prev^T F is near identity, so Newton takes 2-3 iterations.
     Eigen::Matrix3d Q;
-    if (F.determinant() > kNewtonMinDetF && newton_polar(R[e].transpose() * F, Q)) {
+    const Eigen::Matrix3d S = R[e].transpose() * F;
+    // Already the polar factor (the same state assembled again): kept bit for bit,
+    // so the same state gives the same A_t and its factorization can be reused.
+    if (warm && (S - S.transpose()).cwiseAbs().maxCoeff() <= 1e-14 * S.cwiseAbs().maxCoeff() &&
+        S.determinant() > kNewtonMinDetF)
+      continue;
+    if (F.determinant() > kNewtonMinDetF && newton_polar(S, Q)) {
       R[e] = R[e] * Q;
     } else {
       R[e] = rotation_of(F);

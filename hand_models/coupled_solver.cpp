@@ -64,18 +64,22 @@ class CholmodSchur {
  public:
   explicit CholmodSchur(const SolverOptions& o) { configure_cholmod(chol_, o); }
 
-  bool factor(const CoupledSystem& s, SolveReport& report) {
+  // `reuse`: keep the current factor when A_t is the one it factors (the same
+  // state assembled again, e.g. the step after the visual loop's model of it).
+  bool factor(const CoupledSystem& s, SolveReport& report, bool reuse = false) {
     const auto t0 = Clock::now();
     const int nh = s.handle_dofs(), nt = s.tool_dofs();
-    // Symbolic analysis once per pattern (the pattern is fixed per mesh).
-    if (analyzed_nnz_ != s.A_t.nonZeros() || analyzed_rows_ != nt) {
-      chol_.analyzePattern(s.A_t);
-      analyzed_nnz_ = s.A_t.nonZeros();
-      analyzed_rows_ = nt;
+    if (!reuse || !factors(s.A_t)) {
+      // Symbolic analysis once per pattern (the pattern is fixed per mesh).
+      if (analyzed_nnz_ != s.A_t.nonZeros() || analyzed_rows_ != nt) {
+        chol_.analyzePattern(s.A_t);
+        analyzed_nnz_ = s.A_t.nonZeros();
+        analyzed_rows_ = nt;
+      }
+      chol_.factorize(s.A_t);
+      report.factor_ms += ms_since(t0);
+      fingerprint_ = fingerprint(s.A_t);
     }
-    chol_.factorize(s.A_t);
-    report.factor_ms += ms_since(t0);
-    fingerprint_ = fingerprint(s.A_t);
     if (chol_.info() != Eigen::Success) return false;
     const auto t1 = Clock::now();
     rhs_.resize(nt, nh + 1);
@@ -278,7 +282,7 @@ class SchurCholmodSolver final : public CoupledSolver {
   }
 
   bool solve(const CoupledSystem& s, Eigen::VectorXd& v_h, Eigen::VectorXd& v_t, SolveReport& report) override {
-    factored_ = schur_.factor(s, report);
+    factored_ = schur_.factor(s, report, factored_);
     if (!factored_) return false;
     const auto t0 = Clock::now();
     const bool ok = schur_.solve_factored(s, v_h, v_t);
