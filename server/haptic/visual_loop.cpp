@@ -37,24 +37,20 @@ VisualLoop::VisualLoop(World& world, double rate_hz, TripleBuffer<HapticSnapshot
 void VisualLoop::run(const std::atomic<bool>& stop) {
   ensure_ode_for_this_thread();
   single_threaded_cholmod();
-  const auto period_ns = static_cast<std::uint64_t>(1e9 / rate_hz_);
+  const double period = 1.0 / rate_hz_;
   const std::uint64_t start = protocol::now_ns();
-  std::uint64_t deadline = start, previous_publish = 0;
-  double latency_s = 0;  // how long an iteration takes from reading the proxies to publishing
+  double latency_s = 0;      // how long an iteration takes from reading the proxies to publishing
+  double dt = period;        // the coming step: its model was built for this length, so the world takes it
+  double world_time_s = 0;   // simulated time, kept on the wall clock
   while (!stop.load(std::memory_order_relaxed)) {
     const std::uint64_t t0 = protocol::now_ns();
     // The world simulates up to the moment it will publish: the proxies are
-    // extrapolated by the expected latency, and the step spans the wall-clock
-    // time between publications (the period when on time). The model it then
-    // publishes starts at its own publication, so the haptic loop gets it on
-    // time; a world behind the clock would replay the proxies' motion faster
-    // than it happened and a late model would lag the flesh: both feed energy
-    // back to the device.
+    // extrapolated by the expected latency, and the step spans the time to that
+    // publication. The model it then publishes starts at its own publication, so
+    // the haptic loop gets it on time; a world behind the clock would replay the
+    // proxies' motion faster than it happened and a late model would lag the
+    // flesh: both feed energy back to the device.
     const std::uint64_t publish = t0 + static_cast<std::uint64_t>(1e9 * latency_s);
-    const double dt =
-        previous_publish ? std::clamp(1e-9 * static_cast<double>(publish - previous_publish), 0.25 / rate_hz_, kMaxStep_s)
-                         : 1.0 / rate_hz_;
-    previous_publish = publish;
     targets_.update();
     const ProxyTargets& targets = targets_.front();
     for (int h = 0; h < std::min(world_.num_hands(), kMaxHands); ++h) {
@@ -67,13 +63,22 @@ void VisualLoop::run(const std::atomic<bool>& stop) {
       }
     }
     world_.step(dt);
+    world_time_s += dt;
     const std::uint64_t t_world = protocol::now_ns();
+    // The coming step: at least the period and twice the loop's latency (its model
+    // must reach the haptic loop before the step is half over; a slower machine
+    // gets a lower visual rate, counted, never a late model), plus half of any
+    // lag of simulated time behind the wall clock. The model is built for exactly
+    // this length and the world then takes it, reusing the model's factorization.
+    const double lag_s = 1e-9 * static_cast<double>(publish - start) - world_time_s;
+    dt = std::clamp(std::max(period, kLatencyMargin * latency_s) + 0.5 * lag_s, 0.25 * period, kMaxStep_s);
+    if (kLatencyMargin * latency_s > period) ++stats_.late_steps;
     HapticSnapshot& out = snapshots_.back();
     out.hands = std::min(world_.num_hands(), kMaxHands);
     for (int h = 0; h < out.hands; ++h) {
+      world_.hand(h).state.dt_s = dt;
       fill_haptic_model(world_, h, scratch_, out.model[h]);
-      // Its step ends one step after the publication it was simulated up to.
-      out.model[h].t_end_ns = publish + static_cast<std::uint64_t>(1e9 * std::max(dt, 1.0 / rate_hz_));
+      out.model[h].t_end_ns = publish + static_cast<std::uint64_t>(1e9 * dt);
     }
     out.step = world_.snapshot().step;
     const std::uint64_t t1 = protocol::now_ns();
@@ -92,12 +97,9 @@ void VisualLoop::run(const std::atomic<bool>& stop) {
       report_to_->visual_rate_hz.store(static_cast<double>(stats_.steps) / std::max(stats_.elapsed_s, 1e-9),
                                        std::memory_order_relaxed);
     }
-    // A step must span well more than its own latency, or its model reaches the
-    // haptic loop after the step it describes has ended: slower than the rate
-    // when the machine cannot keep up (counted), never flat out.
-    const auto min_period_ns = static_cast<std::uint64_t>(1e9 * kLatencyMargin * latency_s);
-    if (min_period_ns > period_ns) ++stats_.late_steps;
-    deadline = std::max(deadline + period_ns, t0 + min_period_ns);
+    // Read the proxies again one latency before the coming step's publication.
+    const std::uint64_t deadline = publish + static_cast<std::uint64_t>(1e9 * dt) -
+                                   std::min(static_cast<std::uint64_t>(1e9 * latency_s), static_cast<std::uint64_t>(1e9 * dt));
     if (protocol::now_ns() >= deadline) continue;
     timespec ts{static_cast<time_t>(deadline / 1000000000ull), static_cast<long>(deadline % 1000000000ull)};
     clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr);
