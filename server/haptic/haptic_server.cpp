@@ -138,6 +138,7 @@ void HapticServer::tick(std::uint64_t now) {
   const double dt = 1.0 / options_.haptic_rate_hz;
   ProxyTargets& out = targets_.back();
   for (bool& d : out.driven) d = false;
+  for (int h = 0; h < kMaxHands; ++h) out.resyncs[h] = hand_resyncs_[h];
   for (int i = 0; i < kMaxSessions; ++i) {
     Session& s = sessions_[i];
     if (!s.active) continue;
@@ -154,7 +155,10 @@ void HapticServer::tick(std::uint64_t now) {
     s.output_scale = silent_s > options_.silence_s ? std::max(0.0, s.output_scale - step)
                                                    : std::min(1.0, s.output_scale + step);
     const DeviceLink& link = links_[s.link];
-    const HapticModel& model = snap.model[link.hand];
+    // Until the visual loop has moved the hand to a re-synced proxy, its model
+    // would pull the proxy back to where the hand was: the proxy feels the device only.
+    const HapticModel& model =
+        snap.model[link.hand].resyncs == hand_resyncs_[link.hand] ? snap.model[link.hand] : no_model_;
     const double lookahead = 1e-9 * (static_cast<double>(model.t_end_ns) - static_cast<double>(now));
     s.proxy.integrate(model, dt, model.t_end_ns ? std::clamp(lookahead, -0.1, 0.1) : 0.0);
     if (s.follower || !s.proxy.has_device_pose()) continue;
@@ -345,6 +349,7 @@ void HapticServer::on_pose(const protocol::PoseSample& pose, std::uint64_t now) 
   if (s->proxy.commit_sample(1e-9 * static_cast<double>(now - start_ns_), options_.resync_gap_s)) {
     s->resynced = true;
     ++st.resyncs;
+    if (!s->follower) ++hand_resyncs_[links_[s->link].hand];
   }
   const double since_reply = s->last_reply_ns ? 1e-9 * static_cast<double>(now - s->last_reply_ns) : 1e-3;
   protocol::ForceSample& out = reply_->force_sample;

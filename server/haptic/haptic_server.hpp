@@ -36,6 +36,10 @@ struct HapticSnapshot {
 // driving session's proxies are (the targets the simulated handles are pulled to).
 struct ProxyTargets {
   bool driven[kMaxHands]{};
+  // Counts the driving session's re-syncs (a first pose, a pose after a gap): the
+  // proxies jumped onto the device, and the hand is moved there rigidly rather
+  // than dragged through space in one step.
+  std::uint32_t resyncs[kMaxHands]{};
   HapticPose pose[kMaxHands][kMaxHapticHandles];
   Eigen::Vector3d v_W[kMaxHands][kMaxHapticHandles], w_W[kMaxHands][kMaxHapticHandles];
 };
@@ -120,6 +124,8 @@ class HapticServer {
   std::unique_ptr<protocol::Message> reply_;
   protocol::Encoder encoder_;
   std::uint64_t next_session_id_ = 0;
+  std::uint32_t hand_resyncs_[kMaxHands]{};
+  HapticModel no_model_;  // handles = 0: the proxy feels only its device
   std::uint64_t start_ns_ = 0;
 };
 

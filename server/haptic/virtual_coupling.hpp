@@ -35,6 +35,9 @@ struct HapticModel {
   // the handle's state then: this is when that step ends (the proxy time base,
   // ns; 0 = unknown).
   std::uint64_t t_end_ns = 0;
+  // The hand's re-sync count the visual loop had applied (ProxyTargets::resyncs):
+  // a model from before a re-sync describes the hand where it no longer is.
+  std::uint32_t resyncs = 0;
 };
 
 // Virtual coupling and proxy parameters, in world units (the device's are mapped in).

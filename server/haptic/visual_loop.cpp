@@ -56,6 +56,10 @@ void VisualLoop::run(const std::atomic<bool>& stop) {
     for (int h = 0; h < std::min(world_.num_hands(), kMaxHands); ++h) {
       if (!targets.driven[h]) continue;
       WorldHand& hand = world_.hand(h);
+      if (targets.resyncs[h] != resyncs_seen_[h]) {
+        resyncs_seen_[h] = targets.resyncs[h];
+        place_hand(*hand.model, hand.state, targets.pose[h][0].p_W, targets.pose[h][0].q_W, 0);
+      }
       for (int j = 0; j < std::min(hand.model->num_handles(), kMaxHapticHandles); ++j) {
         const HapticPose& p = targets.pose[h][j];
         const Eigen::Vector3d &v = targets.v_W[h][j], &w = targets.w_W[h][j];
@@ -79,6 +83,7 @@ void VisualLoop::run(const std::atomic<bool>& stop) {
       world_.hand(h).state.dt_s = dt;
       fill_haptic_model(world_, h, scratch_, out.model[h]);
       out.model[h].t_end_ns = publish + static_cast<std::uint64_t>(1e9 * dt);
+      out.model[h].resyncs = resyncs_seen_[h];
     }
     out.step = world_.snapshot().step;
     const std::uint64_t t1 = protocol::now_ns();

@@ -50,6 +50,7 @@ class VisualLoop {
   HapticServer* report_to_;
   VisualStats stats_;
   HandleLinearization scratch_;
+  std::uint32_t resyncs_seen_[kMaxHands]{};
 };
 
 }  // namespace hapticd

@@ -5,6 +5,7 @@
 #include <poll.h>
 
 #include <atomic>
+#include <chrono>
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/ip/udp.hpp>
 #include <cmath>
@@ -47,26 +48,40 @@ DeviceLink stylus_link() {
   return l;
 }
 
+// The server on its own thread, and (unless `visual` is false) a stand-in for
+// the visual loop that republishes the wall, acknowledging the hand's re-syncs
+// (the wall does not move with the hand, so its model stays valid).
 struct RunningServer {
-  explicit RunningServer(const ServerOptions& options = {})
+  explicit RunningServer(const ServerOptions& options = {}, bool visual = true)
       : snapshots(wall_snapshot()), server({stylus_link()}, options, snapshots, targets) {
     thread = std::thread([this] {
       testing_util::count_allocations_on_this_thread(true);
       server.run(stop);
       allocations = testing_util::allocations_on_this_thread();
     });
+    if (visual)
+      visual_thread = std::thread([this] {
+        while (!stop) {
+          targets.update();
+          snapshots.back() = wall_snapshot();
+          snapshots.back().model[0].resyncs = targets.front().resyncs[0];
+          snapshots.publish();
+          std::this_thread::sleep_for(std::chrono::milliseconds(5));
+        }
+      });
   }
   ~RunningServer() { halt(); }
   void halt() {
     stop = true;
     if (thread.joinable()) thread.join();
+    if (visual_thread.joinable()) visual_thread.join();
   }
   TripleBuffer<HapticSnapshot> snapshots;
   TripleBuffer<ProxyTargets> targets;
   HapticServer server;
   std::atomic<bool> stop{false};
   std::atomic<long> allocations{-1};
-  std::thread thread;
+  std::thread thread, visual_thread;
 };
 
 // A device's end of the wire, with the project's codec.
@@ -241,6 +256,21 @@ TEST(HapticServer, SilentSessionFadesToZeroForceThenTimesOut) {
   s.halt();
   EXPECT_EQ(s.server.stats().sessions_timed_out, 1u);
   EXPECT_EQ(s.server.stats().unknown_session, 1u);
+}
+
+TEST(HapticServer, AModelFromBeforeTheSessionsResyncIsNotRendered) {
+  // No visual loop acknowledges the re-sync of the first pose: the model (the wall)
+  // describes the hand where it was, so the proxy feels only its device.
+  RunningServer s({}, false);
+  TestClient c(s.server.port());
+  c.hello();
+  double f = 0;
+  for (std::uint64_t k = 1; k <= 100; ++k) {
+    f = std::max(f, std::abs(c.press(-0.004, k)));
+    std::this_thread::sleep_for(std::chrono::microseconds(500));
+  }
+  EXPECT_LT(f, 0.01);  // 3 N with the model (the test above)
+  EXPECT_TRUE(c.last.flags & protocol::ForceFlags::kInContact);
 }
 
 TEST(HapticServer, TheHapticThreadNeverAllocates) {
