@@ -1,51 +1,20 @@
 #include <gtest/gtest.h>
 
 #include <chrono>
-#include <cstdlib>
-#include <new>
 
+#include "allocation_counter.hpp"
 #include "clients/cpp/client.hpp"
 #include "fake_server.hpp"
-
-// Global operator new/delete replaced for this test binary by versions that count the calls a
-// thread makes while its counting flag is on. Per thread: the fake server's thread runs at the
-// same time and is not what is measured.
-
-namespace {
-thread_local bool t_counting = false;
-thread_local std::size_t t_allocations = 0;
-
-void* counted_alloc(std::size_t size) {
-  if (t_counting) ++t_allocations;
-  if (void* p = std::malloc(size == 0 ? 1 : size)) return p;
-  throw std::bad_alloc();
-}
-}  // namespace
-
-void* operator new(std::size_t size) { return counted_alloc(size); }
-void* operator new[](std::size_t size) { return counted_alloc(size); }
-void operator delete(void* p) noexcept { std::free(p); }
-void operator delete[](void* p) noexcept { std::free(p); }
-void operator delete(void* p, std::size_t) noexcept { std::free(p); }
-void operator delete[](void* p, std::size_t) noexcept { std::free(p); }
 
 namespace hapticd::client {
 namespace {
 
 using namespace std::chrono_literals;
 
-// Allocations the calling thread makes inside `body`.
-template <typename F>
-std::size_t allocations_in(F&& body) {
-  t_allocations = 0;
-  t_counting = true;
-  body();
-  t_counting = false;
-  return t_allocations;
-}
+using testing_util::allocations_in;
 
 TEST(ClientNoAllocation, TheCounterSeesAllocations) {
-  EXPECT_EQ(allocations_in([] { delete new int(3); }), 1u) << "otherwise the zero below proves nothing";
+  EXPECT_EQ(allocations_in([] { ::operator delete(::operator new(sizeof(int))); }), 1) << "otherwise the zero below proves nothing";
 }
 
 TEST(ClientNoAllocation, SendPosePollForceAndHeartbeatAllocateNothingAfterConnect) {

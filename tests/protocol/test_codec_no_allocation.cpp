@@ -1,43 +1,27 @@
 #include <gtest/gtest.h>
 
-#include <atomic>
-#include <cstdlib>
 #include <cstring>
-#include <new>
 
+#include "allocation_counter.hpp"
 #include "protocol/codec.hpp"
 #include "protocol_test_util.hpp"
 
-// Global operator new/delete replaced for this test binary by counting versions (the other tests
-// only pay an atomic increment). A measured loop asserts the count did not move: the hot path
-// (encode and decode of PoseSample and ForceSample) must not touch the heap after warm-up.
-
-namespace {
-std::atomic<std::size_t> g_allocations{0};
-
-void* counted_alloc(std::size_t size) {
-  g_allocations.fetch_add(1, std::memory_order_relaxed);
-  if (void* p = std::malloc(size == 0 ? 1 : size)) return p;
-  throw std::bad_alloc();
-}
-}  // namespace
-
-void* operator new(std::size_t size) { return counted_alloc(size); }
-void* operator new[](std::size_t size) { return counted_alloc(size); }
-void operator delete(void* p) noexcept { std::free(p); }
-void operator delete[](void* p) noexcept { std::free(p); }
-void operator delete(void* p, std::size_t) noexcept { std::free(p); }
-void operator delete[](void* p, std::size_t) noexcept { std::free(p); }
+// The hot path (encode and decode of PoseSample and ForceSample) must not touch
+// the heap after warm-up: a measured loop asserts the count did not move.
 
 namespace hapticd::protocol {
 namespace {
 
-std::size_t allocations() { return g_allocations.load(std::memory_order_relaxed); }
+// This thread's allocations so far (counting starts at the first call).
+std::size_t allocations() {
+  testing_util::count_allocations_on_this_thread(true);
+  return static_cast<std::size_t>(testing_util::allocations_on_this_thread());
+}
 
 TEST(CodecNoAllocation, TheCounterSeesAllocations) {
   const std::size_t before = allocations();
-  auto* p = new int(3);
-  delete p;
+  // A direct call: a new-expression paired with its delete may be elided.
+  ::operator delete(::operator new(sizeof(int)));
   EXPECT_EQ(allocations() - before, 1u) << "otherwise the zero below proves nothing";
 }
 
