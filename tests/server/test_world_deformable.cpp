@@ -31,6 +31,17 @@ ObjectDesc static_floor() {
   return floor;
 }
 
+// A deformable FEM box called "cube" of the given size, centred at p_W.
+ObjectDesc soft_cube(const Eigen::Vector3d& size, const Eigen::Vector3d& p_W) {
+  ObjectDesc cube;
+  cube.name = "cube";
+  cube.kind = BodyKind::deformable;
+  cube.shape.type = ShapeType::box;
+  cube.shape.size = size;
+  cube.pose.p_W = p_W;
+  return cube;
+}
+
 Eigen::Vector3d centroid(const DeformableObject& o) {
   Eigen::Vector3d c = Eigen::Vector3d::Zero();
   for (int i = 0; i < o.model->num_nodes(); ++i) c += o.state.x.segment<3>(3 * i);
@@ -66,12 +77,7 @@ double max_deformation(const DeformableObject& o) {
 TEST_P(DeformableWorld, SoftCubeDroppedOnTheFloorComesToRestOnItWithoutDrift) {
   SceneDesc scene;
   scene.objects.push_back(static_floor());
-  ObjectDesc cube;
-  cube.name = "cube";
-  cube.kind = BodyKind::deformable;
-  cube.shape.type = ShapeType::box;
-  cube.shape.size = {0.04, 0.04, 0.04};
-  cube.pose.p_W = {0, 0, 0.04};                                      // falls 2 cm
+  ObjectDesc cube = soft_cube({0.04, 0.04, 0.04}, {0, 0, 0.04});     // falls 2 cm
   cube.pose.q_W = Eigen::AngleAxisd(0.1, Eigen::Vector3d::UnitX());  // lands on an edge first
   scene.objects.push_back(cube);
   World world(scene, options());
@@ -117,12 +123,7 @@ TEST_P(DeformableWorld, SoftCubeDroppedOnTheFloorComesToRestOnItWithoutDrift) {
 TEST_P(DeformableWorld, RigidBoxDroppedOnASoftCubeRestsOnIt) {
   SceneDesc scene;
   scene.objects.push_back(static_floor());
-  ObjectDesc cube;
-  cube.name = "cube";
-  cube.kind = BodyKind::deformable;
-  cube.shape.type = ShapeType::box;
-  cube.shape.size = {0.06, 0.06, 0.04};
-  cube.pose.p_W = {0, 0, 0.02};
+  ObjectDesc cube = soft_cube({0.06, 0.06, 0.04}, {0, 0, 0.02});
   cube.material.youngs_modulus_pa = 100e3;
   scene.objects.push_back(cube);
   ObjectDesc box;
