@@ -150,4 +150,24 @@ inline protocol::PoseSample stylus_pose(float z_m = 0.01f) {
   return p;
 }
 
+// A UDP socket bound to a free loopback port, and the port: kept open it is a
+// server that never answers; closed, a port where nothing listens.
+struct BoundUdp {
+  int fd = -1;
+  std::uint16_t port = 0;
+};
+inline BoundUdp bind_loopback_udp() {
+  BoundUdp b;
+  b.fd = ::socket(AF_INET, SOCK_DGRAM, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  socklen_t length = sizeof a;
+  if (b.fd < 0 || ::bind(b.fd, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0 ||
+      ::getsockname(b.fd, reinterpret_cast<sockaddr*>(&a), &length) != 0)
+    throw std::runtime_error("cannot bind a loopback UDP socket");
+  b.port = ntohs(a.sin_port);
+  return b;
+}
+
 }  // namespace hapticd::client::test

@@ -112,17 +112,11 @@ TEST(ClientHandshake, HelloIsResentUntilTheServerAnswers) {
 
 TEST(ClientHandshake, NothingListeningIsRefusedAtOnce) {
   // A port that was just free: bind, read it back, close.
-  const int fd = ::socket(AF_INET, SOCK_DGRAM, 0);
-  sockaddr_in a{};
-  a.sin_family = AF_INET;
-  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  socklen_t length = sizeof a;
-  ASSERT_EQ(::bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof a), 0);
-  ASSERT_EQ(::getsockname(fd, reinterpret_cast<sockaddr*>(&a), &length), 0);
-  ::close(fd);
+  const test::BoundUdp free_port = test::bind_loopback_udp();
+  ::close(free_port.fd);
   Client client;
   const auto start = std::chrono::steady_clock::now();
-  const ClientError e = error_from([&] { client.connect("127.0.0.1", ntohs(a.sin_port), test::stylus_hello(), 2s); });
+  const ClientError e = error_from([&] { client.connect("127.0.0.1", free_port.port, test::stylus_hello(), 2s); });
   EXPECT_EQ(e.kind(), ErrorKind::kRefused) << e.what();
   EXPECT_LT(std::chrono::steady_clock::now() - start, 1s) << "ICMP port unreachable must not wait for the timeout";
 }

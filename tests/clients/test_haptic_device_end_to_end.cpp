@@ -1,7 +1,4 @@
-#include <arpa/inet.h>
 #include <gtest/gtest.h>
-#include <netinet/in.h>
-#include <sys/socket.h>
 #include <unistd.h>
 
 #include <chrono>
@@ -13,6 +10,7 @@
 #include <vector>
 
 #include "clients/sim/child_process.hpp"
+#include "fake_server.hpp"
 
 // The tools as built: haptic-device against haptic-echo over loopback, and haptic-device's
 // refusals. Paths come from CMake (HAPTICD_DEVICE_BIN, HAPTICD_ECHO_BIN).
@@ -114,14 +112,9 @@ TEST(HapticDeviceEndToEnd, OneSecondAgainstTheEchoLosesNothingAndReportsFiniteFi
 
 TEST(HapticDeviceEndToEnd, ASilentServerFailsTheHandshakeAfterTwoSeconds) {
   // A bound socket nobody reads: datagrams vanish, no ICMP comes back.
-  const int fd = ::socket(AF_INET, SOCK_DGRAM, 0);
-  sockaddr_in a{};
-  a.sin_family = AF_INET;
-  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  socklen_t length = sizeof a;
-  ASSERT_EQ(::bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof a), 0);
-  ASSERT_EQ(::getsockname(fd, reinterpret_cast<sockaddr*>(&a), &length), 0);
-  const std::string server = "127.0.0.1:" + std::to_string(ntohs(a.sin_port));
+  const client::test::BoundUdp silent = client::test::bind_loopback_udp();
+  const int fd = silent.fd;
+  const std::string server = "127.0.0.1:" + std::to_string(silent.port);
   const auto start = std::chrono::steady_clock::now();
   ChildProcess device(HAPTICD_DEVICE_BIN, {"--server", server, "--duration", "1"});
   EXPECT_EQ(device.wait(30s), 1);
