@@ -92,29 +92,27 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
     if (o.kind == BodyKind::deformable) deformables_.push_back(make_deformable_object(o, build));
   if ((rigid_ ? rigid_->num_objects() : 0) + num_deformables() > 0xffff)
     throw std::runtime_error(scene.path + ": more than 65535 objects");  // cluster keys hold 16 bits of object
+  // Hands collide with their skin points, deformable objects with their surface points.
+  auto add_soft = [&](const HandModel* model, HandState* state, const std::vector<int>* tets,
+                      const std::vector<Eigen::Vector4d>* barys, double friction, int hand, int deformable) {
+    SoftBody b;
+    b.model = model;
+    b.state = state;
+    b.point_tet = tets;
+    b.point_bary = barys;
+    b.friction = friction;
+    b.hand = hand;
+    b.deformable = deformable;
+    b.last.resize(tets->size());
+    soft_.push_back(std::move(b));
+  };
   for (int h = 0; h < num_hands(); ++h) {
     WorldHand& hand = *hands_[h];
-    SoftBody b;
-    b.model = hand.model.get();
-    b.state = &hand.state;
-    b.point_tet = &hand.shape.skin_tet;
-    b.point_bary = &hand.shape.skin_bary;
-    b.friction = hand.friction;
-    b.hand = h;
-    b.last.resize(hand.shape.skin_vertices.size());
-    soft_.push_back(std::move(b));
+    add_soft(hand.model.get(), &hand.state, &hand.shape.skin_tet, &hand.shape.skin_bary, hand.friction, h, -1);
   }
   for (int d = 0; d < num_deformables(); ++d) {
     DeformableObject& o = *deformables_[d];
-    SoftBody b;
-    b.model = o.model.get();
-    b.state = &o.state;
-    b.point_tet = &o.body.surface_tet;
-    b.point_bary = &o.body.surface_bary;
-    b.friction = o.friction;
-    b.deformable = d;
-    b.last.resize(o.body.surface_tet.size());
-    soft_.push_back(std::move(b));
+    add_soft(o.model.get(), &o.state, &o.body.surface_tet, &o.body.surface_bary, o.friction, -1, d);
   }
   collide_all();
   record_contacts();
