@@ -28,8 +28,6 @@ constexpr int kMaxSessions = 16;
 struct HapticSnapshot {
   int hands = 0;
   HapticModel model[kMaxHands];
-  long step = 0;
-  double step_ms = 0;
 };
 
 // What the haptic loop publishes for the visual loop: per hand, where its

@@ -25,7 +25,6 @@ struct HapticPose {
 // One hand's handle-space model as the visual loop publishes it.
 struct HapticModel {
   int handles = 0;  // 0: no model yet (the proxy then feels only the device)
-  long step = -1;   // the visual step that produced it
   HapticVector F0;  // 6m, N and N m on each handle
   HapticMatrix K, D;
   HapticPose x0[kMaxHapticHandles];

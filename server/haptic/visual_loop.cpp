@@ -11,7 +11,6 @@ namespace hapticd {
 
 void fill_haptic_model(World& world, int h, HandleLinearization& lin, HapticModel& out) {
   const WorldSnapshot& snap = world.snapshot();
-  out.step = snap.step;
   out.handles = 0;
   out.in_contact = false;
   for (const ContactRecord& c : snap.contacts) out.in_contact = out.in_contact || (c.hand == h && c.depth_m > 0);
@@ -85,9 +84,7 @@ void VisualLoop::run(const std::atomic<bool>& stop) {
       out.model[h].t_end_ns = publish + static_cast<std::uint64_t>(1e9 * dt);
       out.model[h].resyncs = resyncs_seen_[h];
     }
-    out.step = world_.snapshot().step;
     const std::uint64_t t1 = protocol::now_ns();
-    out.step_ms = 1e-6 * static_cast<double>(t1 - t0);
     // The next iteration's latency: the slower of this one and a decaying memory of the last.
     latency_s = std::max(1e-9 * static_cast<double>(t1 - t0), 0.8 * latency_s);
     snapshots_.publish();
