@@ -75,6 +75,9 @@ struct PointContact {
 
 // Constraint contacts push a penetrating point out at this fraction of its depth per step.
 constexpr double kContactDepthRecovery = 0.2;
+// A reserve constraint contact (HandState::reserve_contacts) joins the step's
+// rows when the step would carry it deeper than this (and deeper than it is), m.
+constexpr double kReserveDepth_m = 2e-4;
 
 struct HandleSpec {
   std::string name;
@@ -175,7 +178,8 @@ struct StepTimings {
   double assembly_ms = 0, factor_ms = 0, schur_ms = 0, solve_ms = 0, contact_ms = 0, linearize_ms = 0,
          integrate_ms = 0, total_ms = 0;
   long iterations = 0;
-  int contact_iterations = 0;  // Gauss-Seidel sweeps of the constraint contacts
+  int contact_iterations = 0;  // Gauss-Seidel sweeps of the constraint contacts (last round)
+  int reserve_rounds = 0;      // constraint solves repeated for reserve contacts that joined
   bool contact_converged = true;
 };
 
@@ -204,6 +208,15 @@ struct HandState {
   // Contacts against other bodies for the next step, set by the world; their
   // f_W is filled by the step. Floor contacts are added internally each step.
   std::vector<PointContact> contacts;
+  // Constraint contacts the caller left out of `contacts` (e.g. clustered
+  // away: one row per patch of skin keeps the Delassus operator small). A
+  // reserve becomes a row of the step only when the step's velocities would
+  // otherwise carry it deeper, and deeper than kReserveDepth_m (an active-set
+  // pass; a point already deeper and coming out stays in reserve), so
+  // the skin between rows cannot sink through a thin object. Static and
+  // kinematic other sides or implicit bodies only: a promoted reserve's force
+  // is not reported back.
+  std::vector<PointContact> reserve_contacts;
   // External nodal forces for the next step, N, 3n (zero at rest; the caller
   // sets and clears them): e.g. another soft body's contact reactions handed
   // over by operator splitting. Explicit: they enter b, not A.

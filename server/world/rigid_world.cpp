@@ -394,6 +394,28 @@ void RigidWorld::contacts_of(int i, std::vector<BodyContact>& out) const {
   dSpaceCollide2(objects_[i].geom, reinterpret_cast<dGeomID>(space_), &query, callback);
 }
 
+void RigidWorld::supports_of(int i, std::vector<BodyContact>& out, double margin_m) {
+  contacts_of(i, out);
+  remembered_.resize(objects_.size());
+  Memory& memory = remembered_[i];
+  const RigidBodyState pose = state(i);
+  if (!out.empty()) {
+    memory.step = steps_;
+    memory.supports.clear();
+    for (const BodyContact& c : out)
+      if (!is_dynamic(c.other)) memory.supports.push_back({c, pose.q_WO.conjugate() * (c.p_W - pose.p_WO)});
+    return;
+  }
+  if (steps_ - memory.step > kSupportMemorySteps) return;  // too old: the body may have gone off an edge
+  for (const RememberedSupport& r : memory.supports) {
+    BodyContact c = r.contact;
+    const Eigen::Vector3d p_W = pose.p_WO + pose.q_WO * r.p_O;
+    c.depth_m -= c.n_W.dot(p_W - c.p_W);  // the normal points into the body: lifting opens a gap
+    c.p_W = p_W;
+    if (c.depth_m > -margin_m) out.push_back(c);
+  }
+}
+
 void RigidWorld::near_callback(void* data, dGeomID a, dGeomID b) {
   static_cast<RigidWorld*>(data)->collide(a, b);
 }
@@ -446,6 +468,7 @@ void RigidWorld::step(double dt) {
   if (world_ == nullptr) return;
   ensure_ode_for_this_thread();
   contacts_last_step_ = 0;
+  ++steps_;
   dSpaceCollide(space_, this, &RigidWorld::near_callback);
   int bodies = 0;
   for (const Object& o : objects_) bodies += o.body != nullptr;

@@ -79,6 +79,15 @@ class RigidWorld {
     double depth_m = 0, friction = 0.5;
   };
   void contacts_of(int i, std::vector<BodyContact>& out) const;
+  // contacts_of, remembering what body i touched on static objects: when ODE
+  // finds nothing (its trimesh collider loses a contact at exactly zero depth,
+  // and a body balanced on one vertex would then have no support for a whole
+  // step), the last contacts found move with the body instead, their depth
+  // reduced by how far it has lifted, kept while within `margin_m` (speculative
+  // supports: depth < 0 is a gap the next step may close but not cross) and
+  // for kSupportMemorySteps steps of the world after ODE last found them.
+  static constexpr long kSupportMemorySteps = 5;
+  void supports_of(int i, std::vector<BodyContact>& out, double margin_m);
 
   dSpaceID space() const { return space_; }
   dGeomID geom(int i) const { return objects_[i].geom; }
@@ -108,6 +117,16 @@ class RigidWorld {
   std::vector<dJointID> joints_;
   double dt_ = 1.0 / 60.0;
   int contacts_last_step_ = 0;
+  struct RememberedSupport {
+    BodyContact contact;
+    Eigen::Vector3d p_O;  // the contact point in the body's frame
+  };
+  struct Memory {
+    long step = 0;  // steps_ when found
+    std::vector<RememberedSupport> supports;
+  };
+  std::vector<Memory> remembered_;  // per object, for supports_of
+  long steps_ = 0;
 };
 
 // Penetration of point p_W into a primitive ODE geom (plane, sphere, box,

@@ -154,7 +154,13 @@ void World::add_contact(SoftBody& b, const PointContact& c, int point, const Eig
   }
   // Constraint contacts are reduced to the deepest point per other body and
   // cluster cell: a patch of skin on a face needs a few non-penetration rows,
-  // not one per skin vertex (each row costs a column of A^-1 J^T).
+  // not one per skin vertex (each row costs a column of A^-1 J^T). The other
+  // points of the cell stay in reserve: the step makes a row of any it would
+  // carry too deep (HandState::reserve_contacts). Against deformable objects
+  // the reaction must be handed over, so those points are not kept.
+  auto keep_in_reserve = [&](const PointContact& r) {
+    if (options_.contact_reserves && touch.object < 0) s.reserve_contacts.push_back(r);
+  };
   const std::uint64_t key = cluster_key(other_key, p_W, options_.contact_cluster_m);
   PointContact warm_started = c;
   const auto warm = b.warm_impulse.find(key);
@@ -169,7 +175,11 @@ void World::add_contact(SoftBody& b, const PointContact& c, int point, const Eig
     double advantage = c.depth_m - s.contacts[it->second].depth_m;
     if (kept != b.kept_point.end() && kept->second == current) advantage -= kClusterHysteresis_m;
     if (kept != b.kept_point.end() && kept->second == point) advantage += kClusterHysteresis_m;
-    if (advantage <= 0) return;
+    if (advantage <= 0) {
+      keep_in_reserve(c);
+      return;
+    }
+    keep_in_reserve(s.contacts[it->second]);
     s.contacts[it->second] = warm_started;
     b.points[it->second] = p_W;
     b.touches[it->second] = touch;
@@ -189,6 +199,7 @@ void World::add_contact(SoftBody& b, const PointContact& c, int point, const Eig
 void World::collide(SoftBody& b) {
   HandState& s = *b.state;
   s.contacts.clear();
+  s.reserve_contacts.clear();
   s.bodies.clear();
   s.supports.clear();
   b.kept_point.clear();
@@ -216,8 +227,9 @@ void World::collide(SoftBody& b) {
       Eigen::Vector3d p = Eigen::Vector3d::Zero();
       for (int k = 0; k < 4; ++k) p += w[k] * s.x.segment<3>(3 * t[k]);
       LastContact& last = b.last[v];
-      if (bounded && (p.x() < aabb[0] || p.x() > aabb[1] || p.y() < aabb[2] || p.y() > aabb[3] ||
-                      p.z() < aabb[4] || p.z() > aabb[5])) {
+      // The box grown by the margin: a point just above a face is a speculative contact.
+      if (bounded && (p.x() < aabb[0] - margin || p.x() > aabb[1] + margin || p.y() < aabb[2] - margin ||
+                      p.y() > aabb[3] + margin || p.z() < aabb[4] - margin || p.z() > aabb[5] + margin)) {
         if (last.object == g) last = LastContact{};
         continue;
       }
@@ -256,7 +268,7 @@ void World::collide(SoftBody& b) {
   std::vector<RigidWorld::BodyContact> found;
   for (int g = 0; rigid_ && g < rigid_->num_objects(); ++g) {
     if (body_of_object[g] < 0) continue;
-    rigid_->contacts_of(g, found);
+    rigid_->supports_of(g, found, kSpeculativeMargin_m);
     for (const RigidWorld::BodyContact& bc : found) {
       BodySupport support;
       support.body = body_of_object[g];

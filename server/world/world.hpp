@@ -48,6 +48,9 @@ struct WorldOptions {
   std::optional<ContactModel> contact = ContactModel::penalty;
   // Constraint contacts keep the deepest skin point per object and cell of this size.
   double contact_cluster_m = 0.01;
+  // The cell's other points stay in reserve and become rows of a step that
+  // would carry them deeper than kReserveDepth_m (false: a baseline for tests).
+  bool contact_reserves = true;
 };
 
 struct WorldHand {

@@ -74,6 +74,49 @@ TEST(RigidWorld, BoxOnInclineSlidesWithCoulombAcceleration) {
   }
 }
 
+// ODE reports no contact once a body lifts off; supports_of keeps the last
+// ones (moved with the body, depth reduced by the lift) within the margin.
+TEST(RigidWorld, SupportsOfRemembersTheLastContactsWithinTheMargin) {
+  RigidWorld world(incline_scene(0, 0.5));
+  const int box = world.find("box");
+  std::vector<RigidWorld::BodyContact> found;
+  RigidBodyState pose = world.state(box);
+  pose.p_WO.z() -= 1e-4;  // pressed 0.1 mm into the slab: ODE's own contacts
+  world.set_state(box, pose);
+  world.supports_of(box, found, 0.002);
+  ASSERT_FALSE(found.empty());
+  for (const RigidWorld::BodyContact& c : found) EXPECT_NEAR(c.depth_m, 1e-4, 1e-6);
+
+  for (double lift : {0.001, 0.003}) {
+    RigidBodyState lifted = pose;
+    lifted.p_WO += Eigen::Vector3d(0.01, 0, lift);  // also slid 1 cm along the slab
+    world.set_state(box, lifted);
+    world.contacts_of(box, found);
+    EXPECT_TRUE(found.empty()) << "ODE finds the lifted box";
+    world.supports_of(box, found, 0.002);
+    if (lift > 0.002) {
+      EXPECT_TRUE(found.empty());  // beyond the margin
+      continue;
+    }
+    ASSERT_FALSE(found.empty());
+    for (const RigidWorld::BodyContact& c : found) {
+      EXPECT_NEAR(c.depth_m, 1e-4 - lift, 1e-6);  // a gap of the lift less the old depth
+      EXPECT_NEAR(c.p_W.z(), 0.05 + lift - 1e-4, 1e-3);  // the slab's top face is at z = 0.05
+      EXPECT_EQ(c.other, world.find("slope"));
+    }
+  }
+  // Forgotten a few steps of the world later.
+  RigidBodyState lifted = pose;
+  lifted.p_WO.z() += 0.001;
+  for (long k = 0; k <= RigidWorld::kSupportMemorySteps; ++k) {
+    world.set_state(box, lifted);
+    world.step(1e-6);
+  }
+  world.set_state(box, lifted);
+  world.supports_of(box, found, 0.002);
+  EXPECT_TRUE(found.empty());
+}
+
 TEST(RigidWorld, FreeFallFollowsGravityAndMassComesFromDensity) {
   SceneDesc scene;
   ObjectDesc ball;

@@ -50,6 +50,31 @@ bool finite(const World& w) {
   return ok;
 }
 
+// The lowest skin point of a hand, m.
+double lowest_skin_z(const WorldHand& hand) {
+  const TetMesh& mesh = hand.model->mesh();
+  double lowest = 1e9;
+  for (size_t v = 0; v < hand.shape.skin_vertices.size(); ++v) {
+    const Tet& t = mesh.tets[hand.shape.skin_tet[v]];
+    double z = 0;
+    for (int i = 0; i < 4; ++i) z += hand.shape.skin_bary[v][i] * hand.state.x[3 * t[i] + 2];
+    lowest = std::min(lowest, z);
+  }
+  return lowest;
+}
+
+// Presses the test hand's handle 5.5 cm down from its start (2.5 cm past the
+// top of a slab under it: ~75 N of drive), ramped over 0.5 s, for 2 s.
+void press_into_slab(World& world) {
+  WorldHand& hand = world.hand(0);
+  const HandleState start = hand.state.handles[0];
+  for (int k = 0; k < 120; ++k) {
+    set_target(hand.state, 0, target_at(start, {0, 0, -0.055 * std::min(1.0, k / 30.0)}));
+    world.step();
+    ASSERT_TRUE(finite(world)) << "step " << k;
+  }
+}
+
 TEST_P(WorldHardCases, HandleDriven10cmIntoAStaticBoxInOneStepRecoversWithinHalfASecond) {
   World world(slab_scene(0.1, 0), options());
   WorldHand& hand = world.hand(0);
@@ -70,28 +95,29 @@ TEST_P(WorldHardCases, HandleDriven10cmIntoAStaticBoxInOneStepRecoversWithinHalf
 }
 
 TEST_P(WorldHardCases, HandPressedOnATwoMillimetrePlateDoesNotTunnelThrough) {
-  if (GetParam() == ContactModel::constraint)
-    GTEST_SKIP() << "known limitation: under 75 N, skin between cluster representatives sinks through a 2 mm plate "
-                    "(5000 Gauss-Seidel sweeps instead of 500 do not help); the world's default contact is penalty";
   World world(slab_scene(0.002, 0), options());
-  WorldHand& hand = world.hand(0);
-  const HandleState start = hand.state.handles[0];
-  for (int k = 0; k < 120; ++k) {  // pressed 2.5 cm past the plate's top: ~75 N of drive
-    set_target(hand.state, 0, target_at(start, {0, 0, -0.055 * std::min(1.0, k / 30.0)}));
-    world.step();
-    ASSERT_TRUE(finite(world));
-  }
-  // No skin point has come out under the plate.
-  const TetMesh& mesh = hand.model->mesh();
-  double lowest = 1e9;
-  for (size_t v = 0; v < hand.shape.skin_vertices.size(); ++v) {
-    const Tet& t = mesh.tets[hand.shape.skin_tet[v]];
-    double z = 0;
-    for (int i = 0; i < 4; ++i) z += hand.shape.skin_bary[v][i] * hand.state.x[3 * t[i] + 2];
-    lowest = std::min(lowest, z);
-  }
-  EXPECT_GT(lowest, -0.002);
+  press_into_slab(world);
+  EXPECT_GT(lowest_skin_z(world.hand(0)), -0.002);  // no skin point has come out under the plate
   EXPECT_EQ(world.snapshot().resets, 0);
+}
+
+// Constraint contacts keep one row per 4 cm cell here: without the cells'
+// other points in reserve the skin between rows sinks 1.5 mm into the slab
+// under 75 N; with them no point goes deeper than the reserve threshold.
+TEST(WorldConstraintContacts, ReservePointsHoldTheSkinBetweenSparseRows) {
+  double lowest[2];
+  for (bool reserves : {false, true}) {
+    WorldOptions o;
+    o.contact = ContactModel::constraint;
+    o.contact_cluster_m = 0.04;
+    o.contact_reserves = reserves;
+    World world(slab_scene(0.1, 0), o);
+    press_into_slab(world);
+    lowest[reserves] = lowest_skin_z(world.hand(0));
+    EXPECT_EQ(world.snapshot().resets, 0);
+  }
+  EXPECT_LT(lowest[0], -1e-3);
+  EXPECT_GT(lowest[1], -kReserveDepth_m);
 }
 
 TEST_P(WorldHardCases, HandAt3MetresPerSecondIntoABoxStaysFiniteAndSettles) {
