@@ -42,9 +42,9 @@ struct WorldOptions {
   // of the coming step itself, as the server's visual loop does, skips the cost).
   bool linearize = true;
   // Hand contact model. Penalty by default for now: constraint contacts (PGS on the
-  // step's Delassus operator, speculative contacts within 2 mm) hold a resting hand
-  // without penetration, but every skin point near a surface is a contact and the
-  // step slows to ~150 ms until skin points are clustered. Unset: follow the scene.
+  // step's Delassus operator, speculative contacts within 2 mm, clustered rows
+  // with reserves) penetrate far less, but cost 2-5x the contact-free step
+  // (haptic-bench world). Unset: follow the scene.
   std::optional<ContactModel> contact = ContactModel::penalty;
   // Constraint contacts keep the deepest skin point per object and cell of this size.
   double contact_cluster_m = 0.01;
