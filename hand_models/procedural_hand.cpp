@@ -2,6 +2,7 @@
 
 #include "hand_models/cell_grid.hpp"
 #include "hand_models/embedded_surface.hpp"
+#include "hand_models/skeleton/hand_skeleton.hpp"
 
 #include <Eigen/Geometry>
 #include <algorithm>
@@ -22,10 +23,7 @@ using detail::cube_corner;
 constexpr double kCm = 0.01;
 constexpr double kPi = 3.14159265358979323846;
 constexpr double kHalfDiagonal = 0.86602540378443864676;  // sqrt(3)/2: centre-to-corner distance of a unit cube
-constexpr std::array<const char*, 5> kFingerNames = {"thumb", "index", "middle", "ring", "little"};
-constexpr std::array<const char*, 3> kPhalanxNames = {"proximal", "middle", "distal"};
 
-double deg(double d) { return d * kPi / 180.0; }
 double sign(double x) { return x > 0.0 ? 1.0 : (x < 0.0 ? -1.0 : 0.0); }
 
 // Tapered capsule: convex hull of a sphere (a, ra) and a sphere (b, rb); exact SDF (Quilez's round cone).
@@ -79,15 +77,6 @@ double smooth_min(double a, double b, double k) {
   return std::min(a, b) - h * h * k * 0.25;
 }
 
-struct FingerSpec {
-  Vector3d base;                 // base joint, cm
-  double yaw;                    // deg, rotation about z toward +x
-  std::array<double, 3> pitch;   // deg per phalanx, negative = toward palmar
-  double roll;                   // deg about the bone axis turning the dorsal side radially (thumb pronation)
-  std::array<double, 3> length;  // joint to joint, the last to the fingertip, cm
-  std::array<double, 4> radius;  // at base, 2nd joint, 3rd joint, fingertip, cm
-};
-
 // Palm, blend and handle sizes in cm.
 constexpr double kPalmHalfLength = 4.5;   // along y
 constexpr double kPalmHalfWidthWrist = 3.4;
@@ -127,42 +116,21 @@ struct HandShape {
 };
 
 HandShape build_right_shape() {
-  // Right hand, cm and degrees. Yaws spread the fingers so their gaps grow toward the tips.
-  static const std::array<FingerSpec, 5> kFingers = {{
-      {{-2.3, -2.8, -0.25}, -54.0, {-4.0, -7.0, -10.0}, 50.0, {4.5, 3.0, 2.5}, {1.15, 1.0, 0.92, 0.85}},
-      {{-2.9, 4.3, 0.15}, -9.0, {0.0, -6.0, -12.0}, 0.0, {4.0, 2.5, 2.0}, {0.95, 0.88, 0.82, 0.78}},
-      {{-0.95, 4.5, 0.15}, 0.0, {0.0, -6.0, -12.0}, 0.0, {4.5, 3.0, 2.2}, {1.0, 0.92, 0.85, 0.8}},
-      {{1.05, 4.3, 0.15}, 8.0, {0.0, -6.0, -12.0}, 0.0, {4.2, 2.8, 2.1}, {0.95, 0.87, 0.82, 0.78}},
-      {{2.95, 3.9, 0.1}, 16.0, {0.0, -6.0, -12.0}, 0.0, {3.4, 2.0, 1.8}, {0.86, 0.82, 0.8, 0.78}},
-  }};
-
+  // The standard skeleton in its rest posture gives the bones (hand_skeleton.hpp).
+  const SkeletonPose pose = skeleton_pose(rest_joint_angles());
   HandShape s;
   s.lo = Vector3d(-kPalmHalfWidthKnuckles, -kPalmHalfLength, -kPalmHalfThickness) * kCm;
   s.hi = -s.lo;
+  s.joints = pose.joints;
   for (int f = 0; f < 5; ++f) {
-    const FingerSpec& spec = kFingers[f];
-    const double yaw = deg(spec.yaw);
-    Vector3d joint = spec.base * kCm;
-    s.joints[f][0] = joint;
+    const FingerGeometry& g = finger_geometry()[f];
     for (int k = 0; k < 3; ++k) {
-      const double pitch = deg(spec.pitch[k]);
-      const Vector3d axis(std::sin(yaw) * std::cos(pitch), std::cos(yaw) * std::cos(pitch), std::sin(pitch));
-      // The axis rotated 90 degrees further up in pitch: the dorsal direction of an unrolled finger.
-      const Vector3d dorsal0(-std::sin(yaw) * std::sin(pitch), -std::cos(yaw) * std::sin(pitch), std::cos(pitch));
-      const Vector3d side0 = axis.cross(dorsal0);
-      const double roll = deg(spec.roll);
-      const Vector3d dorsal = std::cos(roll) * dorsal0 - std::sin(roll) * side0;
-      Eigen::Matrix3d R;
-      R.col(0) = axis.cross(dorsal);
-      R.col(1) = axis;
-      R.col(2) = dorsal;
-      s.frames[f][k] = R;
-      const Vector3d next = joint + spec.length[k] * kCm * axis;
+      s.frames[f][k] = pose.R[3 * f + k];
+      const Vector3d& joint = pose.joints[f][k];
+      const Vector3d& next = pose.joints[f][k + 1];
       // The distal bone stops one tip radius short so the rounded cap ends at the fingertip.
-      const Vector3d end = k == 2 ? Vector3d(next - spec.radius[3] * kCm * axis) : next;
-      s.cones[3 * f + k] = RoundCone(joint, end, spec.radius[k] * kCm, spec.radius[k + 1] * kCm);
-      s.joints[f][k + 1] = next;
-      joint = next;
+      const Vector3d end = k == 2 ? Vector3d(next - g.radius[3] * pose.R[3 * f + k].col(1)) : next;
+      s.cones[3 * f + k] = RoundCone(joint, end, g.radius[k], g.radius[k + 1]);
     }
     for (int k = 0; k < 3; ++k) {
       const RoundCone& c = s.cones[3 * f + k];
@@ -435,7 +403,7 @@ double procedural_hand_sdf(const Eigen::Vector3d& p, bool left) {
 
 int finger_index(const std::string& finger) {
   for (int f = 0; f < 5; ++f) {
-    if (finger == kFingerNames[f]) return f;
+    if (finger == finger_name(f)) return f;
   }
   return -1;
 }
@@ -476,7 +444,7 @@ ProceduralHand make_procedural_hand(const ProceduralHandOptions& options) {
   for (int f = 0; f < 5; ++f) {
     for (int k = 0; k < 3; ++k) {
       const RoundCone& c = shape.cones[3 * f + k];
-      hand.phalanges[3 * f + k] = HandFrame{std::string(kFingerNames[f]) + "_" + kPhalanxNames[k],
+      hand.phalanges[3 * f + k] = HandFrame{std::string(finger_name(f)) + "_" + phalanx_name(k),
                                             0.5 * (shape.joints[f][k] + shape.joints[f][k + 1]),
                                             shape.frames[f][k], kPhalanxHandleFraction * std::min(c.ra, c.rb)};
     }

@@ -1,0 +1,74 @@
+// The standard hand skeleton: its rest posture is the procedural hand's, bones
+// keep their lengths in any posture, frames stay rotations, a left hand is the
+// mirror image, and flexion turns a finger toward palmar about its joint.
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <numbers>
+#include <random>
+
+#include "hand_models/procedural_hand.hpp"
+#include "hand_models/skeleton/hand_skeleton.hpp"
+
+namespace hapticd {
+namespace {
+
+TEST(HandSkeleton, RestPostureGivesTheProceduralHandsBonesAndFrames) {
+  for (bool left : {false, true}) {
+    ProceduralHandOptions o;
+    o.target_tets = 350;
+    o.left = left;
+    const ProceduralHand hand = make_procedural_hand(o);
+    const SkeletonPose pose = skeleton_pose(rest_joint_angles(), left);
+    for (int i = 0; i < kHandPhalanges; ++i) {
+      EXPECT_LT((hand.phalanges[i].p - pose.centre[i]).norm(), 1e-12) << i;
+      EXPECT_LT((hand.phalanges[i].R - pose.R[i]).norm(), 1e-12) << i;
+      EXPECT_EQ(hand.phalanges[i].name, std::string(finger_name(i / 3)) + "_" + phalanx_name(i % 3));
+    }
+    for (int f = 0; f < kHandFingers; ++f)
+      for (int k = 0; k < 4; ++k) EXPECT_LT((hand.joints[f][k] - pose.joints[f][k]).norm(), 1e-12);
+  }
+}
+
+TEST(HandSkeleton, AnyPostureKeepsBoneLengthsRotationsAndTheMirror) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> angle(-2.0, 2.0);
+  for (int trial = 0; trial < 50; ++trial) {
+    Eigen::Matrix<double, kHandJointDofs, 1> q;
+    for (int i = 0; i < kHandJointDofs; ++i) q[i] = angle(rng);
+    const HandJointAngles a = HandJointAngles::from_vector(q);
+    EXPECT_EQ(a.vector(), q);
+    const SkeletonPose right = skeleton_pose(a), left = skeleton_pose(a, true);
+    for (int f = 0; f < kHandFingers; ++f) {
+      EXPECT_LT((right.joints[f][0] - finger_geometry()[f].base).norm(), 1e-15);
+      for (int k = 0; k < 3; ++k) {
+        const int i = 3 * f + k;
+        EXPECT_NEAR((right.joints[f][k + 1] - right.joints[f][k]).norm(), finger_geometry()[f].length[k], 1e-12);
+        EXPECT_LT((right.R[i].transpose() * right.R[i] - Eigen::Matrix3d::Identity()).norm(), 1e-12);
+        EXPECT_NEAR(right.R[i].determinant(), 1.0, 1e-12);
+        EXPECT_NEAR(left.R[i].determinant(), 1.0, 1e-12);
+        EXPECT_LT((left.centre[i] - Eigen::Vector3d(-right.centre[i].x(), right.centre[i].y(), right.centre[i].z()))
+                      .norm(),
+                  1e-15);
+        // The segment's y axis runs along the bone.
+        EXPECT_LT((right.R[i].col(1) * finger_geometry()[f].length[k] - (right.joints[f][k + 1] - right.joints[f][k]))
+                      .norm(),
+                  1e-12);
+      }
+    }
+  }
+}
+
+TEST(HandSkeleton, FlexingTheIndexBaseJointBy90DegreesPointsItPalmar) {
+  HandJointAngles a;  // straight, unspread
+  a.finger[1][1] = std::numbers::pi / 2;
+  const SkeletonPose pose = skeleton_pose(a);
+  EXPECT_LT((pose.R[3].col(1) - Eigen::Vector3d(0, 0, -1)).norm(), 1e-12);  // proximal bone points palmar (-z)
+  EXPECT_LT((pose.R[3].col(2) - Eigen::Vector3d(0, 1, 0)).norm(), 1e-12);   // its dorsal side faces the fingertips' way
+  const Eigen::Vector3d tip = pose.joints[1][3];
+  const double total = finger_geometry()[1].length[0] + finger_geometry()[1].length[1] + finger_geometry()[1].length[2];
+  EXPECT_NEAR(tip.z(), finger_geometry()[1].base.z() - total, 1e-12);  // the straight finger hangs below its knuckle
+}
+
+}  // namespace
+}  // namespace hapticd
