@@ -6,19 +6,34 @@
 #include <stdexcept>
 
 namespace hapticd {
-std::vector<HandleSpec> procedural_handles(const ProceduralHand& hand, int m) {
+namespace {
+
+// Phalanx indices of handles 1 .. m - 1.
+std::vector<int> handle_phalanges(int m) {
   if (m < 1 || m > 16) throw std::invalid_argument("handles: must be in [1, 16], got " + std::to_string(m));
-  // The palm handle grabs the palm's core (seed 004: 79 nodes at 350 tets); every
-  // handle reaches at least the nearest grid nodes whatever the resolution.
-  const double reach = 1.2 * hand.spacing;
-  std::vector<HandleSpec> specs{{hand.palm.name, hand.palm.p, std::max({hand.palm.radius, 0.03, reach})}};
   std::vector<int> order;
   if (m == 6) {
     for (int f = 0; f < 5; ++f) order.push_back(3 * f + 2);
   } else {
     for (int i = 0; i < m - 1; ++i) order.push_back(i);
   }
-  for (int i : order)
+  return order;
+}
+
+}  // namespace
+
+std::vector<HandFrame> procedural_handle_frames(const ProceduralHand& hand, int m) {
+  std::vector<HandFrame> frames{hand.palm};
+  for (int i : handle_phalanges(m)) frames.push_back(hand.phalanges[i]);
+  return frames;
+}
+
+std::vector<HandleSpec> procedural_handles(const ProceduralHand& hand, int m) {
+  // The palm handle grabs the palm's core (seed 004: 79 nodes at 350 tets); every
+  // handle reaches at least the nearest grid nodes whatever the resolution.
+  const double reach = 1.2 * hand.spacing;
+  std::vector<HandleSpec> specs{{hand.palm.name, hand.palm.p, std::max({hand.palm.radius, 0.03, reach})}};
+  for (int i : handle_phalanges(m))
     specs.push_back({hand.phalanges[i].name, hand.phalanges[i].p, std::max(hand.phalanges[i].radius, reach)});
   return specs;
 }

@@ -13,6 +13,10 @@ namespace hapticd {
 // 6 = palm + five distal phalanges, 16 = palm + 15 phalanges, otherwise palm +
 // the first m - 1 phalanges in finger-major order. Throws for m outside [1, 16].
 std::vector<HandleSpec> procedural_handles(const ProceduralHand& hand, int m);
+// The tracked frame each of those handles follows, at rest in the hand frame:
+// the palm's (the hand frame itself) for handle 0, the phalanx segment frames
+// (hand_skeleton.hpp) for the others.
+std::vector<HandFrame> procedural_handle_frames(const ProceduralHand& hand, int m);
 
 struct PressScenarioOptions {
   int target_tets = 1700;

@@ -40,6 +40,14 @@ RigidHandle make_handle(const TetMesh& mesh, const Eigen::VectorXd& node_mass, c
   return h;
 }
 
+FrameToHandle frame_to_handle(const Eigen::Vector3d& frame_p_rest, const Eigen::Matrix3d& frame_R_rest,
+                              const RigidHandle& handle) {
+  FrameToHandle o;
+  o.p_F = frame_R_rest.transpose() * (handle.p_WH_rest - frame_p_rest);
+  o.q_F = Eigen::Quaterniond(frame_R_rest.transpose()).normalized();
+  return o;
+}
+
 SpringTerms coupling_spring(const Eigen::Vector3d& x_A, const Eigen::Vector3d& v_A, const HandleState& h,
                             const Eigen::Vector3d& r_B, double k, double d) {
   SpringTerms s;

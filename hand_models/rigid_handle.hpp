@@ -34,6 +34,17 @@ struct RigidHandle {
 RigidHandle make_handle(const TetMesh& mesh, const Eigen::VectorXd& node_mass, const Eigen::Vector3d& seed,
                         double radius, const std::string& name);
 
+// Where a handle sits in the rigid frame that drives it (a glove's tracked
+// phalanx): the handle's rest pose expressed in the frame's rest pose. Both
+// rest poses in the same coordinates (the hand frame); the handle's rest
+// orientation is the identity there (RigidHandle::p_WH_rest).
+struct FrameToHandle {
+  Eigen::Vector3d p_F = Eigen::Vector3d::Zero();              // handle centre in frame coordinates, m
+  Eigen::Quaterniond q_F = Eigen::Quaterniond::Identity();    // handle orientation in the frame
+};
+FrameToHandle frame_to_handle(const Eigen::Vector3d& frame_p_rest, const Eigen::Matrix3d& frame_R_rest,
+                              const RigidHandle& handle);
+
 struct HandleState {
   Eigen::Vector3d p_WH = Eigen::Vector3d::Zero();
   Eigen::Quaterniond q_WH = Eigen::Quaterniond::Identity();

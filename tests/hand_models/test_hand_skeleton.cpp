@@ -7,6 +7,8 @@
 #include <numbers>
 #include <random>
 
+#include "hand_models/hand_model.hpp"
+#include "hand_models/press_scenario.hpp"
 #include "hand_models/procedural_hand.hpp"
 #include "hand_models/skeleton/hand_skeleton.hpp"
 
@@ -68,6 +70,33 @@ TEST(HandSkeleton, FlexingTheIndexBaseJointBy90DegreesPointsItPalmar) {
   const Eigen::Vector3d tip = pose.joints[1][3];
   const double total = finger_geometry()[1].length[0] + finger_geometry()[1].length[1] + finger_geometry()[1].length[2];
   EXPECT_NEAR(tip.z(), finger_geometry()[1].base.z() - total, 1e-12);  // the straight finger hangs below its knuckle
+}
+
+// A glove's tracked frames, carried through frame_to_handle, land on the handles
+// of a hand placed anywhere: the rest relation frame -> handle is kept.
+TEST(HandSkeleton, TrackedFramesMapOntoTheHandlesOfAPlacedHand) {
+  ProceduralHandOptions o;
+  o.target_tets = 350;
+  const ProceduralHand hand = make_procedural_hand(o);
+  for (int m : {1, 6, 16}) {
+    HandConfig config;
+    config.handles = procedural_handles(hand, m);
+    const HandModel model(hand.mesh, config);
+    const std::vector<HandFrame> frames = procedural_handle_frames(hand, m);
+    ASSERT_EQ(static_cast<int>(frames.size()), m);
+    HandState s = make_rest_state(model);
+    const Eigen::Quaterniond q_hand(Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 2, 3).normalized()));
+    const Eigen::Vector3d p_hand(0.3, -0.2, 0.9);
+    // Handle 0 placed where the hand frame at (p_hand, q_hand) puts it.
+    place_hand(model, s, p_hand + q_hand * model.handles()[0].p_WH_rest, q_hand, 0);
+    for (int j = 0; j < m; ++j) {
+      const FrameToHandle off = frame_to_handle(frames[j].p, frames[j].R, model.handles()[j]);
+      const Eigen::Vector3d p_frame = p_hand + q_hand * frames[j].p;
+      const Eigen::Quaterniond q_frame = q_hand * Eigen::Quaterniond(frames[j].R);
+      EXPECT_LT((p_frame + q_frame * off.p_F - s.handles[j].p_WH).norm(), 1e-12) << m << " " << j;
+      EXPECT_LT((q_frame * off.q_F).angularDistance(s.handles[j].q_WH), 1e-12) << m << " " << j;
+    }
+  }
 }
 
 }  // namespace
