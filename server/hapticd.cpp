@@ -28,11 +28,6 @@ void say(Level level, const std::string& text) {
   if (level <= g_level) std::fprintf(stderr, "hapticd: %s\n", text.c_str());
 }
 
-hapticd::protocol::DeviceKind wire_kind(hapticd::DeviceKind kind) {
-  return kind == hapticd::DeviceKind::glove ? hapticd::protocol::DeviceKind::kGlove
-                                             : hapticd::protocol::DeviceKind::kStylus;
-}
-
 nlohmann::json histogram_json(const hapticd::MicrosecondHistogram& h) {
   return {{"p50", h.percentile(50)}, {"p99", h.percentile(99)}, {"p999", h.percentile(99.9)},
           {"max", h.max_us()},       {"count", h.count()}};
@@ -77,23 +72,7 @@ int main(int argc, char** argv) {
     World world(scene, world_options);
     if (world.num_hands() > kMaxHands) throw std::runtime_error("hands: at most " + std::to_string(kMaxHands));
     std::vector<DeviceLink> links;
-    for (const DeviceDesc& d : scene.devices) {
-      DeviceLink link;
-      link.name = d.name;
-      link.kind = wire_kind(d.kind);
-      link.hand = world.find_hand(d.hand);
-      const HandModel& model = *world.hand(link.hand).model;
-      link.handles = model.num_handles();
-      if (link.handles > kMaxHapticHandles) throw std::runtime_error("devices." + d.name + ": too many handles");
-      for (int j = 0; j < link.handles; ++j) {
-        link.mass_kg[j] = model.handles()[j].mass_kg;
-        link.inertia_B[j] = model.handles()[j].inertia_B;
-      }
-      link.map = {d.workspace.scale, d.workspace.offset_W, d.workspace.R_WD};
-      link.gains = coupling_gains_for(d.stiffness_n_m, d.workspace.scale, 1.0 / options.haptic_rate_hz);
-      link.limits = {d.max_force_n, d.max_torque_nm, d.max_force_rate_n_s};
-      links.push_back(link);
-    }
+    for (const DeviceDesc& d : scene.devices) links.push_back(make_device_link(world, d, options.haptic_rate_hz));
     // Lock memory so a page fault never stalls the haptic thread (needs CAP_IPC_LOCK).
     if (mlockall(MCL_CURRENT | MCL_FUTURE) != 0)
       say(Level::warn, "memory not locked (mlockall not permitted): page faults may delay the haptic loop");

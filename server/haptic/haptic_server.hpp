@@ -17,6 +17,7 @@
 #include "protocol/sequence_window.hpp"
 #include "server/haptic/loop_stats.hpp"
 #include "server/haptic/triple_buffer.hpp"
+#include "server/haptic/device_link.hpp"
 #include "server/haptic/virtual_coupling.hpp"
 
 namespace hapticd {
@@ -40,19 +41,6 @@ struct ProxyTargets {
   std::uint32_t resyncs[kMaxHands]{};
   HapticPose pose[kMaxHands][kMaxHapticHandles];
   Eigen::Vector3d v_W[kMaxHands][kMaxHapticHandles], w_W[kMaxHands][kMaxHapticHandles];
-};
-
-// A scene device bound to a world hand: everything the haptic loop needs of it.
-struct DeviceLink {
-  std::string name;
-  protocol::DeviceKind kind = protocol::DeviceKind::kStylus;
-  int hand = 0;
-  int handles = 1;
-  double mass_kg[kMaxHapticHandles]{};
-  Eigen::Matrix3d inertia_B[kMaxHapticHandles];
-  DeviceMap map;
-  CouplingGains gains;
-  DeviceLimits limits;
 };
 
 struct ServerOptions {

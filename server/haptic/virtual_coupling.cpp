@@ -23,6 +23,21 @@ bool clamp_norm(Eigen::Vector3d& v, double limit) {
 
 }  // namespace
 
+DeviceMap::DeviceMap() {
+  for (int j = 0; j < kMaxHapticHandles; ++j) handle_p_F[j].setZero(), handle_q_F[j].setIdentity();
+}
+
+DeviceMap::DeviceMap(double s, const Eigen::Vector3d& offset, const Eigen::Quaterniond& R) : DeviceMap() {
+  scale = s;
+  offset_W = offset;
+  R_WD = R;
+}
+
+HapticPose DeviceMap::to_world(int j, const Eigen::Vector3d& p_D, const Eigen::Quaterniond& q_D) const {
+  const HapticPose frame = to_world(p_D, q_D);
+  return {frame.p_W + frame.q_W * handle_p_F[j], (frame.q_W * handle_q_F[j]).normalized()};
+}
+
 HapticPose DeviceMap::to_world(const Eigen::Vector3d& p_D, const Eigen::Quaterniond& q_D) const {
   return {offset_W + scale * (R_WD * p_D), (R_WD * q_D).normalized()};
 }
@@ -72,7 +87,7 @@ void ProxyHand::resync() {
 }
 
 void ProxyHand::set_device_pose(int j, const Eigen::Vector3d& p_D, const Eigen::Quaterniond& q_D) {
-  if (j >= 0 && j < handles_) pending_[j] = map_.to_world(p_D, q_D);
+  if (j >= 0 && j < handles_) pending_[j] = map_.to_world(j, p_D, q_D);
 }
 
 bool ProxyHand::commit_sample(double t_s, double resync_gap_s) {
@@ -161,8 +176,10 @@ ReplyWrench ProxyHand::reply(int j, double output_scale, double dt_since_last_s)
   const Eigen::Vector3d tau_W = gains_.k_nm_rad * rotation_difference(device_[j].q_W, proxy_[j].q_W) +
                                 gains_.b_nms_rad * (w_dev_[j] - w_[j]);
   const Eigen::Matrix3d R_DW = map_.R_WD.toRotationMatrix().transpose();
+  // About the frame's origin: the handle sits at r = q_frame handle_p_F from it.
+  const Eigen::Vector3d r_W = device_[j].q_W * (map_.handle_q_F[j].conjugate() * map_.handle_p_F[j]);
   Eigen::Vector3d f = -output_scale * map_.scale * (R_DW * f_W);
-  Eigen::Vector3d tau = -output_scale * (R_DW * tau_W);
+  Eigen::Vector3d tau = -output_scale * (R_DW * (tau_W + r_W.cross(f_W)));
   if (!f.allFinite() || !tau.allFinite()) {
     reset();
     return r;

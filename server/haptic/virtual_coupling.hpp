@@ -49,11 +49,21 @@ struct DeviceLimits {
   double max_force_n = 8.0, max_torque_nm = 0.5, max_force_rate_n_s = 1000.0;
 };
 
-// Device space -> world: p_W = offset + scale R_WD p_D, R_W = R_WD R_D.
+// Device space D to world: x_W = offset_W + scale R_WD x_D. A tracked frame
+// then carries its handle at a fixed pose in it (a glove's phalanx frame and
+// the handle on that phalanx's flesh, FrameToHandle): identity for a stylus,
+// whose pose is its handle's.
 struct DeviceMap {
   double scale = 1.0;
   Eigen::Vector3d offset_W = Eigen::Vector3d::Zero();
   Eigen::Quaterniond R_WD = Eigen::Quaterniond::Identity();
+  Eigen::Vector3d handle_p_F[kMaxHapticHandles];  // world units, in the frame
+  Eigen::Quaterniond handle_q_F[kMaxHapticHandles];
+  DeviceMap();
+  DeviceMap(double scale, const Eigen::Vector3d& offset_W, const Eigen::Quaterniond& R_WD);
+  // Handle j's pose when its frame is at (p_D, q_D).
+  HapticPose to_world(int j, const Eigen::Vector3d& p_D, const Eigen::Quaterniond& q_D) const;
+  // The frame as such (no handle offset).
   HapticPose to_world(const Eigen::Vector3d& p_D, const Eigen::Quaterniond& q_D) const;
 };
 
@@ -94,8 +104,9 @@ class ProxyHand {
   void integrate(const HapticModel& model, double dt_s, double lookahead_s = 0);
 
   // The wrench for handle j now: coupling force reversed, in device space,
-  // scaled by `output_scale` (session ramp), clamped and rate-limited against
-  // the last reply for this handle, `dt_since_last_s` ago.
+  // about the tracked frame's origin, scaled by `output_scale` (session ramp),
+  // clamped and rate-limited against the last reply for this handle,
+  // `dt_since_last_s` ago.
   ReplyWrench reply(int j, double output_scale, double dt_since_last_s);
 
   // Puts every proxy on its device pose and zeroes velocities.

@@ -1,0 +1,89 @@
+// Device links: a glove's tracked frames (the standard skeleton's palm and
+// phalanx frames) land on the handles built on them, and the reply's torque is
+// taken about the frame's origin.
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+
+#include "hand_models/skeleton/hand_skeleton.hpp"
+#include "server/haptic/device_link.hpp"
+#include "server/world/world.hpp"
+
+namespace hapticd {
+namespace {
+
+SceneDesc glove_scene(HandleSet handles, const Pose& hand_pose) {
+  SceneDesc scene;
+  HandDesc hand;
+  hand.name = "right";
+  hand.resolution_tets = 350;
+  hand.handles = handles;
+  hand.pose = hand_pose;
+  scene.hands.push_back(hand);
+  DeviceDesc glove;
+  glove.name = "glove";
+  glove.kind = DeviceKind::glove;
+  glove.hand = "right";
+  // Device space is the glove's tracker space: the hand frame at the device origin maps onto the scene's hand.
+  glove.workspace.offset_W = hand_pose.p_W;
+  glove.workspace.R_WD = hand_pose.q_W;
+  scene.devices.push_back(glove);
+  return scene;
+}
+
+TEST(DeviceLink, GloveFramesAtRestLandOnTheHandles) {
+  Pose pose;
+  pose.p_W = {0.1, -0.2, 0.8};
+  pose.q_W = Eigen::Quaterniond(Eigen::AngleAxisd(0.6, Eigen::Vector3d(0.3, 1, 0.2).normalized()));
+  for (HandleSet set : {HandleSet::fingertips, HandleSet::phalanges}) {
+    const SceneDesc scene = glove_scene(set, pose);
+    WorldOptions options;
+    options.hand_gravity = false;
+    const World world(scene, options);
+    const DeviceLink link = make_device_link(world, scene.devices[0], 1000);
+    const HandState& s = world.hand(0).state;
+    ASSERT_EQ(link.handles, static_cast<int>(s.handles.size()));
+    // The glove at rest: palm = hand frame at the device origin, phalanges from the skeleton.
+    const SkeletonPose skeleton = skeleton_pose(rest_joint_angles());
+    for (int j = 0; j < link.handles; ++j) {
+      Eigen::Vector3d p_D = Eigen::Vector3d::Zero();
+      Eigen::Quaterniond q_D = Eigen::Quaterniond::Identity();
+      if (j > 0) {
+        const int phalanx = link.handles == 6 ? 3 * (j - 1) + 2 : j - 1;
+        p_D = skeleton.centre[phalanx];
+        q_D = Eigen::Quaterniond(skeleton.R[phalanx]);
+      }
+      const HapticPose h = link.map.to_world(j, p_D, q_D);
+      EXPECT_LT((h.p_W - s.handles[j].p_WH).norm(), 1e-9) << j;
+      EXPECT_LT(h.q_W.angularDistance(s.handles[j].q_WH), 1e-9) << j;
+    }
+  }
+}
+
+TEST(DeviceLink, ReplyTorqueIsTakenAboutTheTrackedFrame) {
+  DeviceMap map;
+  map.handle_p_F[0] = {0.02, 0.0, 0.0};  // the handle 2 cm along the frame's x
+  const double mass[1] = {0.05};
+  const Eigen::Matrix3d inertia[1] = {1e-5 * Eigen::Matrix3d::Identity()};
+  CouplingGains gains;
+  gains.k_nm_rad = 0;  // no rotational spring: only the force's moment
+  gains.b_nms_rad = 0;
+  DeviceLimits limits{100.0, 100.0, 1e9};
+  ProxyHand proxy;
+  proxy.configure(1, mass, inertia, gains, limits, map);
+  proxy.set_device_pose(0, Eigen::Vector3d::Zero(), Eigen::Quaterniond::Identity());
+  proxy.commit_sample(0.0, 0.05);
+  // Move the device 1 mm along y; the proxy stays (no integration): f_W = k * 1 mm on the proxy.
+  proxy.set_device_pose(0, Eigen::Vector3d(0, 0.001, 0), Eigen::Quaterniond::Identity());
+  proxy.commit_sample(0.001, 0.05);
+  const ReplyWrench r = proxy.reply(0, 1.0, 0.001);
+  const double f = gains.k_n_m * 0.001;
+  const double f_damp = gains.b_ns_m * 0.6 * 1.0;  // the filtered device velocity (first sample of 1 m/s)
+  EXPECT_NEAR(r.f_D.y(), -(f + f_damp), 1e-9);
+  // The device feels -f at the handle, 2 cm along x from the frame: torque 0.02 x (-f y) = -0.02 f z.
+  EXPECT_NEAR(r.tau_D.z(), -0.02 * (f + f_damp), 1e-9);
+  EXPECT_NEAR(r.tau_D.x(), 0.0, 1e-12);
+}
+
+}  // namespace
+}  // namespace hapticd
