@@ -28,6 +28,34 @@ std::vector<HandFrame> procedural_handle_frames(const ProceduralHand& hand, int 
   return frames;
 }
 
+std::vector<int> procedural_skin_handles(const ProceduralHand& hand, int m) {
+  const std::vector<int> phalanges = handle_phalanges(m);
+  std::vector<int> handle_of_phalanx(15, 0);
+  for (size_t j = 0; j < phalanges.size(); ++j) {
+    if (m == 6) {
+      for (int k = 0; k < 3; ++k) handle_of_phalanx[phalanges[j] - 2 + k] = static_cast<int>(j) + 1;
+    } else {
+      handle_of_phalanx[phalanges[j]] = static_cast<int>(j) + 1;
+    }
+  }
+  std::vector<int> out(hand.skin_vertices.size(), 0);
+  for (size_t v = 0; v < hand.skin_vertices.size(); ++v) {
+    const Eigen::Vector3d& X = hand.skin_vertices[v];
+    double best = 1e300;
+    for (int f = 0; f < 5; ++f) {
+      for (int k = 0; k < 3; ++k) {
+        const Eigen::Vector3d a = hand.joints[f][k], ab = hand.joints[f][k + 1] - a;
+        const double t = ab.dot(X - a) / ab.squaredNorm();
+        const double d = (X - (a + std::clamp(t, 0.0, 1.0) * ab)).norm();
+        if (d >= best) continue;
+        best = d;
+        out[v] = k == 0 && t < 0 ? 0 : handle_of_phalanx[3 * f + k];
+      }
+    }
+  }
+  return out;
+}
+
 std::vector<HandleSpec> procedural_handles(const ProceduralHand& hand, int m) {
   // The palm handle grabs the palm's core (seed 004: 79 nodes at 350 tets); every
   // handle reaches at least the nearest grid nodes whatever the resolution.

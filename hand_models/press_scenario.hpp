@@ -17,6 +17,11 @@ std::vector<HandleSpec> procedural_handles(const ProceduralHand& hand, int m);
 // the palm's (the hand frame itself) for handle 0, the phalanx segment frames
 // (hand_skeleton.hpp) for the others.
 std::vector<HandFrame> procedural_handle_frames(const ProceduralHand& hand, int m);
+// Per skin vertex, the handle whose part of the hand it is on (for the contact
+// flags of a glove's frames): the phalanx of the nearest bone (a point behind
+// a finger's base joint is palm), that finger's handle when only its distal
+// phalanx has one (m = 6), else the palm's handle 0.
+std::vector<int> procedural_skin_handles(const ProceduralHand& hand, int m);
 
 struct PressScenarioOptions {
   int target_tets = 1700;

@@ -1,5 +1,6 @@
 #include "server/haptic/device_link.hpp"
 
+#include <algorithm>
 #include <stdexcept>
 
 #include "hand_models/press_scenario.hpp"
@@ -31,9 +32,50 @@ DeviceLink make_device_link(const World& world, const DeviceDesc& d, double hapt
       link.map.handle_q_F[j] = o.q_F;
     }
   }
+  if (d.kind == DeviceKind::glove) {
+    link.contact_gated = true;
+    link.output = d.force_output == GloveForceOutput::finger_lines ? ForceOutput::finger_lines : ForceOutput::frames;
+    link.actuator_line_F = d.actuator_line_F;
+    if (link.output == ForceOutput::finger_lines && link.handles != 6 && link.handles != 16)
+      throw std::runtime_error("devices." + d.name + ": finger_lines output needs a hand with fingertip or phalanx "
+                               "handles");
+  }
   link.gains = coupling_gains_for(d.stiffness_n_m, d.workspace.scale, 1.0 / haptic_rate_hz);
   link.limits = {d.max_force_n, d.max_torque_nm, d.max_force_rate_n_s};
   return link;
+}
+
+int finger_of_frame(int frames, int j) {
+  if (j <= 0 || j >= frames) return -1;
+  return frames == 6 ? j - 1 : (j - 1) / 3;
+}
+
+int distal_frame(int frames, int f) { return frames == 6 ? 1 + f : 3 + 3 * f; }
+
+void project_onto_finger_lines(const DeviceLink& link, const HapticPose* device_W, ReplyWrench* w) {
+  const Eigen::Matrix3d R_DW = link.map.R_WD.toRotationMatrix().transpose();
+  double along[5] = {0, 0, 0, 0, 0};
+  Eigen::Vector3d line_D[5];
+  for (int f = 0; f < 5; ++f) {
+    const int d = distal_frame(link.handles, f);
+    const Eigen::Quaterniond q_frame_W = device_W[d].q_W * link.map.handle_q_F[d].conjugate();
+    line_D[f] = R_DW * (q_frame_W * link.actuator_line_F);
+  }
+  for (int j = 0; j < link.handles; ++j) {
+    const int f = finger_of_frame(link.handles, j);
+    if (f >= 0) along[f] += w[j].f_D.dot(line_D[f]);
+  }
+  for (int j = 0; j < link.handles; ++j) {
+    const bool clamped = w[j].clamped;
+    w[j] = ReplyWrench{};
+    w[j].clamped = clamped;
+  }
+  for (int f = 0; f < 5; ++f) {
+    const double pull = std::min(std::max(along[f], 0.0), link.limits.max_force_n);
+    ReplyWrench& out = w[distal_frame(link.handles, f)];
+    out.f_D = pull * line_D[f];
+    out.clamped = out.clamped || along[f] > link.limits.max_force_n;
+  }
 }
 
 }  // namespace hapticd

@@ -8,6 +8,10 @@
 
 namespace hapticd {
 
+// How a device's frames get their forces: each its own coupling wrench, or one
+// force per finger along its actuator's line of action.
+enum class ForceOutput { frames, finger_lines };
+
 // A scene device bound to a world hand: everything the haptic loop needs of it.
 struct DeviceLink {
   std::string name;
@@ -19,7 +23,26 @@ struct DeviceLink {
   DeviceMap map;
   CouplingGains gains;
   DeviceLimits limits;
+  // Gloves: a frame whose part of the hand touches nothing gets no force (seed
+  // 002 section 4.5 practice): free-space coupling lag is not rendered.
+  bool contact_gated = false;
+  ForceOutput output = ForceOutput::frames;
+  Eigen::Vector3d actuator_line_F = Eigen::Vector3d::UnitZ();  // finger_lines: unit, in the distal frame
 };
+
+// The finger (0 thumb .. 4 little) tracked frame j of a glove with `frames`
+// frames belongs to, -1 for the palm; and the distal frame of finger f.
+int finger_of_frame(int frames, int j);
+int distal_frame(int frames, int f);
+
+// Actuator-line output (a CyberGrasp-like glove, one cable per finger; seed 002
+// section 4.5 with its fingertip term a4 = 1 and the torque terms a1..a3 = 0):
+// each finger's frame forces, summed, projected on its actuator's line of
+// action n (the distal frame's actuator_line_F), kept only if they pull along
+// it (a cable cannot push) and clamped to the force limit, rendered on the
+// distal frame along n; the other frames get nothing. `device_W` are the
+// frames' handle poses in world (ProxyHand::device). In place on `w`.
+void project_onto_finger_lines(const DeviceLink& link, const HapticPose* device_W, ReplyWrench* w);
 
 // The link of scene device `d` in `world` at the given haptic rate: its hand's
 // handle masses, the workspace map with each tracked frame's handle offset (a

@@ -359,9 +359,22 @@ void HapticServer::on_pose(const protocol::PoseSample& pose, std::uint64_t now) 
   out.server_receive_ns = now;
   out.flags = 0;
   out.wrenches.clear();
-  const bool contact = snapshots_.front().model[links_[s->link].hand].in_contact;
+  const DeviceLink& link = links_[s->link];
+  const HapticModel& model = snapshots_.front().model[link.hand];
+  // A gated frame whose part touches nothing is driven to zero through the slew limit (no step).
+  ReplyWrench replies[kMaxHapticHandles];
   for (int j = 0; j < s->frames; ++j) {
-    const ReplyWrench w = s->proxy.reply(j, s->output_scale, since_reply);
+    const bool gated = link.contact_gated && !(model.handles == s->frames && model.handle_in_contact[j]);
+    replies[j] = s->proxy.reply(j, gated ? 0.0 : s->output_scale, since_reply);
+  }
+  if (link.output == ForceOutput::finger_lines) {
+    HapticPose device_W[kMaxHapticHandles];
+    for (int j = 0; j < s->frames; ++j) device_W[j] = s->proxy.device(j);
+    project_onto_finger_lines(link, device_W, replies);
+  }
+  for (int j = 0; j < s->frames; ++j) {
+    const ReplyWrench& w = replies[j];
+    const bool contact = link.contact_gated ? model.handle_in_contact[j] : model.in_contact;
     protocol::FrameWrench fw;
     fw.frame = s->frame_id[j];
     fw.flags = static_cast<std::uint16_t>((contact ? protocol::ForceFlags::kInContact : 0) |
@@ -373,7 +386,7 @@ void HapticServer::on_pose(const protocol::PoseSample& pose, std::uint64_t now) 
     out.wrenches.push_back(fw);
   }
   if (s->resynced) out.flags |= protocol::ForceFlags::kResynced, s->resynced = false;
-  if (snapshots_.front().model[links_[s->link].hand].handles == 0) out.flags |= protocol::ForceFlags::kStale;
+  if (model.handles == 0) out.flags |= protocol::ForceFlags::kStale;
   s->last_reply_ns = now;
   out.server_send_ns = protocol::now_ns();
   const protocol::EncodeResult encoded = encoder_.encode(out);

@@ -30,6 +30,7 @@ struct HapticModel {
   HapticPose x0[kMaxHapticHandles];
   Eigen::Vector3d v0[kMaxHapticHandles], w0[kMaxHapticHandles];
   bool in_contact = false;
+  bool handle_in_contact[kMaxHapticHandles]{};  // per handle: a skin point of its part touches something
   // The model is the force at the end of the coming visual step as a function of
   // the handle's state then: this is when that step ends (the proxy time base,
   // ns; 0 = unknown).

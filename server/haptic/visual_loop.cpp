@@ -12,9 +12,15 @@ namespace hapticd {
 void fill_haptic_model(World& world, int h, HandleLinearization& lin, HapticModel& out) {
   const WorldSnapshot& snap = world.snapshot();
   out.handles = 0;
-  out.in_contact = false;
-  for (const ContactRecord& c : snap.contacts) out.in_contact = out.in_contact || (c.hand == h && c.depth_m > 0);
   WorldHand& hand = world.hand(h);
+  out.in_contact = false;
+  std::fill(std::begin(out.handle_in_contact), std::end(out.handle_in_contact), false);
+  for (const ContactRecord& c : snap.contacts) {
+    if (c.hand != h || c.depth_m <= 0) continue;
+    out.in_contact = true;
+    const int j = c.point >= 0 && c.point < static_cast<int>(hand.skin_handle.size()) ? hand.skin_handle[c.point] : 0;
+    if (j < kMaxHapticHandles) out.handle_in_contact[j] = true;
+  }
   if (!linearize_next_step(*hand.model, hand.state, *hand.solver, lin)) return;
   const int m = static_cast<int>(lin.x0.size());
   if (m > kMaxHapticHandles || lin.F0.size() != 6 * m) return;

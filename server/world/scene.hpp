@@ -124,6 +124,10 @@ struct WorkspaceMap {
   Eigen::Quaterniond R_WD = Eigen::Quaterniond::Identity();  // unit; default identity
 };
 
+// How a glove's forces reach the hand: a wrench per tracked frame, or one
+// force per finger along an actuator's line of action (CyberGrasp-like).
+enum class GloveForceOutput { frames, finger_lines };
+
 struct DeviceDesc {
   std::string name;
   DeviceKind kind = DeviceKind::stylus;
@@ -133,6 +137,10 @@ struct DeviceDesc {
   double max_torque_nm = 0.5;          // output torque clamp, N m, > 0; default 0.5
   double max_force_rate_n_s = 1000.0;  // output force slew limit, N/s, > 0; default 1000
   double stiffness_n_m = 1000.0;       // device-to-proxy coupling stiffness, N/m, > 0; default 1000
+  GloveForceOutput force_output = GloveForceOutput::frames;  // gloves only; default frames
+  // finger_lines: the actuator's line of action in the distal phalanx frame (y along the bone,
+  // z dorsal), unit; default dorsal (the cable pulls the fingertip back, resisting flexion).
+  Eigen::Vector3d actuator_line_F = Eigen::Vector3d::UnitZ();
 };
 
 enum class ContactModel { constraint, penalty };
@@ -204,6 +212,8 @@ inline constexpr EnumName<HandModelKind> kHandModelNames[] = {{"fem", HandModelK
 inline constexpr EnumName<HandSide> kHandSideNames[] = {{"right", HandSide::right}, {"left", HandSide::left}};
 inline constexpr EnumName<HandleSet> kHandleSetNames[] = {
     {"palm", HandleSet::palm}, {"fingertips", HandleSet::fingertips}, {"phalanges", HandleSet::phalanges}};
+inline constexpr EnumName<GloveForceOutput> kGloveForceOutputNames[] = {{"frames", GloveForceOutput::frames},
+                                                                           {"finger_lines", GloveForceOutput::finger_lines}};
 inline constexpr EnumName<DeviceKind> kDeviceKindNames[] = {{"stylus", DeviceKind::stylus},
                                                             {"glove", DeviceKind::glove}};
 inline constexpr EnumName<ContactModel> kContactModelNames[] = {{"constraint", ContactModel::constraint},

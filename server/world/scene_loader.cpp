@@ -580,7 +580,8 @@ HandDesc parse_hand(const Obj& o, Context& ctx) {
 
 DeviceDesc parse_device(const Obj& o, Context& ctx, const std::vector<HandDesc>& hands,
                         std::map<std::string, std::string, std::less<>>& driver_of_hand) {
-  o.allow({"name", "kind", "hand", "workspace", "max_force_n", "max_torque_nm", "max_force_rate_n_s", "stiffness_n_m"});
+  o.allow({"name", "kind", "hand", "workspace", "max_force_n", "max_torque_nm", "max_force_rate_n_s", "stiffness_n_m",
+           "force_output", "actuator_line"});
   DeviceDesc d;
   d.name = ctx.register_name(o);
   d.kind = o.choice("kind", kDeviceKindNames, "device kind");
@@ -600,6 +601,15 @@ DeviceDesc parse_device(const Obj& o, Context& ctx, const std::vector<HandDesc>&
   d.max_torque_nm = o.number("max_torque_nm", kPositive, d.max_torque_nm);
   d.max_force_rate_n_s = o.number("max_force_rate_n_s", kPositive, d.max_force_rate_n_s);
   d.stiffness_n_m = o.number("stiffness_n_m", kPositive, d.stiffness_n_m);
+  d.force_output = o.choice("force_output", kGloveForceOutputNames, "force output", d.force_output);
+  if (o.has("actuator_line")) d.actuator_line_F = o.direction("actuator_line");
+  if (d.kind != DeviceKind::glove && (o.has("force_output") || o.has("actuator_line")))
+    fail(o.at(o.has("force_output") ? "force_output" : "actuator_line"), "only a glove has finger outputs");
+  if (d.force_output == GloveForceOutput::finger_lines) {
+    const auto hand = std::find_if(hands.begin(), hands.end(), [&](const HandDesc& h) { return h.name == d.hand; });
+    if (hand->handles == HandleSet::palm)
+      fail(o.at("force_output"), "finger_lines needs the hand's handles to be fingertips or phalanges");
+  }
   return d;
 }
 

@@ -75,6 +75,7 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
     config.drive = options.drive;
     h->friction = d.material.friction;
     h->model = std::make_unique<HandModel>(h->shape.mesh, config);
+    h->skin_handle = procedural_skin_handles(h->shape, handle_count(d.handles));
     h->state = make_rest_state(*h->model);
     // The hand frame's pose places the rest mesh: handle 0 goes where it sits in that frame.
     const Eigen::Vector3d p_handle = d.pose.p_W + d.pose.q_W * h->model->handles()[0].p_WH_rest;
@@ -150,6 +151,7 @@ void World::add_contact(SoftBody& b, const PointContact& c, int point, const Eig
     s.contacts.push_back(c);
     b.points.push_back(p_W);
     b.touches.push_back(touch);
+    b.point_of.push_back(point);
     return;
   }
   // Constraint contacts are reduced to the deepest point per other body and
@@ -489,6 +491,7 @@ void World::record_contacts() {
       r.hand = b.hand;
       r.deformable = b.deformable;
       r.object = c.other;
+      r.point = b.point_of[k];
       r.other_deformable = b.touches[k].object;
       r.p_W = b.points[k];
       r.n_W = c.n_W;

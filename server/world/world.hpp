@@ -57,6 +57,7 @@ struct WorldHand {
   std::string name;
   ProceduralHand shape;  // mesh, skeleton and the skin used for contact
   std::unique_ptr<HandModel> model;
+  std::vector<int> skin_handle;  // per skin vertex, the handle of its part (procedural_skin_handles)
   HandState state;
   std::unique_ptr<CoupledSolver> solver;
   double friction = 0.5;
@@ -69,6 +70,7 @@ struct WorldHand {
 // out of the other side.
 struct ContactRecord {
   int hand = -1, object = -1;
+  int point = -1;  // the body's contact point: a hand's skin vertex, a deformable object's surface point
   Eigen::Vector3d p_W = Eigen::Vector3d::Zero(), n_W = Eigen::Vector3d::Zero(), f_W = Eigen::Vector3d::Zero();
   double depth_m = 0;
   int deformable = -1, other_deformable = -1;

@@ -99,5 +99,38 @@ TEST(HandSkeleton, TrackedFramesMapOntoTheHandlesOfAPlacedHand) {
   }
 }
 
+// Skin vertices belong to the handle of their part: a fingertip's skin to its
+// distal phalanx (16 handles) or its finger (6), the palm's centre to the palm.
+TEST(HandSkeleton, SkinVerticesBelongToTheirPartsHandle) {
+  ProceduralHandOptions o;
+  o.target_tets = 350;
+  const ProceduralHand hand = make_procedural_hand(o);
+  auto nearest_skin = [&](const Eigen::Vector3d& p) {
+    size_t best = 0;
+    for (size_t v = 0; v < hand.skin_vertices.size(); ++v)
+      if ((hand.skin_vertices[v] - p).norm() < (hand.skin_vertices[best] - p).norm()) best = v;
+    return best;
+  };
+  const std::vector<int> h16 = procedural_skin_handles(hand, 16), h6 = procedural_skin_handles(hand, 6),
+                         h1 = procedural_skin_handles(hand, 1);
+  ASSERT_EQ(h16.size(), hand.skin_vertices.size());
+  for (int f = 0; f < kHandFingers; ++f) {
+    const size_t tip = nearest_skin(hand.joints[f][3]);
+    EXPECT_EQ(h16[tip], 3 + 3 * f) << f;
+    EXPECT_EQ(h6[tip], 1 + f) << f;
+    // The middle of the proximal phalanx: its own handle, or the finger's with fingertip handles.
+    const size_t proximal = nearest_skin(0.5 * (hand.joints[f][0] + hand.joints[f][1]));
+    EXPECT_EQ(h16[proximal], 1 + 3 * f) << f;
+    EXPECT_EQ(h6[proximal], 1 + f) << f;
+  }
+  const size_t palm = nearest_skin(Eigen::Vector3d(0.005, 0.0, -0.02));  // palmar side of the palm's centre
+  EXPECT_EQ(h16[palm], 0);
+  EXPECT_EQ(h6[palm], 0);
+  for (int j : h1) EXPECT_EQ(j, 0);
+  std::vector<int> count(16, 0);
+  for (int j : h16) ++count[j];
+  for (int j = 0; j < 16; ++j) EXPECT_GT(count[j], 10) << j;  // every part has skin
+}
+
 }  // namespace
 }  // namespace hapticd

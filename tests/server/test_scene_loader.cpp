@@ -244,7 +244,8 @@ TEST_F(SceneLoaderTest, ExplicitValuesAreReadAndNormalised) {
                "coupling_stiffness_n_m": 3000, "coupling_damping_ns_m": 0}],
     "devices": [{"name": "glove", "kind": "glove", "hand": "lefty",
                  "workspace": {"scale": 2, "offset": [0, 0, 0.5], "orientation": {"w": 1, "x": 1, "y": 0, "z": 0}},
-                 "max_force_n": 3, "max_torque_nm": 0.1, "max_force_rate_n_s": 200, "stiffness_n_m": 500}]
+                 "max_force_n": 3, "max_torque_nm": 0.1, "max_force_rate_n_s": 200, "stiffness_n_m": 500,
+                 "force_output": "finger_lines", "actuator_line": [0, -3, 4]}]
   })"));
   EXPECT_EQ(scene.name, "explicit");
   expect_vec(scene.gravity_m_s2, 0, -9.8, 0);
@@ -308,6 +309,8 @@ TEST_F(SceneLoaderTest, ExplicitValuesAreReadAndNormalised) {
   EXPECT_EQ(glove.max_torque_nm, 0.1);
   EXPECT_EQ(glove.max_force_rate_n_s, 200.0);
   EXPECT_EQ(glove.stiffness_n_m, 500.0);
+  EXPECT_EQ(glove.force_output, GloveForceOutput::finger_lines);
+  expect_vec(glove.actuator_line_F, 0, -0.6, 0.8);  // normalised
 }
 
 // ---------------------------------------------------------------------------
@@ -653,6 +656,21 @@ TEST_F(SceneLoaderTest, RejectsTwoDevicesOnOneHand) {
   json doc = valid();
   doc["devices"].push_back({{"name", "glove"}, {"kind", "glove"}, {"hand", "hand"}});
   EXPECT_TRUE(fails_at(doc, "devices[1].hand", "hand 'hand' is already driven by devices[0]"));
+}
+
+TEST_F(SceneLoaderTest, RejectsFingerOutputsWhereThereAreNoFingers) {
+  json doc = valid();
+  doc["devices"][0]["force_output"] = "finger_lines";
+  EXPECT_TRUE(fails_at(doc, "devices[0].force_output", "only a glove has finger outputs"));
+  doc["devices"][0]["kind"] = "glove";
+  EXPECT_TRUE(fails_at(doc, "devices[0].force_output", "finger_lines needs the hand's handles to be fingertips"));
+  doc["hands"][0]["handles"] = "fingertips";
+  EXPECT_NO_THROW(parse(doc));
+  doc["devices"][0]["force_output"] = "cables";
+  EXPECT_TRUE(fails_at(doc, "devices[0].force_output", "unknown force output 'cables'"));
+  doc["devices"][0]["force_output"] = "frames";
+  doc["devices"][0]["actuator_line"] = {0, 0, 0};
+  EXPECT_TRUE(fails_at(doc, "devices[0].actuator_line", "must be a non-zero vector"));
 }
 
 TEST_F(SceneLoaderTest, RejectsMissingMeshFile) {

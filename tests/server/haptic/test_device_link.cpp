@@ -85,5 +85,53 @@ TEST(DeviceLink, ReplyTorqueIsTakenAboutTheTrackedFrame) {
   EXPECT_NEAR(r.tau_D.x(), 0.0, 1e-12);
 }
 
+TEST(DeviceLink, FramesBelongToTheirFingers) {
+  EXPECT_EQ(finger_of_frame(16, 0), -1);
+  EXPECT_EQ(finger_of_frame(16, 1), 0);
+  EXPECT_EQ(finger_of_frame(16, 3), 0);
+  EXPECT_EQ(finger_of_frame(16, 4), 1);
+  EXPECT_EQ(finger_of_frame(16, 15), 4);
+  EXPECT_EQ(finger_of_frame(6, 2), 1);
+  EXPECT_EQ(distal_frame(16, 1), 6);
+  EXPECT_EQ(distal_frame(6, 4), 5);
+}
+
+// seed 002 section 4.5 with a4 = 1: a finger's frame forces summed and projected
+// on its actuator line, pull only, on the distal frame.
+TEST(DeviceLink, FingerLinesProjectEachFingersForcesOntoItsActuator) {
+  DeviceLink link;
+  link.handles = 6;
+  link.output = ForceOutput::finger_lines;
+  link.limits.max_force_n = 5.0;
+  link.actuator_line_F = Eigen::Vector3d(0, -0.6, 0.8);
+  link.map.R_WD = Eigen::Quaterniond(Eigen::AngleAxisd(0.5, Eigen::Vector3d::UnitZ()));  // device turned about z
+  HapticPose device_W[6];
+  ReplyWrench w[6];
+  for (int j = 0; j < 6; ++j) {
+    device_W[j].p_W.setZero();
+    device_W[j].q_W = Eigen::Quaterniond(Eigen::AngleAxisd(0.3 * j, Eigen::Vector3d::UnitX()));
+  }
+  w[0].f_D = {1, 2, 3};  // the palm: no actuator
+  w[1].f_D = {0, 0, 2};  // thumb pushed dorsally
+  w[2].f_D = {0, 0, -2};  // index pushed palmar: a cable cannot push
+  w[1].tau_D = {1, 1, 1};
+  const Eigen::Matrix3d R_DW = link.map.R_WD.toRotationMatrix().transpose();
+  auto line = [&](int j) -> Eigen::Vector3d { return R_DW * (device_W[j].q_W * link.actuator_line_F); };
+  w[3].f_D = 50 * line(3);  // middle: along its line, beyond the limit
+  const double thumb = std::max(0.0, Eigen::Vector3d(0, 0, 2).dot(line(1)));
+  const double index = std::max(0.0, Eigen::Vector3d(0, 0, -2).dot(line(2)));
+  ReplyWrench out[6];
+  std::copy(w, w + 6, out);
+  project_onto_finger_lines(link, device_W, out);
+  EXPECT_EQ(out[0].f_D, Eigen::Vector3d::Zero());
+  EXPECT_LT((out[1].f_D - thumb * line(1)).norm(), 1e-12);
+  EXPECT_GT(thumb, 0.5);
+  EXPECT_EQ(out[1].tau_D, Eigen::Vector3d::Zero());
+  EXPECT_LT((out[2].f_D - index * line(2)).norm(), 1e-12);
+  EXPECT_NEAR(out[3].f_D.norm(), 5.0, 1e-12);  // clamped
+  EXPECT_TRUE(out[3].clamped);
+  EXPECT_EQ(out[4].f_D, Eigen::Vector3d::Zero());
+}
+
 }  // namespace
 }  // namespace hapticd
