@@ -1,6 +1,8 @@
 #include "hand_models/press_scenario.hpp"
 
 #include <algorithm>
+
+#include "hand_models/skeleton/hand_skeleton.hpp"
 #include <cmath>
 #include <numbers>
 #include <stdexcept>
@@ -54,6 +56,29 @@ std::vector<int> procedural_skin_handles(const ProceduralHand& hand, int m) {
     }
   }
   return out;
+}
+
+std::vector<HandleTarget> posture_targets(const ProceduralHand& hand, const HandModel& model,
+                                          const HandJointAngles& angles, const Eigen::Vector3d& p_W,
+                                          const Eigen::Quaterniond& q_W, bool left) {
+  const int m = model.num_handles();
+  const std::vector<int> phalanges = handle_phalanges(m);
+  const std::vector<HandFrame> rest = procedural_handle_frames(hand, m);
+  const SkeletonPose pose = skeleton_pose(angles, left);
+  std::vector<HandleTarget> targets(m);
+  for (int j = 0; j < m; ++j) {
+    const FrameToHandle o = frame_to_handle(rest[j].p, rest[j].R, model.handles()[j]);
+    Eigen::Vector3d p_frame = p_W;
+    Eigen::Quaterniond q_frame = q_W;
+    if (j > 0) {
+      const int i = phalanges[j - 1];
+      p_frame = p_W + q_W * pose.centre[i];
+      q_frame = q_W * Eigen::Quaterniond(pose.R[i]);
+    }
+    targets[j].p_W = p_frame + q_frame * o.p_F;
+    targets[j].q_W = (q_frame * o.q_F).normalized();
+  }
+  return targets;
 }
 
 std::vector<HandleSpec> procedural_handles(const ProceduralHand& hand, int m) {

@@ -6,6 +6,7 @@
 
 #include "hand_models/hand_model.hpp"
 #include "hand_models/procedural_hand.hpp"
+#include "hand_models/skeleton/hand_skeleton.hpp"
 
 namespace hapticd {
 
@@ -22,6 +23,14 @@ std::vector<HandFrame> procedural_handle_frames(const ProceduralHand& hand, int 
 // a finger's base joint is palm), that finger's handle when only its distal
 // phalanx has one (m = 6), else the palm's handle 0.
 std::vector<int> procedural_skin_handles(const ProceduralHand& hand, int m);
+// The handle targets of a hand in posture `angles` with its hand frame (palm
+// centre) at (p_W, q_W): each handle's tracked frame posed by the skeleton
+// (hand_skeleton.hpp), then carried to the handle by frame_to_handle. What a
+// glove in that posture asks of the hand; at rest_joint_angles() the handles'
+// rest poses. `left`: the hand is a left one (its skeleton mirrored).
+std::vector<HandleTarget> posture_targets(const ProceduralHand& hand, const HandModel& model,
+                                          const HandJointAngles& angles, const Eigen::Vector3d& p_W,
+                                          const Eigen::Quaterniond& q_W, bool left);
 
 struct PressScenarioOptions {
   int target_tets = 1700;

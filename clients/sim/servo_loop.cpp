@@ -31,45 +31,89 @@ double ServoResult::late_fraction() const noexcept { return fraction(late, sampl
 double ServoResult::loss_fraction() const noexcept { return fraction(lost, samples_sent); }
 double ServoResult::contact_fraction() const noexcept { return fraction(contact_ticks, ticks); }
 
+namespace {
+
+// The stylus: DeviceSimulation's tip sent as one frame with the identity orientation (the
+// simulated stylus tracks the tip position only); its wrench is the reply's entry for that frame
+// (the first entry when the reply lacks it).
+class StylusServo final : public ServoDevice {
+ public:
+  StylusServo(const Trajectory& trajectory, const ServoConfig& config)
+      : sim_(trajectory, config.device, servo_period_s(config.rate_hz)),
+        frame_id_(config.frame_id),
+        trace_(config.trace) {}
+
+  void begin(std::uint64_t ticks) override {
+    if (trace_ != nullptr) trace_->reserve(trace_->size() + ticks);
+  }
+  void advance() noexcept override { sim_.advance(); }
+  void write_pose(protocol::PoseSample& pose) noexcept override {
+    const Vec3d p = sim_.state().p_DT_m;
+    pose.poses.resize(1);
+    pose.poses[0].frame = frame_id_;
+    pose.poses[0].position_m = {static_cast<float>(p.x), static_cast<float>(p.y), static_cast<float>(p.z)};
+    pose.poses[0].orientation = {};
+  }
+  void apply(const protocol::ForceSample& sample) noexcept override {
+    const protocol::FrameWrench* wrench = &sample.wrenches[0];
+    for (const protocol::FrameWrench& w : sample.wrenches)
+      if (w.frame == frame_id_) wrench = &w;
+    const protocol::Vec3& f = wrench->wrench.force_n;
+    sim_.set_force({f.x, f.y, f.z}, (wrench->flags | sample.flags) & protocol::ForceFlags::kInContact);
+  }
+  void end_tick(bool sent) noexcept override {
+    sim_.record_tick();
+    if (trace_ == nullptr) return;
+    trace_->push_back({sim_.time_s(), sim_.commanded(), sim_.state().p_DT_m, sim_.state().v_DT_m_s, sim_.force(),
+                       sim_.in_contact(), sent});
+  }
+  void summarize(ServoResult& r) const override {
+    r.contact_ticks = sim_.contact_ticks();
+    r.force_max_n = sim_.force_max_n();
+    r.force_rms_n = sim_.force_rms_n();
+    r.passivity_energy_j = sim_.passivity_energy_j();
+    r.penetration_max_m = sim_.penetration_max_m();
+  }
+
+ private:
+  DeviceSimulation sim_;
+  std::uint16_t frame_id_;
+  std::vector<TraceRow>* trace_;
+};
+
+}  // namespace
+
+double servo_period_s(double rate_hz) noexcept { return static_cast<double>(std::llround(1e9 / rate_hz)) * 1e-9; }
+
 ServoResult run_servo_loop(client::Client& client, const Trajectory& trajectory, const ServoConfig& config) {
+  StylusServo stylus(trajectory, config);
+  return run_servo_loop(client, stylus, config);
+}
+
+ServoResult run_servo_loop(client::Client& client, ServoDevice& device, const ServoConfig& config) {
   // Default slack lets the kernel end a wait up to 50 us late: 5 % of a 1 kHz period.
   ::prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);
 
   const auto period_ns = static_cast<std::uint64_t>(std::llround(1e9 / config.rate_hz));
-  const double dt_s = static_cast<double>(period_ns) * 1e-9;
   const auto ticks = static_cast<std::uint64_t>(std::max(1.0, std::round(config.duration_s * config.rate_hz)));
 
-  DeviceSimulation sim(trajectory, config.device, dt_s);
   ServoResult r;
   r.rtt_us.reserve(ticks);
-  if (config.trace != nullptr) config.trace->reserve(config.trace->size() + ticks);
-  const auto trace = [&](bool sent) {
-    if (config.trace == nullptr) return;
-    config.trace->push_back(
-        {sim.time_s(), sim.commanded(), sim.state().p_DT_m, sim.state().v_DT_m_s, sim.force(), sim.in_contact(), sent});
-  };
+  device.begin(ticks);
   // End of the period each sequence was sent in, indexed by sequence - first_sequence.
   std::vector<std::uint64_t> deadline_of(ticks, std::numeric_limits<std::uint64_t>::max());
   const std::uint64_t first_sequence = client.last_sequence_sent() + 1;
 
   protocol::PoseSample pose;
-  pose.poses.resize(1);
-  pose.poses[0].frame = config.frame_id;
-  pose.poses[0].orientation = {};  // the simulated stylus tracks the tip position only
-
   const auto apply = [&](const client::ForceReply& reply) {
     const std::uint64_t index = reply.sample.sequence - first_sequence;
     if (index >= deadline_of.size()) return;  // answers a pose sent before this loop
     ++r.replies;
     r.rtt_us.push_back(static_cast<double>(reply.rtt_ns()) * 1e-3);
     if (reply.received_ns > deadline_of[index]) ++r.late;
-    const protocol::FrameWrench* wrench = &reply.sample.wrenches[0];
-    for (const protocol::FrameWrench& w : reply.sample.wrenches)
-      if (w.frame == config.frame_id) wrench = &w;
-    const protocol::Vec3& f = wrench->wrench.force_n;
     if (reply.sample.flags & protocol::ForceFlags::kClamped) ++r.clamped_replies;
     if (reply.sample.flags & protocol::ForceFlags::kStale) ++r.stale_replies;
-    sim.set_force({f.x, f.y, f.z}, (wrench->flags | reply.sample.flags) & protocol::ForceFlags::kInContact);
+    device.apply(reply.sample);
   };
 
   const std::uint64_t start = protocol::now_ns() + period_ns;
@@ -80,17 +124,15 @@ ServoResult run_servo_loop(client::Client& client, const Trajectory& trajectory,
     const std::uint64_t tick_end = tick_start + period_ns;
     sleep_until(tick_start);
     ++r.ticks;
-    if (k > 0) sim.advance();
+    if (k > 0) device.advance();
     end = tick_end;
     if (protocol::now_ns() >= tick_end) {
       ++r.missed_ticks;
-      sim.record_tick();
-      trace(false);
+      device.end_tick(false);
       continue;
     }
 
-    const Vec3d p = sim.state().p_DT_m;
-    pose.poses[0].position_m = {static_cast<float>(p.x), static_cast<float>(p.y), static_cast<float>(p.z)};
+    device.write_pose(pose);
     pose.client_timestamp_ns = 0;  // stamped by the client as it sends
     const client::SendResult sent = client.send_pose(pose);
     if (sent == client::SendResult::kSent) {
@@ -107,8 +149,7 @@ ServoResult run_servo_loop(client::Client& client, const Trajectory& trajectory,
       apply(*reply);
       if (reply->sample.sequence == pose.sequence) break;
     }
-    sim.record_tick();
-    trace(true);
+    device.end_tick(true);
   }
   const std::uint64_t drain_end = protocol::now_ns() + static_cast<std::uint64_t>(config.drain_s * 1e9);
   while (r.replies < r.samples_sent) {
@@ -118,11 +159,7 @@ ServoResult run_servo_loop(client::Client& client, const Trajectory& trajectory,
   }
 
   r.lost = r.samples_sent - std::min(r.samples_sent, r.replies);
-  r.contact_ticks = sim.contact_ticks();
-  r.force_max_n = sim.force_max_n();
-  r.force_rms_n = sim.force_rms_n();
-  r.passivity_energy_j = sim.passivity_energy_j();
-  r.penetration_max_m = sim.penetration_max_m();
+  device.summarize(r);
   r.elapsed_s = static_cast<double>(end - start) * 1e-9;
   r.rate_hz_achieved = r.elapsed_s > 0.0 ? static_cast<double>(r.samples_sent) / r.elapsed_s : 0.0;
   r.counters = client.counters();

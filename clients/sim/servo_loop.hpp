@@ -1,11 +1,11 @@
 #pragma once
 
-// The device's servo loop, shared by haptic-device and `haptic-bench latency`: at a fixed rate on
-// absolute CLOCK_MONOTONIC deadlines, each tick
-//   1. steps the simulated tip under the force last received (DeviceSimulation::advance),
-//   2. sends the tip pose (Client::send_pose),
+// The device's servo loop, shared by haptic-device (stylus and glove) and `haptic-bench latency`:
+// at a fixed rate on absolute CLOCK_MONOTONIC deadlines, each tick
+//   1. steps the simulated device under the wrenches last received (ServoDevice::advance),
+//   2. sends its frames' poses (ServoDevice::write_pose, Client::send_pose),
 //   3. waits for its ForceSample until the end of the period; replies to earlier poses met on the
-//      way are applied too (the newest force is the one a device would render).
+//      way are applied too (the newest wrenches are the ones a device would render).
 // A reply that arrives after its pose's period ended is late; a pose never answered is lost (a
 // reply overtaken by a newer one is dropped as stale by the Client, so it counts as lost: an old
 // force is never applied). A tick whose whole period passed before the loop woke up is missed:
@@ -35,11 +35,12 @@ struct TraceRow {
 struct ServoConfig {
   double rate_hz = 1000.0;  // use the Welcome's negotiated rate
   double duration_s = 10.0;
-  DeviceParams device;
-  std::uint16_t frame_id = 0;               // the Hello's frame the tip pose is sent as
+  DeviceParams device;                      // the stylus only
+  std::uint16_t frame_id = 0;               // the stylus only: the Hello's frame the tip pose is sent as
   double drain_s = 0.1;                     // after the last tick, how long outstanding replies may still arrive
   const std::atomic<bool>* stop = nullptr;  // set from elsewhere (a signal) to end early
-  // When set, one row per tick is appended (reserved by run_servo_loop before the first tick).
+  // The stylus only: when set, one row per tick is appended (reserved by run_servo_loop before the
+  // first tick).
   std::vector<TraceRow>* trace = nullptr;
 };
 
@@ -51,7 +52,7 @@ struct ServoResult {
   std::uint64_t replies = 0;        // poses answered (each at most once)
   std::uint64_t late = 0;           // answered after the end of their period (included in replies)
   std::uint64_t lost = 0;           // samples_sent - replies
-  std::uint64_t contact_ticks = 0;  // ticks whose latest force reported InContact
+  std::uint64_t contact_ticks = 0;  // ticks whose latest reply reported InContact (any frame)
   std::uint64_t clamped_replies = 0;
   std::uint64_t stale_replies = 0;  // replies flagged Stale by the server (no fresh snapshot)
   std::vector<double> rtt_us;       // one per reply, in arrival order
@@ -68,9 +69,37 @@ struct ServoResult {
   [[nodiscard]] double contact_fraction() const noexcept;
 };
 
-// Runs the loop on the calling thread over `client`'s open session. Allocates only before the
-// first tick (the result's buffers are reserved for every tick). Sets this thread's timer slack to
-// 1 ns so that waits end at their deadline rather than up to 50 us after it.
+// The simulated device the loop drives. The loop calls begin() once, then per tick advance()
+// (except the first), write_pose() when the tick is not missed, apply() for each reply accepted and
+// end_tick(); summarize() after the last. Only begin() and summarize() may allocate.
+class ServoDevice {
+ public:
+  virtual ~ServoDevice() = default;
+  // Before the first tick, with the number of ticks the run will have: reserve what it needs.
+  virtual void begin(std::uint64_t ticks) {}
+  // One period of servo_period_s(rate) under the wrenches held.
+  virtual void advance() noexcept = 0;
+  // Sets pose.poses to the poses of the device's frames now, in the Hello's frame order.
+  virtual void write_pose(protocol::PoseSample& pose) noexcept = 0;
+  // The newest reply: hold its wrenches until the next.
+  virtual void apply(const protocol::ForceSample& sample) noexcept = 0;
+  // End of a tick; sent is false for a missed tick (no pose sent).
+  virtual void end_tick(bool sent) noexcept = 0;
+  // The device's figures of the run: contact_ticks, force_max_n, force_rms_n, passivity_energy_j,
+  // penetration_max_m.
+  virtual void summarize(ServoResult& result) const = 0;
+};
+
+// The period the loop runs at for a rate (rounded to whole ns): the step a ServoDevice must take.
+double servo_period_s(double rate_hz) noexcept;
+
+// Runs the loop on the calling thread over `client`'s open session, driving `device` (built to step
+// by servo_period_s(config.rate_hz)). Allocates only before the first tick (the result's buffers
+// are reserved for every tick). Sets this thread's timer slack to 1 ns so that waits end at their
+// deadline rather than up to 50 us after it.
+ServoResult run_servo_loop(client::Client& client, ServoDevice& device, const ServoConfig& config);
+// The simulated stylus (DeviceSimulation with config.device) along `trajectory`, sent as frame
+// config.frame_id with the identity orientation.
 ServoResult run_servo_loop(client::Client& client, const Trajectory& trajectory, const ServoConfig& config);
 
 // Percentiles of round trips (linear interpolation between order statistics, as bench/ does).

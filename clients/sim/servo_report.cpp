@@ -1,5 +1,7 @@
 #include "clients/sim/servo_report.hpp"
 
+#include <numbers>
+
 namespace hapticd::sim {
 
 nlohmann::json to_json(const RttSummary& rtt) {
@@ -31,6 +33,22 @@ nlohmann::json to_json(const ServoResult& r) {
             {"datagrams_rejected", c.datagrams_rejected},
             {"datagrams_unexpected", c.datagrams_unexpected},
             {"refused", c.refused}}}};
+}
+
+nlohmann::json glove_figures_to_json(const GloveSimulation& sim) {
+  constexpr double kDegPerRad = 180.0 / std::numbers::pi;
+  nlohmann::json fingers = nlohmann::json::object();
+  for (int f = 0; f < kHandFingers; ++f) {
+    const GloveGroupFigures g = sim.group_figures(f);
+    fingers[finger_name(f)] = {{"force_n", {{"max", g.force_max_n}, {"rms", g.force_rms_n}}},
+                               {"contact_fraction", g.contact_fraction},
+                               {"joint_lag_deg_max", kDegPerRad * g.joint_lag_max_rad}};
+  }
+  const GloveGroupFigures palm = sim.group_figures(kPalmGroup);
+  return {{"fingers", fingers},
+          {"palm",
+           {{"force_n", {{"max", palm.force_max_n}, {"rms", palm.force_rms_n}}},
+            {"contact_fraction", palm.contact_fraction}}}};
 }
 
 nlohmann::json to_json(const protocol::Stats& s) {

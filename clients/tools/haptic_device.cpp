@@ -1,7 +1,8 @@
-// haptic-device: a simulated stylus held by a simulated hand. It opens a session with hapticd,
-// runs the servo loop (clients/sim/servo_loop.hpp) along a trajectory at the session rate, lets the
-// returned forces act on the simulated tip, and reports round trips, late and lost replies, force,
-// the energy the rendering put into the device and how far the hand pushed past the surface.
+// haptic-device: a simulated stylus held by a simulated hand, or a simulated glove on a simulated
+// hand. It opens a session with hapticd, runs the servo loop (clients/sim/servo_loop.hpp) along a
+// trajectory at the session rate, lets the returned forces act on the simulated tip or fingers, and
+// reports round trips, late and lost replies, force, the energy the rendering put into the device,
+// how far the hand pushed past the surface and, for the glove, the same per finger.
 
 #include <CLI/CLI.hpp>
 #include <atomic>
@@ -10,12 +11,16 @@
 #include <cstdio>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <numbers>
 #include <optional>
 #include <string>
 #include <tuple>
 #include <vector>
 
 #include "clients/cpp/client.hpp"
+#include "clients/sim/glove_servo.hpp"
+#include "clients/sim/glove_simulation.hpp"
+#include "clients/sim/glove_trajectory.hpp"
 #include "clients/sim/servo_loop.hpp"
 #include "clients/sim/servo_report.hpp"
 #include "clients/sim/trajectory.hpp"
@@ -71,16 +76,69 @@ std::string quoted_command_line(int argc, char** argv) {
   return line;
 }
 
+void write_stylus_trace(std::ofstream& trace, const std::vector<sim::TraceRow>& rows) {
+  trace << "t_s,pc_x_m,pc_y_m,pc_z_m,p_x_m,p_y_m,p_z_m,v_x_m_s,v_y_m_s,v_z_m_s,f_x_n,f_y_n,f_z_n,in_contact,sent\n";
+  trace.precision(9);
+  for (const sim::TraceRow& t : rows)
+    trace << t.t_s << ',' << t.p_DC_m.x << ',' << t.p_DC_m.y << ',' << t.p_DC_m.z << ',' << t.p_DT_m.x << ','
+          << t.p_DT_m.y << ',' << t.p_DT_m.z << ',' << t.v_DT_m_s.x << ',' << t.v_DT_m_s.y << ',' << t.v_DT_m_s.z << ','
+          << t.f_DT_N.x << ',' << t.f_DT_N.y << ',' << t.f_DT_N.z << ',' << t.in_contact << ',' << t.sent << '\n';
+}
+
+// t_s, the 20 commanded angles (qc_<column>_deg), the 20 angles (q_<column>_deg), commanded and actual
+// palm position, each frame's force, in_contact, sent.
+void write_glove_trace(std::ofstream& trace, const std::vector<sim::GloveTraceRow>& rows, int frames) {
+  constexpr double kDegPerRad = 180.0 / std::numbers::pi;
+  trace << "t_s";
+  for (const char* prefix : {"qc_", "q_"})
+    for (int c = 1; c <= kHandJointDofs; ++c) trace << ',' << prefix << sim::glove_csv_column_name(c);
+  trace << ",pc_palm_x_m,pc_palm_y_m,pc_palm_z_m,p_palm_x_m,p_palm_y_m,p_palm_z_m";
+  for (int id = 0; id < frames; ++id)
+    for (const char* axis : {"x", "y", "z"}) trace << ",f_" << sim::glove_frame_name(frames, id) << '_' << axis << "_n";
+  trace << ",in_contact,sent\n";
+  trace.precision(9);
+  for (const sim::GloveTraceRow& t : rows) {
+    trace << t.t_s;
+    for (int j = 0; j < kHandJointDofs; ++j) trace << ',' << kDegPerRad * t.q_C_rad[j];
+    for (int j = 0; j < kHandJointDofs; ++j) trace << ',' << kDegPerRad * t.q_rad[j];
+    for (const sim::Vec3d& p : {t.p_palm_C_m, t.p_palm_m}) trace << ',' << p.x << ',' << p.y << ',' << p.z;
+    for (int id = 0; id < frames; ++id) {
+      const sim::Vec3d& f = t.f_N[static_cast<std::size_t>(id)];
+      trace << ',' << f.x << ',' << f.y << ',' << f.z;
+    }
+    trace << ',' << t.in_contact << ',' << t.sent << '\n';
+  }
+}
+
+nlohmann::json to_json(const sim::DeviceParams& p) {
+  return {{"mass_kg", p.mass_kg},
+          {"arm_stiffness_n_per_m", p.arm_stiffness_n_per_m},
+          {"arm_damping_n_s_per_m", p.arm_damping_n_s_per_m},
+          {"device_damping_n_s_per_m", p.device_damping_n_s_per_m}};
+}
+
+nlohmann::json to_json(const sim::GloveParams& p) {
+  static constexpr const char* kJoints[4] = {"abduction", "flexion1", "flexion2", "flexion3"};
+  nlohmann::json joints = nlohmann::json::object();
+  for (int k = 0; k < 4; ++k)
+    joints[kJoints[k]] = {{"inertia_kg_m2", p.joint[k].inertia_kg_m2},
+                          {"stiffness_n_m_per_rad", p.joint[k].stiffness_n_m_per_rad},
+                          {"damping_n_m_s_per_rad", p.joint[k].damping_n_m_s_per_rad}};
+  return {{"joints", joints}, {"palm", to_json(p.palm)}};
+}
 
 }  // namespace
 
 int main(int argc, char** argv) {
   CLI::App app{
-      "haptic-device: a simulated stylus (tip mass, damping and the user's arm impedance) streaming poses to hapticd "
-      "and feeling its forces"};
+      "haptic-device: a simulated stylus (tip mass, damping and the user's arm impedance) or glove (the user's "
+      "fingers on the standard hand skeleton, each joint an impedance about the commanded posture) streaming poses "
+      "to hapticd and feeling its forces"};
   std::string server_text;
   std::string device = "stylus";
-  std::string trajectory_spec = "press";
+  std::string trajectory_spec;
+  int frames = sim::kGloveFramesAll;
+  std::string hand = "right";
   unsigned rate_hz = 1000;
   double duration_s = 10.0;
   std::string report_path;
@@ -89,63 +147,98 @@ int main(int argc, char** argv) {
   std::string client_name = "haptic-device";
   std::string frame_name = "stylus";
   double handshake_timeout_s = 2.0;
-  sim::DeviceParams params;
+  sim::DeviceParams params;  // the stylus's tip, or the glove's palm
+  const sim::DeviceParams palm_defaults = sim::GloveParams{}.palm;
 
   app.add_option("--server", server_text, "hapticd address HOST:PORT")->required();
-  app.add_option("--device", device, "simulated device (gloves are not simulated yet)")
-      ->check(CLI::IsMember({"stylus"}))
+  app.add_option("--device", device, "simulated device")
+      ->check(CLI::IsMember({"stylus", "glove"}))
       ->capture_default_str();
+  auto* frames_option =
+      app.add_option("--frames", frames, "glove: tracked frames, 16 (palm + 15 phalanges) or 6 (palm + fingertips)")
+          ->check(CLI::IsMember({sim::kGloveFramesAll, sim::kGloveFramesTips}))
+          ->capture_default_str();
+  auto* hand_option = app.add_option("--hand", hand, "glove: which hand")
+                          ->check(CLI::IsMember({"left", "right"}))
+                          ->capture_default_str();
   app.add_option("--trajectory", trajectory_spec,
-                 "press | stroke | press-stroke | tap | circle | CSV file (t_s,x_m,y_m,z_m)")
-      ->capture_default_str();
+                 "stylus: press (default) | stroke | press-stroke | tap | circle | CSV file (t_s,x_m,y_m,z_m); glove: "
+                 "grasp (default) | pinch | release | fist | spread | tap | CSV file (t_s, 20 joint angles in degrees "
+                 "[, palm x,y,z in m])");
   app.add_option("--rate", rate_hz, "servo rate requested, Hz (the server may grant another)")
       ->check(CLI::Range(10u, 10000u))
       ->capture_default_str();
   app.add_option("--duration", duration_s, "run length, s")->check(CLI::Range(0.001, 86400.0))->capture_default_str();
   app.add_option("--report", report_path, "write the run's figures as JSON to this file");
   app.add_option("--trace", trace_path,
-                 "write one CSV row per tick: t_s, commanded x y z, tip x y z, tip velocity, force, contact, sent");
-  app.add_option("--origin", origin, "trajectory origin x,y,z in the device frame, m")
+                 "write one CSV row per tick: stylus: t_s, commanded x y z, tip x y z, tip velocity, force, contact, "
+                 "sent; glove: t_s, commanded and actual joint angles, commanded and actual palm, each frame's force, "
+                 "contact, sent");
+  app.add_option("--origin", origin, "trajectory origin (stylus tip, glove palm) x,y,z in the device frame, m")
       ->delimiter(',')
       ->expected(3)
       ->check(CLI::Range(-10.0, 10.0));
   app.add_option("--name", client_name, "client name sent in the Hello (1..64 printable bytes)")->capture_default_str();
-  app.add_option("--frame-name", frame_name, "name of the tracked frame in the Hello (1..31 printable bytes)")
-      ->capture_default_str();
+  auto* frame_name_option = app.add_option("--frame-name", frame_name,
+                                           "stylus: name of the tracked frame in the Hello (1..31 printable bytes)")
+                                ->capture_default_str();
   app.add_option("--handshake-timeout", handshake_timeout_s, "seconds to wait for the Welcome")
       ->check(CLI::Range(0.01, 60.0))
       ->capture_default_str();
-  app.add_option("--mass", params.mass_kg, "effective tip mass, kg")
-      ->check(CLI::Range(1e-4, 100.0))
-      ->capture_default_str();
-  app.add_option("--arm-stiffness", params.arm_stiffness_n_per_m, "user's arm stiffness toward the trajectory, N/m")
-      ->check(CLI::Range(0.0, 1e5))
-      ->capture_default_str();
-  app.add_option("--arm-damping", params.arm_damping_n_s_per_m, "user's arm damping, N s/m")
-      ->check(CLI::Range(0.0, 1e4))
-      ->capture_default_str();
-  app.add_option("--device-damping", params.device_damping_n_s_per_m, "device linkage damping, N s/m")
-      ->check(CLI::Range(0.0, 1e4))
-      ->capture_default_str();
+  auto* mass_option = app.add_option("--mass", params.mass_kg,
+                                     "effective tip mass (stylus, default 0.1) or palm mass (glove, default 0.4), kg")
+                          ->check(CLI::Range(1e-4, 100.0));
+  auto* stiffness_option = app.add_option("--arm-stiffness", params.arm_stiffness_n_per_m,
+                                          "user's arm stiffness toward the trajectory (tip or palm), N/m (default 200)")
+                               ->check(CLI::Range(0.0, 1e5));
+  auto* damping_option = app.add_option("--arm-damping", params.arm_damping_n_s_per_m,
+                                        "user's arm damping, N s/m (stylus default 5, glove 10)")
+                             ->check(CLI::Range(0.0, 1e4));
+  auto* device_damping_option = app.add_option("--device-damping", params.device_damping_n_s_per_m,
+                                               "device linkage damping, N s/m (stylus default 0.2, glove 0)")
+                                    ->check(CLI::Range(0.0, 1e4));
   CLI11_PARSE(app, argc, argv);
 
+  const bool glove = device == "glove";
   HostPort server;
   std::optional<sim::Trajectory> trajectory;
+  std::optional<sim::GloveTrajectory> glove_trajectory;
   protocol::Hello hello;
   try {
     server = parse_server(server_text);
-    trajectory = sim::Trajectory::parse(trajectory_spec, {origin[0], origin[1], origin[2]});
-    hello.device_kind = protocol::DeviceKind::kStylus;
-    hello.requested_rate_hz = rate_hz;
-    protocol::TrackedFrame frame;
-    frame.id = 0;
-    frame.dof = 6;  // a Phantom-class stylus senses position and orientation; the tip sends identity
-    if (!hello.client_name.assign(client_name) || !frame.name.assign(frame_name))
-      throw CLI::ValidationError("--name/--frame-name", "too long (client name <= 64, frame name <= 31 bytes)");
-    hello.frames.push_back(frame);
-    if (const protocol::RejectReason r = protocol::validate(hello); r != protocol::RejectReason::kNone)
-      throw CLI::ValidationError("--name/--frame-name",
-                                 "the Hello would be refused: " + std::string(protocol::to_string(r)));
+    if (glove) {
+      if (frame_name_option->count() > 0)
+        throw CLI::ValidationError("--frame-name",
+                                   "is for --device stylus (a glove's frames are named by the skeleton)");
+      // The palm's defaults where the stylus's flags were not given.
+      if (mass_option->count() == 0) params.mass_kg = palm_defaults.mass_kg;
+      if (stiffness_option->count() == 0) params.arm_stiffness_n_per_m = palm_defaults.arm_stiffness_n_per_m;
+      if (damping_option->count() == 0) params.arm_damping_n_s_per_m = palm_defaults.arm_damping_n_s_per_m;
+      if (device_damping_option->count() == 0) params.device_damping_n_s_per_m = palm_defaults.device_damping_n_s_per_m;
+      try {
+        hello = sim::glove_hello(frames, client_name, rate_hz);
+      } catch (const std::invalid_argument& e) {
+        throw CLI::ValidationError("--name", e.what());
+      }
+      if (trajectory_spec.empty()) trajectory_spec = "grasp";
+      glove_trajectory = sim::GloveTrajectory::parse(trajectory_spec, {origin[0], origin[1], origin[2]});
+    } else {
+      for (const auto* option : {frames_option, hand_option})
+        if (option->count() > 0) throw CLI::ValidationError(option->get_name(), "is for --device glove");
+      if (trajectory_spec.empty()) trajectory_spec = "press";
+      trajectory = sim::Trajectory::parse(trajectory_spec, {origin[0], origin[1], origin[2]});
+      hello.device_kind = protocol::DeviceKind::kStylus;
+      hello.requested_rate_hz = rate_hz;
+      protocol::TrackedFrame frame;
+      frame.id = 0;
+      frame.dof = 6;  // a Phantom-class stylus senses position and orientation; the tip sends identity
+      if (!hello.client_name.assign(client_name) || !frame.name.assign(frame_name))
+        throw CLI::ValidationError("--name/--frame-name", "too long (client name <= 64, frame name <= 31 bytes)");
+      hello.frames.push_back(frame);
+      if (const protocol::RejectReason r = protocol::validate(hello); r != protocol::RejectReason::kNone)
+        throw CLI::ValidationError("--name/--frame-name",
+                                   "the Hello would be refused: " + std::string(protocol::to_string(r)));
+    }
   } catch (const CLI::ValidationError& e) {
     std::fprintf(stderr, "haptic-device: %s\n", e.what());
     return 2;
@@ -186,8 +279,20 @@ int main(int argc, char** argv) {
   config.frame_id = hello.frames[0].id;
   config.stop = &g_stop;
   std::vector<sim::TraceRow> rows;
-  if (trace.is_open()) config.trace = &rows;
-  const sim::ServoResult result = sim::run_servo_loop(client, *trajectory, config);
+  std::vector<sim::GloveTraceRow> glove_rows;
+  std::optional<sim::GloveSimulation> glove_sim;
+  sim::ServoResult result;
+  if (glove) {
+    sim::GloveParams glove_params;
+    glove_params.palm = params;
+    glove_sim.emplace(*glove_trajectory, glove_params, frames, hand == "left", sim::servo_period_s(config.rate_hz));
+    sim::GloveServo servo(*glove_sim, trace.is_open() ? &glove_rows : nullptr);
+    result = sim::run_servo_loop(client, servo, config);
+  } else {
+    if (trace.is_open()) config.trace = &rows;
+    result = sim::run_servo_loop(client, *trajectory, config);
+  }
+  const std::string& trajectory_name = glove ? glove_trajectory->name() : trajectory->name();
 
   nlohmann::json server_stats = nullptr;
   try {
@@ -198,8 +303,9 @@ int main(int argc, char** argv) {
   client.bye();
 
   const sim::RttSummary rtt = sim::summarize_rtt(result.rtt_us);
-  std::printf("haptic-device: %s, trajectory %s, %.2f s at %u Hz against %s (session %llu)%s\n", device.c_str(),
-              trajectory->name().c_str(), result.elapsed_s, welcome.rate_hz, client.server_address().c_str(),
+  const std::string what = glove ? "glove (" + std::to_string(frames) + " frames, " + hand + " hand)" : device;
+  std::printf("haptic-device: %s, trajectory %s, %.2f s at %u Hz against %s (session %llu)%s\n", what.c_str(),
+              trajectory_name.c_str(), result.elapsed_s, welcome.rate_hz, client.server_address().c_str(),
               static_cast<unsigned long long>(welcome.session_id), g_stop.load() ? ", stopped early" : "");
   std::printf(
       "  sent %llu, replies %llu, late %llu (%.3f %%), lost %llu (%.3f %%), missed ticks %llu, %.1f Hz achieved\n",
@@ -213,27 +319,34 @@ int main(int argc, char** argv) {
       "  force N: max %.3f rms %.3f; contact %.1f %% of ticks; penetration max %.2f mm; passivity energy %.4g J\n",
       result.force_max_n, result.force_rms_n, 100.0 * result.contact_fraction(), 1e3 * result.penetration_max_m,
       result.passivity_energy_j);
+  if (glove) {
+    for (int g = 0; g <= sim::kPalmGroup; ++g) {
+      const sim::GloveGroupFigures f = glove_sim->group_figures(g);
+      std::printf("  %-6s force N: max %.3f rms %.3f; contact %.1f %% of ticks",
+                  g < kHandFingers ? finger_name(g) : "palm", f.force_max_n, f.force_rms_n, 100.0 * f.contact_fraction);
+      if (g < kHandFingers) std::printf("; joint lag max %.2f deg", f.joint_lag_max_rad * 180.0 / std::numbers::pi);
+      std::printf("\n");
+    }
+  }
 
   if (trace.is_open()) {
-    trace << "t_s,pc_x_m,pc_y_m,pc_z_m,p_x_m,p_y_m,p_z_m,v_x_m_s,v_y_m_s,v_z_m_s,f_x_n,f_y_n,f_z_n,in_contact,sent\n";
-    trace.precision(9);
-    for (const sim::TraceRow& t : rows)
-      trace << t.t_s << ',' << t.p_DC_m.x << ',' << t.p_DC_m.y << ',' << t.p_DC_m.z << ',' << t.p_DT_m.x << ','
-            << t.p_DT_m.y << ',' << t.p_DT_m.z << ',' << t.v_DT_m_s.x << ',' << t.v_DT_m_s.y << ',' << t.v_DT_m_s.z
-            << ',' << t.f_DT_N.x << ',' << t.f_DT_N.y << ',' << t.f_DT_N.z << ',' << t.in_contact << ',' << t.sent
-            << '\n';
+    if (glove) {
+      write_glove_trace(trace, glove_rows, frames);
+    } else {
+      write_stylus_trace(trace, rows);
+    }
     if (!trace.flush()) {
       std::fprintf(stderr, "haptic-device: --trace: failed writing '%s'\n", trace_path.c_str());
       return 1;
     }
-    std::printf("  trace: %s (%zu ticks)\n", trace_path.c_str(), rows.size());
+    std::printf("  trace: %s (%zu ticks)\n", trace_path.c_str(), glove ? glove_rows.size() : rows.size());
   }
   if (report.is_open()) {
     nlohmann::json doc = sim::to_json(result);
     doc["server"] = client.server_address();
     doc["command_line"] = quoted_command_line(argc, argv);
     doc["device"] = device;
-    doc["trajectory"] = trajectory->name();
+    doc["trajectory"] = trajectory_name;
     doc["origin_m"] = origin;
     doc["rate_hz_requested"] = rate_hz;
     doc["rate_hz"] = welcome.rate_hz;
@@ -242,10 +355,16 @@ int main(int argc, char** argv) {
     doc["welcome"] = {{"force_limit_n", welcome.force_limit_n},
                       {"torque_limit_nm", welcome.torque_limit_nm},
                       {"max_force_rate_n_per_s", welcome.max_force_rate_n_per_s}};
-    doc["device_model"] = {{"mass_kg", params.mass_kg},
-                           {"arm_stiffness_n_per_m", params.arm_stiffness_n_per_m},
-                           {"arm_damping_n_s_per_m", params.arm_damping_n_s_per_m},
-                           {"device_damping_n_s_per_m", params.device_damping_n_s_per_m}};
+    if (glove) {
+      const nlohmann::json figures = sim::glove_figures_to_json(*glove_sim);
+      doc["fingers"] = figures["fingers"];
+      doc["palm"] = figures["palm"];
+      doc["frames"] = frames;
+      doc["hand"] = hand;
+      doc["glove_model"] = to_json(glove_sim->params());
+    } else {
+      doc["device_model"] = to_json(params);
+    }
     doc["server_stats"] = server_stats;
     doc["stopped_early"] = g_stop.load();
     report << doc.dump(2) << "\n";

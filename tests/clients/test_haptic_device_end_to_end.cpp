@@ -141,7 +141,7 @@ TEST(HapticDeviceEndToEnd, BadFlagsAreRefusedWithTheReason) {
       {{"--server", "::1:7000"}, "expected HOST:PORT"},
       {{"--server", "127.0.0.1:7000", "--rate", "5"}, "--rate"},
       {{"--server", "127.0.0.1:7000", "--duration", "0"}, "--duration"},
-      {{"--server", "127.0.0.1:7000", "--device", "glove"}, "--device"},
+      {{"--server", "127.0.0.1:7000", "--device", "gauntlet"}, "--device"},
       {{"--server", "127.0.0.1:7000", "--trajectory", "squiggle"}, "cannot read trajectory file 'squiggle'"},
       {{"--server", "127.0.0.1:7000", "--trajectory", bad_csv}, bad_csv + ":3: expected 4 comma-separated numbers"},
       {{"--server", "127.0.0.1:7000", "--report", "/nonexistent/dir/r.json"}, "--report: cannot write"},

@@ -99,6 +99,28 @@ TEST(HandSkeleton, TrackedFramesMapOntoTheHandlesOfAPlacedHand) {
   }
 }
 
+// At rest the posture's targets are the handles' rest poses, wherever the hand is.
+TEST(HandSkeleton, RestPostureTargetsAreTheHandlesRestPoses) {
+  for (bool left : {false, true}) {
+    ProceduralHandOptions o;
+    o.target_tets = 350;
+    o.left = left;
+    const ProceduralHand hand = make_procedural_hand(o);
+    HandConfig config;
+    config.handles = procedural_handles(hand, 16);
+    const HandModel model(hand.mesh, config);
+    HandState s = make_rest_state(model);
+    const Eigen::Quaterniond q(Eigen::AngleAxisd(-1.1, Eigen::Vector3d(0.2, 0.1, 1).normalized()));
+    const Eigen::Vector3d p(-0.4, 0.1, 0.7);
+    place_hand(model, s, p + q * model.handles()[0].p_WH_rest, q, 0);
+    const std::vector<HandleTarget> t = posture_targets(hand, model, rest_joint_angles(), p, q, left);
+    for (int j = 0; j < 16; ++j) {
+      EXPECT_LT((t[j].p_W - s.handles[j].p_WH).norm(), 1e-12) << j;
+      EXPECT_LT(t[j].q_W.angularDistance(s.handles[j].q_WH), 1e-12) << j;
+    }
+  }
+}
+
 // Skin vertices belong to the handle of their part: a fingertip's skin to its
 // distal phalanx (16 handles) or its finger (6), the palm's centre to the palm.
 TEST(HandSkeleton, SkinVerticesBelongToTheirPartsHandle) {
