@@ -1,7 +1,10 @@
 #include "hand_models/cell_grid.hpp"
 
 #include <cstddef>
+#include <cstdint>
 #include <limits>
+#include <unordered_map>
+#include <unordered_set>
 
 namespace hapticd::detail {
 
@@ -62,6 +65,47 @@ CellMesh mesh_cells(const CellGrid& g, const std::vector<char>& keep, const std:
         mesh.X.push_back(g.corner(v));
       }
       corner_node[c] = node;
+    }
+    for (const Tet& t : cube_tets) {
+      mesh.tets.push_back({corner_node[t[0]], corner_node[t[1]], corner_node[t[2]], corner_node[t[3]]});
+    }
+  }
+  finalize_mesh(mesh);
+  return out;
+}
+
+CellMesh mesh_cells_by_part(const CellGrid& g, const std::vector<char>& keep, const std::vector<int>& part,
+                            int shared, const std::array<Tet, 6>& cube_tets) {
+  CellMesh out;
+  TetMesh& mesh = out.mesh;
+  const Vector3i nn = g.n + Vector3i::Ones();
+  auto grid_node = [&](const Vector3i& v) {
+    return static_cast<std::int64_t>((static_cast<std::size_t>(v.z()) * nn.y() + v.y()) * nn.x() + v.x());
+  };
+  // Grid nodes on a cell of the shared part: one node for every cell there.
+  std::unordered_set<std::int64_t> merged;
+  for (int id = 0; id < g.num_cells(); ++id) {
+    if (!keep[id] || part[id] != shared) continue;
+    for (int c = 0; c < 8; ++c) merged.insert(grid_node(g.cell_coords(id) + cube_corner(c)));
+  }
+  // Node of (grid node, part); merged grid nodes are keyed with the shared part.
+  std::unordered_map<std::int64_t, int> node_of;
+  const std::int64_t parts = 1 + *std::max_element(part.begin(), part.end());
+  for (int id = 0; id < g.num_cells(); ++id) {
+    if (!keep[id]) continue;
+    out.cells.push_back(id);
+    const Vector3i cell = g.cell_coords(id);
+    std::array<int, 8> corner_node;
+    for (int c = 0; c < 8; ++c) {
+      const Vector3i v = cell + cube_corner(c);
+      const std::int64_t gn = grid_node(v);
+      const int copy = merged.count(gn) ? shared : part[id];
+      const auto [it, inserted] = node_of.try_emplace(gn * parts + copy, mesh.num_nodes());
+      if (inserted) {
+        mesh.X.push_back(g.corner(v));
+        out.node_part.push_back(copy);
+      }
+      corner_node[c] = it->second;
     }
     for (const Tet& t : cube_tets) {
       mesh.tets.push_back({corner_node[t[0]], corner_node[t[1]], corner_node[t[2]], corner_node[t[3]]});

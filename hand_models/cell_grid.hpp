@@ -63,13 +63,22 @@ int label_components(const CellGrid& g, const std::vector<char>& mask, std::vect
 void keep_largest_component(const CellGrid& g, std::vector<char>& keep);
 
 struct CellMesh {
-  TetMesh mesh;            // finalize_mesh applied
-  std::vector<int> cells;  // kept cell ids in increasing order; cells[i] owns tets 6i .. 6i+5
+  TetMesh mesh;                // finalize_mesh applied
+  std::vector<int> cells;      // kept cell ids in increasing order; cells[i] owns tets 6i .. 6i+5
+  std::vector<int> node_part;  // mesh_cells_by_part only: the part of each node's copy (`shared` if merged)
 };
 
 // Splits each kept cell into cube_tets (corners numbered as cube_corner), sharing nodes between
 // neighbouring cells; nodes are numbered in order of first use, so the table's order fixes the numbering.
 CellMesh mesh_cells(const CellGrid& g, const std::vector<char>& keep, const std::array<Tet, 6>& cube_tets);
+
+// Same, but each kept cell belongs to a part (part[cell id] >= 0) and a grid node gets one copy per
+// part among its kept cells, each used only by that part's cells; a grid node that also belongs to
+// a cell of part `shared` gets one node that all its cells use. Parts then meet only through the
+// shared part (cells of different parts that touch elsewhere are free to separate there). Numbering
+// as mesh_cells, copies in order of first use; with a single part it is mesh_cells' mesh.
+CellMesh mesh_cells_by_part(const CellGrid& g, const std::vector<char>& keep, const std::vector<int>& part,
+                            int shared, const std::array<Tet, 6>& cube_tets);
 
 // Tets of a Kuhn split of the kept cells.
 inline int kept_tet_count(const std::vector<char>& keep) {

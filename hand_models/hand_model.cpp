@@ -146,6 +146,7 @@ void validate(const HandConfig& c) {
     const std::string path = "handles[" + std::to_string(i) + "]";
     require(c.handles[i].seed.allFinite(), path + ".seed", "must be finite");
     require(std::isfinite(c.handles[i].radius_m) && c.handles[i].radius_m > 0, path + ".radius_m", "must be > 0");
+    for (int node : c.handles[i].nodes) require(node >= 0, path + ".nodes", "must be node indices");
   }
 }
 
@@ -153,7 +154,7 @@ HandModel::HandModel(TetMesh mesh, HandConfig config)
     : mesh_(std::move(mesh)), config_(std::move(config)), fem_((validate(config_), mesh_), config_.material) {
   for (size_t i = 0; i < config_.handles.size(); ++i) {
     const HandleSpec& spec = config_.handles[i];
-    handles_.push_back(make_handle(mesh_, fem_.lumped_mass(), spec.seed, spec.radius_m,
+    handles_.push_back(make_handle(mesh_, fem_.lumped_mass(), spec.seed, spec.radius_m, spec.nodes,
                                    spec.name.empty() ? "handle" + std::to_string(i) : spec.name));
   }
   // A_t couples the nodes of each tet: 3x3 blocks for every node pair, plus every diagonal block.

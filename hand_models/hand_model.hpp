@@ -83,6 +83,8 @@ struct HandleSpec {
   std::string name;
   Eigen::Vector3d seed = Eigen::Vector3d::Zero();
   double radius_m = 0.03;
+  // Non-empty: the handle's nodes, instead of those inside the sphere (seed, radius_m).
+  std::vector<int> nodes;
 };
 
 struct HandConfig {

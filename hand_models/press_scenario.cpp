@@ -81,13 +81,50 @@ std::vector<HandleTarget> posture_targets(const ProceduralHand& hand, const Hand
   return targets;
 }
 
+namespace {
+
+// Separate fingers: copies of a grid node sit at one place, so a sphere takes
+// the neighbouring fingers' copies too. Each handle takes the nodes of its own
+// part (the palm's, or its finger's) inside its sphere, a node two handles
+// reach going to the nearer seed; a handle left without one takes its part's
+// node nearest its seed.
+void take_own_part_nodes(const ProceduralHand& hand, int m, std::vector<HandleSpec>& specs) {
+  const std::vector<int> phalanges = handle_phalanges(m);
+  const int n = hand.mesh.num_nodes();
+  std::vector<int> owner(n, -1);
+  std::vector<double> best(n, 1e300);
+  auto part_of = [&](int j) { return j == 0 ? kHandPalmPart : phalanges[j - 1] / 3; };
+  for (int j = 0; j < m; ++j) {
+    for (int i = 0; i < n; ++i) {
+      const double d = (hand.mesh.X[i] - specs[j].seed).norm();
+      if (hand.node_part[i] != part_of(j) || d > specs[j].radius_m || d >= best[i]) continue;
+      best[i] = d;
+      owner[i] = j;
+    }
+  }
+  for (int i = 0; i < n; ++i)
+    if (owner[i] >= 0) specs[owner[i]].nodes.push_back(i);
+  for (int j = 0; j < m; ++j) {
+    if (!specs[j].nodes.empty()) continue;
+    int nearest = -1;
+    for (int i = 0; i < n; ++i)
+      if (hand.node_part[i] == part_of(j) &&
+          (nearest < 0 || (hand.mesh.X[i] - specs[j].seed).norm() < (hand.mesh.X[nearest] - specs[j].seed).norm()))
+        nearest = i;
+    if (nearest >= 0) specs[j].nodes.push_back(nearest);
+  }
+}
+
+}  // namespace
+
 std::vector<HandleSpec> procedural_handles(const ProceduralHand& hand, int m) {
   // The palm handle grabs the palm's core (seed 004: 79 nodes at 350 tets); every
   // handle reaches at least the nearest grid nodes whatever the resolution.
   const double reach = 1.2 * hand.spacing;
-  std::vector<HandleSpec> specs{{hand.palm.name, hand.palm.p, std::max({hand.palm.radius, 0.03, reach})}};
+  std::vector<HandleSpec> specs{{hand.palm.name, hand.palm.p, std::max({hand.palm.radius, 0.03, reach}), {}}};
   for (int i : handle_phalanges(m))
-    specs.push_back({hand.phalanges[i].name, hand.phalanges[i].p, std::max(hand.phalanges[i].radius, reach)});
+    specs.push_back({hand.phalanges[i].name, hand.phalanges[i].p, std::max(hand.phalanges[i].radius, reach), {}});
+  if (!hand.node_part.empty()) take_own_part_nodes(hand, m, specs);
   return specs;
 }
 

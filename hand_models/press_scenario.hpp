@@ -13,6 +13,8 @@ namespace hapticd {
 // Handle seeds for m tracked frames on a procedural hand: 1 = palm (a stylus),
 // 6 = palm + five distal phalanges, 16 = palm + 15 phalanges, otherwise palm +
 // the first m - 1 phalanges in finger-major order. Throws for m outside [1, 16].
+// On a separate_fingers hand each handle takes only its own part's nodes (the
+// palm's or its finger's), none shared with another handle.
 std::vector<HandleSpec> procedural_handles(const ProceduralHand& hand, int m);
 // The tracked frame each of those handles follows, at rest in the hand frame:
 // the palm's (the hand frame itself) for handle 0, the phalanx segment frames

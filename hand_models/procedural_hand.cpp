@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <stdexcept>
 #include <unordered_map>
 #include <vector>
@@ -96,15 +97,37 @@ struct HandShape {
   std::array<RoundCone, 15> cones;                // m
   Vector3d lo, hi;                                // bounding box of the shape, m
 
-  double sdf(const Vector3d& p) const {
+  // The palm alone: a rounded trapezoidal slab.
+  double palm_sdf(const Vector3d& p) const {
     const double d2 = sd_trapezoid(p.x(), p.y(), (kPalmHalfWidthWrist - kPalmCornerRadius) * kCm,
                                    (kPalmHalfWidthKnuckles - kPalmCornerRadius) * kCm,
                                    (kPalmHalfLength - kPalmCornerRadius) * kCm) -
                       kPalmCornerRadius * kCm;
     const double wx = d2 + kPalmEdgeRadius * kCm;
     const double wy = std::abs(p.z()) - (kPalmHalfThickness - kPalmEdgeRadius) * kCm;
-    const double palm = std::min(std::max(wx, wy), 0.0) +
-                        std::hypot(std::max(wx, 0.0), std::max(wy, 0.0)) - kPalmEdgeRadius * kCm;
+    return std::min(std::max(wx, wy), 0.0) + std::hypot(std::max(wx, 0.0), std::max(wy, 0.0)) -
+           kPalmEdgeRadius * kCm;
+  }
+
+  // Finger f alone: the union of its three cones.
+  double finger_sdf(int f, const Vector3d& p) const {
+    return std::min({cones[3 * f].sdf(p), cones[3 * f + 1].sdf(p), cones[3 * f + 2].sdf(p)});
+  }
+
+  // The part (finger 0-4 or kHandPalmPart) whose own SDF is smallest at p: the one p lies in or is
+  // nearest to (the palm on ties).
+  int nearest_part(const Vector3d& p) const {
+    int best = kHandPalmPart;
+    double d = palm_sdf(p);
+    for (int f = 0; f < 5; ++f) {
+      const double df = finger_sdf(f, p);
+      if (df < d) d = df, best = f;
+    }
+    return best;
+  }
+
+  double sdf(const Vector3d& p) const {
+    const double palm = palm_sdf(p);
     // Fingers farther than palm + blend width leave the result at palm: start there and skip
     // every cone whose bounding ball is already farther (the result is unchanged, just faster).
     double fingers = palm + kBlend * kCm;
@@ -185,6 +208,28 @@ bool may_touch(const HandShape& shape, const Vector3d& c, double size, int depth
 
 constexpr int kCoverDepth = 2;  // sub-cubes of h/4: kept cells come within ~h/4 of the shape, not 0.87 h
 
+// Calls visit(cell id) for the cells the cone's axis passes through, from a to b, as a face-connected
+// chain (a cell may come more than once).
+template <typename Visit>
+void for_each_axis_cell(const CellGrid& g, const RoundCone& cone, Visit visit) {
+  const int steps = static_cast<int>(std::ceil((cone.b - cone.a).norm() / (0.125 * g.h))) + 1;
+  Vector3i prev = g.cell_of(cone.a);
+  visit(g.cell_id(prev));
+  for (int s = 1; s <= steps; ++s) {
+    const Vector3i cur = g.cell_of(cone.a + (cone.b - cone.a) * (static_cast<double>(s) / steps));
+    // Step one axis at a time so consecutive cells share a face.
+    while (cur != prev) {
+      for (int a = 0; a < 3; ++a) {
+        if (cur[a] != prev[a]) {
+          prev[a] += cur[a] > prev[a] ? 1 : -1;
+          break;
+        }
+      }
+      visit(g.cell_id(prev));
+    }
+  }
+}
+
 // Kept cells: all that may touch the shape plus every cell a bone axis passes through, reduced
 // to the largest face-connected component.
 std::vector<char> cover_cells(const HandShape& shape, const CellGrid& g) {
@@ -197,26 +242,83 @@ std::vector<char> cover_cells(const HandShape& shape, const CellGrid& g) {
       }
     }
   }
-  for (const RoundCone& cone : shape.cones) {
-    const int steps = static_cast<int>(std::ceil((cone.b - cone.a).norm() / (0.125 * g.h))) + 1;
-    Vector3i prev = g.cell_of(cone.a);
-    keep[g.cell_id(prev)] = 1;
-    for (int s = 1; s <= steps; ++s) {
-      const Vector3i cur = g.cell_of(cone.a + (cone.b - cone.a) * (static_cast<double>(s) / steps));
-      // Step one axis at a time so consecutive cells share a face.
-      while (cur != prev) {
-        for (int a = 0; a < 3; ++a) {
-          if (cur[a] != prev[a]) {
-            prev[a] += cur[a] > prev[a] ? 1 : -1;
-            break;
-          }
-        }
-        keep[g.cell_id(prev)] = 1;
-      }
-    }
-  }
+  for (const RoundCone& cone : shape.cones) for_each_axis_cell(g, cone, [&](int id) { keep[id] = 1; });
   detail::keep_largest_component(g, keep);
   return keep;
+}
+
+// Skeleton-aware split (separate_fingers): the part of every kept cell (finger 0-4 or kHandPalmPart),
+// -1 elsewhere. A cell takes the part nearest its centre. Then, so that every finger is one piece
+// hanging from the palm by faces: the knuckle cells (base joints) become palm, the cells a finger's
+// bone axes pass through that are not palm become that finger's (a face-connected chain from the
+// palm to the tip; a cell two fingers' bones pass through becomes palm), and any other island of a
+// finger's cells (a cell nearer to it but cut off by a neighbour's cells, at coarse grids) joins
+// the part most of its face neighbours have.
+std::vector<int> label_parts(const HandShape& shape, const CellGrid& g, const std::vector<char>& keep) {
+  std::vector<int> part(g.num_cells(), -1);
+  for (int id = 0; id < g.num_cells(); ++id) {
+    if (keep[id]) part[id] = shape.nearest_part(g.centre(g.cell_coords(id)));
+  }
+  std::vector<char> axis(g.num_cells(), 0);
+  for (int f = 0; f < 5; ++f) part[g.cell_id(g.cell_of(shape.joints[f][0]))] = kHandPalmPart;
+  for (int f = 0; f < 5; ++f) {
+    for (int k = 0; k < 3; ++k) {
+      for_each_axis_cell(g, shape.cones[3 * f + k], [&](int id) {
+        if (part[id] == kHandPalmPart) return;
+        if (axis[id] && part[id] != f) {
+          // Two fingers' bones in one cell (coarse grids): it cannot separate them, so it is shared
+          // flesh, and both chains stay attached through it.
+          part[id] = kHandPalmPart;
+          axis[id] = 0;
+          return;
+        }
+        part[id] = f;
+        axis[id] = 1;
+      });
+    }
+  }
+  std::vector<char> mask(g.num_cells());
+  std::vector<int> label, sizes;
+  for (int round = 0; round < 16; ++round) {
+    bool changed = false;
+    for (int f = 0; f < 5; ++f) {
+      for (int id = 0; id < g.num_cells(); ++id) mask[id] = part[id] == f ? 1 : 0;
+      const int n = detail::label_components(g, mask, label, sizes);
+      std::vector<char> rooted(n, 0);
+      std::vector<std::vector<int>> members(n);
+      for (int id = 0; id < g.num_cells(); ++id) {
+        if (label[id] < 0) continue;
+        members[label[id]].push_back(id);
+        if (axis[id]) rooted[label[id]] = 1;
+      }
+      for (int l = 0; l < n; ++l) {
+        if (rooted[l]) continue;
+        // Votes of the island's face neighbours outside it (kept cells only).
+        std::array<int, kHandPalmPart + 1> votes{};
+        for (int id : members[l]) {
+          const Vector3i c = g.cell_coords(id);
+          for (int a = 0; a < 3; ++a) {
+            for (int dir = -1; dir <= 1; dir += 2) {
+              Vector3i nb = c;
+              nb[a] += dir;
+              if (nb[a] < 0 || nb[a] >= g.n[a]) continue;
+              const int q = part[g.cell_id(nb)];
+              if (q >= 0 && q != f) ++votes[q];
+            }
+          }
+        }
+        // The palm wins ties, then the higher finger index.
+        int best = kHandPalmPart;
+        for (int q = kHandPalmPart; q >= 0; --q) {
+          if (votes[q] > votes[best]) best = q;
+        }
+        for (int id : members[l]) part[id] = best;
+        changed = true;
+      }
+    }
+    if (!changed) break;
+  }
+  return part;
 }
 
 int count_tets(const HandShape& shape, double h) {
@@ -238,6 +340,16 @@ constexpr Tet kuhn_corners(int p) {
 constexpr std::array<Tet, 6> kKuhnTets = {kuhn_corners(0), kuhn_corners(1), kuhn_corners(2),
                                           kuhn_corners(3), kuhn_corners(4), kuhn_corners(5)};
 
+// Weights of the corners (kuhn_corners order) of Kuhn tet p for local point u of the unit cube: the
+// affine coordinates, so outside the tet some are negative.
+Eigen::Vector4d kuhn_weights(int p, const Vector3d& u) {
+  const double w0 = 1.0 - u[kPerm[p][0]];
+  const double w1 = u[kPerm[p][0]] - u[kPerm[p][1]];
+  const double w2 = u[kPerm[p][1]] - u[kPerm[p][2]];
+  const double w3 = u[kPerm[p][2]];
+  return p < 3 ? Eigen::Vector4d(w0, w1, w2, w3) : Eigen::Vector4d(w0, w1, w3, w2);
+}
+
 // Kuhn tet of the unit cube containing local point u, with the weights of its corners (kuhn_corners order).
 std::pair<int, Eigen::Vector4d> locate_in_cube(const Vector3d& u_in) {
   const Vector3d u = u_in.cwiseMax(0.0).cwiseMin(1.0);
@@ -245,11 +357,23 @@ std::pair<int, Eigen::Vector4d> locate_in_cube(const Vector3d& u_in) {
   for (; p < 5; ++p) {
     if (u[kPerm[p][0]] >= u[kPerm[p][1]] && u[kPerm[p][1]] >= u[kPerm[p][2]]) break;
   }
-  const double w0 = 1.0 - u[kPerm[p][0]];
-  const double w1 = u[kPerm[p][0]] - u[kPerm[p][1]];
-  const double w2 = u[kPerm[p][1]] - u[kPerm[p][2]];
-  const double w3 = u[kPerm[p][2]];
-  return {p, p < 3 ? Eigen::Vector4d(w0, w1, w2, w3) : Eigen::Vector4d(w0, w1, w3, w2)};
+  return {p, kuhn_weights(p, u)};
+}
+
+// Corner weights w (kuhn_corners(perm) order) of the cell with low corner cell_min, moved to the node
+// order of mesh tet `tet` (finalize_mesh may have reordered its nodes): matched by position.
+Eigen::Vector4d weights_in_tet_order(const TetMesh& mesh, int tet, const Vector3d& cell_min, double h, int perm,
+                                     const Eigen::Vector4d& w) {
+  const Tet& corners = kKuhnTets[perm];
+  Eigen::Vector4d bary = Eigen::Vector4d::Zero();
+  for (int q = 0; q < 4; ++q) {
+    const int c = corners[q];
+    const Vector3d xc = cell_min + h * cube_corner(c).cast<double>();
+    for (int m = 0; m < 4; ++m) {
+      if ((mesh.X[mesh.tets[tet][m]] - xc).squaredNorm() < 1e-6 * h * h) bary[m] = w[q];
+    }
+  }
+  return bary;
 }
 
 // Parity of the permutation (a, b, c, d) of (0, 1, 2, 3).
@@ -300,16 +424,7 @@ Skin extract_skin(const HandShape& shape, const CellGrid& g, const std::vector<i
       const Vector3d p = (1.0 - t) * fine_pos(fu) + t * fine_pos(fv);
       const auto [perm, w] = locate_in_cube((p - cell_min) / g.h);
       const int tet = static_cast<int>(6 * kc) + perm;
-      const Tet& corners = kKuhnTets[perm];
-      Eigen::Vector4d bary = Eigen::Vector4d::Zero();
-      for (int q = 0; q < 4; ++q) {
-        const int c = corners[q];
-        const Vector3d xc = cell_min + g.h * cube_corner(c).cast<double>();
-        // Match by position: finalize_mesh may have reordered the tet's nodes.
-        for (int m = 0; m < 4; ++m) {
-          if ((mesh.X[mesh.tets[tet][m]] - xc).squaredNorm() < 1e-6 * g.h * g.h) bary[m] = w[q];
-        }
-      }
+      const Eigen::Vector4d bary = weights_in_tet_order(mesh, tet, cell_min, g.h, perm, w);
       it->second = static_cast<int>(skin.vertices.size());
       skin.vertices.push_back(p);
       skin.tet.push_back(tet);
@@ -375,6 +490,51 @@ Skin extract_skin(const HandShape& shape, const CellGrid& g, const std::vector<i
   return skin;
 }
 
+// separate_fingers: a skin vertex must follow the flesh of its own part (the part nearest it), not
+// the copy of a neighbouring finger that shares its grid cell. A tet is part P's when each of its
+// nodes is a copy of P or shared (palm flesh, which every part reaches). A vertex whose tet is not its
+// part's moves to the tet of its part, among the cells within two of its own, that holds it with the
+// least extrapolation (largest smallest weight): the cell across a face when the vertex lies on one
+// (weights >= 0); otherwise the part's flesh stops short of the vertex (a cell nearer to the
+// neighbour took the gap) and the weights extrapolate a fraction of a cell.
+void embed_skin_in_parts(const HandShape& shape, const CellGrid& g, const std::vector<int>& kept_cells,
+                         const TetMesh& mesh, const std::vector<int>& node_part, Skin& skin) {
+  std::vector<int> kc_of(g.num_cells(), -1);
+  for (size_t kc = 0; kc < kept_cells.size(); ++kc) kc_of[kept_cells[kc]] = static_cast<int>(kc);
+  auto tet_is_of = [&](int tet, int part) {
+    for (int v : mesh.tets[tet]) {
+      if (node_part[v] != part && node_part[v] != kHandPalmPart) return false;
+    }
+    return true;
+  };
+  for (size_t i = 0; i < skin.vertices.size(); ++i) {
+    const Vector3d& p = skin.vertices[i];
+    const int part = shape.nearest_part(p);
+    if (tet_is_of(skin.tet[i], part)) continue;
+    const Vector3i home = g.cell_coords(kept_cells[skin.tet[i] / 6]);
+    double best = -std::numeric_limits<double>::infinity();
+    for (int dz = -2; dz <= 2; ++dz) {
+      for (int dy = -2; dy <= 2; ++dy) {
+        for (int dx = -2; dx <= 2; ++dx) {
+          const Vector3i c = home + Vector3i(dx, dy, dz);
+          if ((c.array() < 0).any() || (c.array() >= g.n.array()).any()) continue;
+          const int kc = kc_of[g.cell_id(c)];
+          if (kc < 0) continue;
+          const Vector3d u = (p - g.corner(c)) / g.h;
+          for (int perm = 0; perm < 6; ++perm) {
+            const int tet = 6 * kc + perm;
+            const Eigen::Vector4d w = kuhn_weights(perm, u);
+            if (w.minCoeff() <= best || !tet_is_of(tet, part)) continue;
+            best = w.minCoeff();
+            skin.tet[i] = tet;
+            skin.bary[i] = weights_in_tet_order(mesh, tet, g.corner(c), g.h, perm, w);
+          }
+        }
+      }
+    }
+  }
+}
+
 void mirror(ProceduralHand& hand) {
   const Eigen::Matrix3d M = Eigen::Vector3d(-1.0, 1.0, 1.0).asDiagonal();
   for (Vector3d& x : hand.mesh.X) x.x() = -x.x();
@@ -399,6 +559,10 @@ void mirror(ProceduralHand& hand) {
 
 double procedural_hand_sdf(const Eigen::Vector3d& p, bool left) {
   return right_shape().sdf(left ? Vector3d(-p.x(), p.y(), p.z()) : p);
+}
+
+int procedural_hand_nearest_part(const Eigen::Vector3d& p, bool left) {
+  return right_shape().nearest_part(left ? Vector3d(-p.x(), p.y(), p.z()) : p);
 }
 
 int finger_index(const std::string& finger) {
@@ -427,13 +591,26 @@ ProceduralHand make_procedural_hand(const ProceduralHandOptions& options) {
   const double h = options.spacing > 0.0 ? options.spacing : hand_spacing_for_tets(options.target_tets);
   const HandShape& shape = right_shape();
   const CellGrid g = make_grid(shape, h);
-  detail::CellMesh cells = detail::mesh_cells(g, cover_cells(shape, g), kKuhnTets);
+  const std::vector<char> keep = cover_cells(shape, g);
+  std::vector<int> part;
+  detail::CellMesh cells;
+  if (options.separate_fingers) {
+    part = label_parts(shape, g, keep);
+    cells = detail::mesh_cells_by_part(g, keep, part, kHandPalmPart, kKuhnTets);
+  } else {
+    cells = detail::mesh_cells(g, keep, kKuhnTets);
+  }
 
   ProceduralHand hand;
   hand.spacing = h;
   hand.mesh = std::move(cells.mesh);
 
   Skin skin = extract_skin(shape, g, cells.cells, hand.mesh);
+  if (options.separate_fingers) {
+    embed_skin_in_parts(shape, g, cells.cells, hand.mesh, cells.node_part, skin);
+    hand.node_part = std::move(cells.node_part);
+    for (int id : cells.cells) hand.tet_part.insert(hand.tet_part.end(), 6, part[id]);
+  }
   hand.skin_vertices = std::move(skin.vertices);
   hand.skin_triangles = std::move(skin.triangles);
   hand.skin_tet = std::move(skin.tet);

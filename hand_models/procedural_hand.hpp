@@ -34,6 +34,25 @@
 // Covering makes the mesh volume exceed the hand's (about 1.6x at 20k tets, 5x
 // at 350), so a density applied to the mesh overestimates the mass by as much.
 //
+// Skeleton-aware mesh (separate_fingers, for gloves whose fingers move on their
+// own): the same cells and tets, but each kept cell belongs to the part (palm or
+// finger) whose own SDF is smallest at its centre; the cells of the base joints
+// are palm, a finger's bone axes claim the cells they cross (palm where two
+// fingers' bones share one), and a finger's cells cut off from its bones join
+// their neighbours' part. A grid node gets one copy per finger among its cells,
+// except on a palm cell, where all its cells share one node: fingers meet only
+// through palm flesh (the knuckles and webs) and each finger is one face-connected
+// piece on the palm. Neighbouring long fingers then share no node farther than
+// 2-6 mm beyond their base joints at 1.7k-20k tets (the webs stop at the
+// knuckles, shorter than a real hand's; thumb and index share none), however
+// wide the cells. The tet count, the tets' shapes and the skin are the
+// default's (568 nodes instead of 501 at 1.7k). A cell wider than the gap holds skin of both fingers but is one
+// finger's: a skin vertex of the other (by nearest part) goes to the nearest tet
+// of its own finger or the palm, extrapolating (about 1.5 % of the vertices at
+// 1.7k, smallest weight -0.27; -0.43 at 20k). Handle spheres cannot tell copies of
+// one grid node apart: at 1.7k a 1.2-cell sphere around a phalanx also takes
+// copies belonging to the neighbouring fingers.
+//
 // Skin: marching tetrahedra on the SDF sampled on the Kuhn tets of a uniform
 // refinement of the grid (each cell split into n^3 cells, the smallest n that
 // samples at 6 mm or finer; n = 1 for cells up to 6 mm, i.e. the mesh nodes
@@ -52,7 +71,13 @@ struct ProceduralHandOptions {
   int target_tets = 1700;  // used when spacing <= 0: spacing chosen so the tet count is near this
   double spacing = 0.0;    // grid cell edge in m
   bool left = false;       // mirror image (left hand); tets stay positively oriented
+  // Skeleton-aware mesh (see above): fingers share nodes only through palm flesh, so each moves on
+  // its own however coarse the grid. Same cells and tet count; more nodes.
+  bool separate_fingers = false;
 };
+
+// Part labels of ProceduralHand::tet_part and node_part: fingers are 0-4 (finger_index), the palm this.
+inline constexpr int kHandPalmPart = 5;
 
 // A rigid frame of the skeleton, usable as a handle seed.
 struct HandFrame {
@@ -74,7 +99,12 @@ struct ProceduralHand {
   std::vector<Eigen::Vector3d> skin_vertices;  // rest positions
   std::vector<Triangle> skin_triangles;        // outward, counter-clockwise; a closed manifold
   std::vector<int> skin_tet;                   // containing tet per vertex
-  std::vector<Eigen::Vector4d> skin_bary;      // weights of skin_tet's nodes, in its node order (sum 1, each >= 0)
+  std::vector<Eigen::Vector4d> skin_bary;      // weights of skin_tet's nodes, in its node order (sum 1, each >= 0,
+                                               // except where separate_fingers extrapolates, see above)
+  // separate_fingers only (empty otherwise): the part of each tet's grid cell, and the part whose copy
+  // each node is (kHandPalmPart: a node shared by every part at it, on palm flesh).
+  std::vector<int> tet_part;
+  std::vector<int> node_part;
 };
 
 // Throws std::invalid_argument for a spacing that is non-finite or positive but
@@ -91,6 +121,11 @@ double hand_spacing_for_tets(int target_tets);
 // Signed distance from p (m, hand frame) to the hand's surface, negative inside;
 // a 1-Lipschitz bound, exact away from the finger-palm blends.
 double procedural_hand_sdf(const Eigen::Vector3d& p, bool left = false);
+
+// The part of the hand nearest p (m, hand frame): the finger (0-4) or the palm (kHandPalmPart)
+// whose own SDF, without the blend, is smallest there (the palm on ties). separate_fingers labels
+// grid cells and skin vertices with it.
+int procedural_hand_nearest_part(const Eigen::Vector3d& p, bool left = false);
 
 // The mesh covers the hand with whole grid cells, so it holds more volume than
 // the hand (1.6x at 20k tets, 5x at 350): the density that gives the mesh the

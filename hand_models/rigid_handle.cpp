@@ -12,18 +12,26 @@ Eigen::Matrix3d skew(const Eigen::Vector3d& a) {
 }
 
 RigidHandle make_handle(const TetMesh& mesh, const Eigen::VectorXd& node_mass, const Eigen::Vector3d& seed,
-                        double radius, const std::string& name) {
+                        double radius, const std::vector<int>& nodes, const std::string& name) {
   if (!(radius > 0) || !seed.allFinite())
     throw std::invalid_argument("handle " + name + ": radius must be > 0 and the seed finite");
   RigidHandle h;
   h.name = name;
   Eigen::Vector3d com = Eigen::Vector3d::Zero();
-  for (int i = 0; i < mesh.num_nodes(); ++i) {
-    if ((mesh.X[i] - seed).norm() <= radius) {
-      h.nodes.push_back(i);
-      h.mass_kg += node_mass[i];
-      com += node_mass[i] * mesh.X[i];
+  auto take = [&](int i) {
+    h.nodes.push_back(i);
+    h.mass_kg += node_mass[i];
+    com += node_mass[i] * mesh.X[i];
+  };
+  if (!nodes.empty()) {
+    for (int i : nodes) {
+      if (i < 0 || i >= mesh.num_nodes())
+        throw std::invalid_argument("handle " + name + ": node " + std::to_string(i) + " is not in the mesh");
+      take(i);
     }
+  } else {
+    for (int i = 0; i < mesh.num_nodes(); ++i)
+      if ((mesh.X[i] - seed).norm() <= radius) take(i);
   }
   if (h.nodes.empty())
     throw std::invalid_argument("handle " + name + ": no mesh node within " + std::to_string(radius) +

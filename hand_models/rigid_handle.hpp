@@ -28,11 +28,12 @@ struct RigidHandle {
   Eigen::Vector3d p_WH_rest = Eigen::Vector3d::Zero();  // rest centre of mass (handle frame = world at rest)
 };
 
-// Collects the nodes of `mesh` inside the sphere (seed, radius); throws
-// std::invalid_argument if none is inside. The inertia is regularised so a
-// collinear node set still gives an invertible inertia.
+// Collects the nodes of `mesh` inside the sphere (seed, radius), or takes
+// `nodes` when given; throws std::invalid_argument if there is none (or a node
+// is out of range). The inertia is regularised so a collinear node set still
+// gives an invertible inertia.
 RigidHandle make_handle(const TetMesh& mesh, const Eigen::VectorXd& node_mass, const Eigen::Vector3d& seed,
-                        double radius, const std::string& name);
+                        double radius, const std::vector<int>& nodes, const std::string& name);
 
 // Where a handle sits in the rigid frame that drives it (a glove's tracked
 // phalanx): the handle's rest pose expressed in the frame's rest pose. Both

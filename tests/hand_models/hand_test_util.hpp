@@ -16,7 +16,7 @@ inline HandModel slab_hand(int handles, HandConfig config = {}, std::array<int, 
   const int side = static_cast<int>(std::ceil(std::sqrt(static_cast<double>(handles))));
   for (int j = 0; j < handles; ++j) {
     const double px = -L / 2 + L * (j % side + 0.5) / side, py = -L / 2 + L * (j / side + 0.5) / side;
-    config.handles.push_back({"h" + std::to_string(j), Eigen::Vector3d(px, py, T), std::min(0.5 * L / side, 0.015)});
+    config.handles.push_back({"h" + std::to_string(j), Eigen::Vector3d(px, py, T), std::min(0.5 * L / side, 0.015), {}});
   }
   return HandModel(std::move(mesh), config);
 }

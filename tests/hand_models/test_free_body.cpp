@@ -31,7 +31,7 @@ TEST(FreeBody, ValidationAsksForHandlesExactlyWhenTheBodyIsAHand) {
   HandConfig config;
   config.free_body = true;
   EXPECT_NO_THROW(validate(config));
-  config.handles.push_back({"palm", Eigen::Vector3d::Zero(), 0.01});
+  config.handles.push_back({"palm", Eigen::Vector3d::Zero(), 0.01, {}});
   try {
     validate(config);
     FAIL() << "a free body with a handle was accepted";

@@ -135,7 +135,7 @@ TEST(QuaternionJacobian, RateMatrixMatchesIntegratedRotation) {
 TEST(RigidHandle, MassAndInertiaComeFromTheLumpedMassesOfNodesInTheSphere) {
   const TetMesh mesh = make_box_mesh({0.04, 0.04, 0.04}, {4, 4, 4}, Eigen::Vector3d(-0.02, -0.02, -0.02));
   const CorotationalFem fem(mesh, Material{});
-  const RigidHandle h = make_handle(mesh, fem.lumped_mass(), Eigen::Vector3d::Zero(), 0.0101, "palm");
+  const RigidHandle h = make_handle(mesh, fem.lumped_mass(), Eigen::Vector3d::Zero(), 0.0101, {}, "palm");
   // Nodes within 1.01 cm of the centre on a 1 cm grid: the centre and its 6 axis neighbours.
   ASSERT_EQ(h.nodes.size(), 7u);
   double m = 0;
@@ -150,7 +150,7 @@ TEST(RigidHandle, MassAndInertiaComeFromTheLumpedMassesOfNodesInTheSphere) {
   }
   I += 0.4 * m * std::pow(0.00101, 2) * Eigen::Matrix3d::Identity();
   EXPECT_LT((h.inertia_B - I).norm(), 1e-12 * I.norm());
-  EXPECT_THROW(make_handle(mesh, fem.lumped_mass(), Eigen::Vector3d(1, 1, 1), 0.01, "far"), std::invalid_argument);
+  EXPECT_THROW(make_handle(mesh, fem.lumped_mass(), Eigen::Vector3d(1, 1, 1), 0.01, {}, "far"), std::invalid_argument);
 }
 
 }  // namespace
