@@ -81,11 +81,16 @@ class CholmodSchur {
       fingerprint_ = fingerprint(s.A_t);
     }
     if (chol_.info() != Eigen::Success) return false;
+    // The same state assembled again (the server's step after the model of it)
+    // has the same couplings and tool RHS too: Y, S and its LU stand.
+    if (reuse && schur_fingerprint(s) == schur_fingerprint_ && s.A_h == A_h_) return Y_.allFinite();
     const auto t1 = Clock::now();
     rhs_.resize(nt, nh + 1);
     rhs_.col(0) = s.b_t;
     rhs_.rightCols(nh) = s.A_th;
     Y_ = chol_.solve(rhs_);
+    schur_fingerprint_ = schur_fingerprint(s);
+    A_h_ = s.A_h;
     A_ht_ = s.A_ht;
     S_ = s.A_h - A_ht_ * Y_.rightCols(nh);
     if (nh > 0) lu_.compute(S_);
@@ -107,6 +112,12 @@ class CholmodSchur {
   // Whether the current factorization is of exactly this A_t (same pattern and values).
   bool factors(const Eigen::SparseMatrix<double>& A) const { return fingerprint(A) == fingerprint_; }
 
+  // A_t^-1 [b_t, A_th] of the last factored system when `s` is that system, else null.
+  const Eigen::MatrixXd* tool_solution(const CoupledSystem& s) const {
+    if (!factors(s.A_t)) return nullptr;
+    return schur_fingerprint(s) == schur_fingerprint_ && Y_.cols() == s.handle_dofs() + 1 ? &Y_ : nullptr;
+  }
+
   // A_t^-1 B: directly when the factorization is this A_t's, else CG preconditioned by it.
   bool solve_tool(const Eigen::SparseMatrix<double>& A, const Eigen::MatrixXd& B, Eigen::MatrixXd& X) const;
 
@@ -127,16 +138,28 @@ class CholmodSchur {
 
  private:
   // Two weighted sums of the values and the size: equal for the same matrix.
-  static std::array<double, 3> fingerprint(const Eigen::SparseMatrix<double>& A) {
-    std::array<double, 3> f{0, 0, static_cast<double>(A.nonZeros())};
-    for (Eigen::Index k = 0; k < A.nonZeros(); ++k) {
-      f[0] += A.valuePtr()[k];
-      f[1] += A.valuePtr()[k] * static_cast<double>(k + 1);
+  template <class Values>
+  static std::array<double, 3> fingerprint_of(const Values* values, Eigen::Index size) {
+    std::array<double, 3> f{0, 0, static_cast<double>(size)};
+    for (Eigen::Index k = 0; k < size; ++k) {
+      f[0] += values[k];
+      f[1] += values[k] * static_cast<double>(k + 1);
     }
     return f;
   }
+  static std::array<double, 3> fingerprint(const Eigen::SparseMatrix<double>& A) {
+    return fingerprint_of(A.valuePtr(), A.nonZeros());
+  }
+  // Of what Y and S are made of besides A_t and A_h: A_th, A_ht and b_t.
+  static std::array<double, 9> schur_fingerprint(const CoupledSystem& s) {
+    const std::array<double, 3> th = fingerprint(s.A_th), ht = fingerprint_of(s.A_ht.valuePtr(), s.A_ht.nonZeros()),
+                                b = fingerprint_of(s.b_t.data(), s.b_t.size());
+    return {th[0], th[1], th[2], ht[0], ht[1], ht[2], b[0], b[1], b[2]};
+  }
 
   std::array<double, 3> fingerprint_{0, 0, -1};
+  std::array<double, 9> schur_fingerprint_{0, 0, -1, 0, 0, -1, 0, 0, -1};  // of the system Y_ and S_ belong to
+  Eigen::MatrixXd A_h_;
   Eigen::CholmodDecomposition<Eigen::SparseMatrix<double>, Eigen::Lower> chol_;
   long analyzed_nnz_ = -1;
   long analyzed_rows_ = -1;
@@ -279,6 +302,10 @@ class SchurCholmodSolver final : public CoupledSolver {
   bool solve_tool(const CoupledSystem& s, const Eigen::MatrixXd& B, Eigen::MatrixXd& X) override {
     if (!factored_) return CoupledSolver::solve_tool(s, B, X);
     return schur_.solve_tool(s.A_t, B, X);
+  }
+
+  const Eigen::MatrixXd* tool_solution(const CoupledSystem& s) const override {
+    return factored_ ? schur_.tool_solution(s) : nullptr;
   }
 
   bool solve(const CoupledSystem& s, Eigen::VectorXd& v_h, Eigen::VectorXd& v_t, SolveReport& report) override {

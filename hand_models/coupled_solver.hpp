@@ -54,6 +54,9 @@ class CoupledSolver {
   // directly with the solver's factorization when it is this system's, else by
   // a sparse LU of the whole system.
   virtual bool solve_block(const CoupledSystem& system, const Eigen::MatrixXd& R, Eigen::MatrixXd& X);
+  // A_t^-1 [b_t, A_th] (the Schur complement's tool solves) when the solver
+  // keeps them and `system` is the one it last solved, else null.
+  virtual const Eigen::MatrixXd* tool_solution(const CoupledSystem& /*system*/) const { return nullptr; }
 };
 
 // The whole eq. 7 matrix [A_h A_ht; A_th A_t] as one sparse matrix.

@@ -46,7 +46,7 @@ bool linearize_handles(const HandModel& model, const HandState& s, CoupledSolver
   // assembled system only holds combined as -h D - h^2 K.
   Eigen::MatrixXd K_hh = Eigen::MatrixXd::Zero(nh, nh), D_hh = K_hh;
   Eigen::MatrixXd K_th = Eigen::MatrixXd::Zero(nt, nh), D_th = K_th;
-  Eigen::MatrixXd KD_ht = Eigen::MatrixXd::Zero(nh, nt);  // h K_ht + D_ht
+  std::vector<Eigen::Triplet<double>> kd_ht;  // h K_ht + D_ht: nonzero on the handles' own nodes only
   Eigen::VectorXd W_el = Eigen::VectorXd::Zero(nh);
   for (int j = 0; j < m; ++j) {
     const RigidHandle& H = model.handles()[j];
@@ -59,7 +59,9 @@ bool linearize_handles(const HandModel& model, const HandState& s, CoupledSolver
       D_hh.block<6, 6>(6 * j, 6 * j) += sp.dWB_dvh;
       K_th.block<3, 6>(3 * a, 6 * j) += sp.dFA_dxh;
       D_th.block<3, 6>(3 * a, 6 * j) += sp.dFA_dvh;
-      KD_ht.block<6, 3>(6 * j, 3 * a) += h * sp.dWB_dxA + sp.dWB_dvA;
+      const Eigen::Matrix<double, 6, 3> block = h * sp.dWB_dxA + sp.dWB_dvA;
+      for (int r = 0; r < 6; ++r)
+        for (int c = 0; c < 3; ++c) kd_ht.emplace_back(6 * j + r, 3 * a + c, block(r, c));
       // Elastic part: the wrench with the damping of the current velocities removed (linear in v).
       Vector6d v_h;
       v_h << hs.v_WH, hs.w_WH;
@@ -71,17 +73,45 @@ bool linearize_handles(const HandModel& model, const HandState& s, CoupledSolver
   // constant part, the K and D parts, then the held contact rows' J^T.
   const int nc = held ? held->rows() : 0;
   const int nk = 1 + 2 * nh;
-  Eigen::MatrixXd J_t(0, nt), J_b(0, 6 * nb);  // held rows on the tool and on the bodies
+  Eigen::SparseMatrix<double> KD_ht(nh, nt);
+  KD_ht.setFromTriplets(kd_ht.begin(), kd_ht.end());  // duplicates (a node in two springs) are summed
+  Eigen::SparseMatrix<double> J_t(0, nt), J_b(0, 6 * nb);  // held rows on the tool and on the bodies
   if (nc > 0) {
-    J_t = Eigen::MatrixXd(held->J.rightCols(nt));
-    J_b = Eigen::MatrixXd(held->J.middleCols(nh, 6 * nb));
+    J_t = held->J.rightCols(nt);
+    J_b = held->J.middleCols(nh, 6 * nb);
   }
-  Eigen::MatrixXd rhs(nt, nk + nc + 6 * nb);
-  rhs << sys.b_t, h * K_th, h * D_th, J_t.transpose(), Eigen::MatrixXd(sys.A_th.rightCols(6 * nb));
   Eigen::MatrixXd Y;
-  // The step's contact impulses act as known forces; the held rows' multipliers then only correct them.
-  if (held) rhs.col(0) += held->impulse.tail(nt);
-  if (!solver.solve_tool(sys, rhs, Y)) return false;
+  const Eigen::MatrixXd* solved = solver.tool_solution(sys);  // A_t^-1 [b_t, A_th] when the solver kept it
+  const double k = cp.stiffness_n_m, d = cp.damping_ns_m;
+  if (solved != nullptr && d > 0) {
+    // From the Schur complement's own solves: eq. 11 gives K_th = (k / d) D_th + E,
+    // E = -d [w]x [rho]x on the rotation columns only (the handle's spin), so
+    // A_th = -h D_th - h^2 K_th = -(1 + h k / d) h D_th - h E, and only E, the
+    // held rows and the contact impulses need new solves (3m + nc + 1 columns
+    // instead of 12m + nc + 1).
+    const Eigen::MatrixXd E = h * K_th - (k / d) * h * D_th;
+    Eigen::MatrixXd rhs(nt, 3 * m + nc + 1);
+    for (int j = 0; j < m; ++j) rhs.middleCols<3>(3 * j) = E.middleCols<3>(6 * j + 3);
+    rhs.middleCols(3 * m, nc) = Eigen::MatrixXd(J_t.transpose());
+    rhs.col(3 * m + nc) = held ? Eigen::VectorXd(held->impulse.tail(nt)) : Eigen::VectorXd::Zero(nt);
+    Eigen::MatrixXd Z;
+    if (!solver.solve_tool(sys, rhs, Z)) return false;
+    Eigen::MatrixXd Y_E = Eigen::MatrixXd::Zero(nt, nh);
+    for (int j = 0; j < m; ++j) Y_E.middleCols<3>(6 * j + 3) = Z.middleCols<3>(3 * j);
+    const Eigen::MatrixXd Y_D = -(solved->middleCols(1, nh) + h * Y_E) / (1 + h * k / d);
+    Y.resize(nt, nk + nc + 6 * nb);
+    // The step's contact impulses act as known forces; the held rows' multipliers then only correct them.
+    Y.col(0) = solved->col(0) + Z.col(3 * m + nc);
+    Y.middleCols(1, nh) = (k / d) * Y_D + Y_E;
+    Y.middleCols(1 + nh, nh) = Y_D;
+    Y.middleCols(nk, nc) = Z.middleCols(3 * m, nc);
+    Y.rightCols(6 * nb) = solved->rightCols(6 * nb);
+  } else {
+    Eigen::MatrixXd rhs(nt, nk + nc + 6 * nb);
+    rhs << sys.b_t, h * K_th, h * D_th, Eigen::MatrixXd(J_t.transpose()), Eigen::MatrixXd(sys.A_th.rightCols(6 * nb));
+    if (held) rhs.col(0) += held->impulse.tail(nt);
+    if (!solver.solve_tool(sys, rhs, Y)) return false;
+  }
   Eigen::MatrixXd X_b = Eigen::MatrixXd::Zero(6 * nb, nk + nc);  // the bodies' part of each solution
   if (nb > 0) {
     const Eigen::MatrixXd A_bt = Eigen::MatrixXd(sys.A_ht.bottomRows(6 * nb));
@@ -90,7 +120,7 @@ bool linearize_handles(const HandModel& model, const HandState& s, CoupledSolver
     Eigen::MatrixXd R_b = -A_bt * Y.leftCols(nk + nc);
     R_b.col(0) += sys.b_h.tail(6 * nb);  // the bodies' own RHS for b_t's column; zero for the handle columns
     if (held) R_b.col(0) += held->impulse.segment(nh, 6 * nb);
-    if (nc > 0) R_b.rightCols(nc) += J_b.transpose();
+    if (nc > 0) R_b.rightCols(nc) += Eigen::MatrixXd(J_b.transpose());
     X_b = S_b.partialPivLu().solve(R_b);
     Y.leftCols(nk + nc) -= Y_b * X_b;
   }

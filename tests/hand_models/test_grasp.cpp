@@ -30,8 +30,8 @@ HandModel two_fingers() {
   HandConfig c;
   c.material.youngs_modulus_pa = 1e5;
   // Each handle holds its finger's outer face (the finger's "bone").
-  c.handles = {{"left", Eigen::Vector3d(-kHalf - 0.0205, 0, 0.003), 0.012},
-               {"right", Eigen::Vector3d(kHalf + 0.0205, 0, 0.003), 0.012}};
+  c.handles = {{"left", Eigen::Vector3d(-kHalf - 0.0205, 0, 0.003), 0.012, {}},
+               {"right", Eigen::Vector3d(kHalf + 0.0205, 0, 0.003), 0.012, {}}};
   return HandModel(std::move(left), c);
 }
 

@@ -227,3 +227,44 @@ TEST(HandleLinearization, EqualsTheSchurComplementOfTheCouplingOverOneStep) {
 
 }  // namespace
 }  // namespace hapticd
+
+namespace hapticd {
+namespace {
+
+// The Schur solver hands the linearization its own A_t^-1 [b_t, A_th] and only
+// the spin part of the coupling Jacobian is solved anew; the result is the
+// full solve's (the monolithic solver keeps no factorization, so it takes the
+// full path): two spinning handles pressed on a penalty floor.
+TEST(HandleLinearization, ReusingTheSchurSolvesGivesTheFullSolvesModel) {
+  HandConfig c;
+  c.floor.enabled = true;
+  c.floor.height_m = 0.003;
+  const HandModel model = slab_hand(2, c);
+  HandState s = make_rest_state(model);
+  auto cholmod = make_solver(SolverKind::schur_cholmod);
+  for (int k = 0; k < 10; ++k) {
+    for (int j = 0; j < 2; ++j) {
+      HandleTarget t = offset_target(model, j, Eigen::Vector3d(0.001 * k, 0, -0.0008 * k));
+      t.q_W = Eigen::Quaterniond(Eigen::AngleAxisd(0.05 * k * (j ? -1 : 1), Eigen::Vector3d(0.3, 0.2, 1).normalized()));
+      set_target(s, j, t);
+    }
+    ASSERT_EQ(step(model, s, *cholmod, nullptr), StepStatus::ok);
+  }
+  ASSERT_GT(s.handles[0].w_WH.norm(), 0.1) << "the handles spin";
+  HandleLinearization reused, full;
+  assemble(model, s);
+  Eigen::VectorXd v_h, v_t;
+  SolveReport report;
+  ASSERT_TRUE(cholmod->solve(s.system, v_h, v_t, report));
+  ASSERT_NE(cholmod->tool_solution(s.system), nullptr);
+  ASSERT_TRUE(linearize_handles(model, s, *cholmod, reused));
+  auto monolithic = make_solver(SolverKind::monolithic);
+  ASSERT_EQ(monolithic->tool_solution(s.system), nullptr);
+  ASSERT_TRUE(linearize_handles(model, s, *monolithic, full));
+  EXPECT_LT((reused.K - full.K).norm(), 1e-8 * full.K.norm());
+  EXPECT_LT((reused.D - full.D).norm(), 1e-8 * full.D.norm());
+  EXPECT_LT((reused.F0 - full.F0).norm(), 1e-8 * (1 + full.F0.norm()));
+}
+
+}  // namespace
+}  // namespace hapticd
