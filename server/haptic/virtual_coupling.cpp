@@ -70,13 +70,14 @@ void ProxyHand::configure(int handles, const double* mass_kg, const Eigen::Matri
   for (int j = 0; j < kMaxHapticHandles; ++j) {
     v_[j].setZero(), w_[j].setZero(), v_dev_[j].setZero(), w_dev_[j].setZero();
     last_f_D_[j].setZero(), last_tau_D_[j].setZero();
+    energy_in_[j] = 0;
   }
 }
 
 void ProxyHand::reset() {
   ++resets_;
   resync();
-  for (int j = 0; j < handles_; ++j) last_f_D_[j].setZero(), last_tau_D_[j].setZero();
+  for (int j = 0; j < handles_; ++j) last_f_D_[j].setZero(), last_tau_D_[j].setZero(), energy_in_[j] = 0;
 }
 
 void ProxyHand::resync() {
@@ -184,10 +185,23 @@ ReplyWrench ProxyHand::reply(int j, double output_scale, double dt_since_last_s)
     reset();
     return r;
   }
+  const double dt = std::clamp(dt_since_last_s, 1e-4, 0.1);
+  // The port's power is f . v + tau . w with both about the handle; tau about
+  // the frame's origin adds r x f, and v there lacks w x r: the same power.
+  const Eigen::Vector3d v_D = R_DW * v_dev_[j] / map_.scale, w_D = R_DW * w_dev_[j];
+  const Eigen::Vector3d r_D = R_DW * r_W / map_.scale;
+  // Passivity controller: the damping that brings the observer's deficit back to zero this tick,
+  // shared by the two channels in proportion to what each can take.
+  const double v2 = v_D.squaredNorm() + kPassivityRotationWeight_m2 * w_D.squaredNorm();
+  if (passivity_control_ && energy_in_[j] < 0 && v2 > 1e-10) {
+    const double b = std::min(-energy_in_[j] / (dt * v2), kMaxPassivityDamping_ns_m);
+    f -= b * v_D;  // at the handle, so about the frame's origin with its moment
+    tau -= b * kPassivityRotationWeight_m2 * w_D + r_D.cross(b * v_D);
+    ++passivity_actions_;
+  }
   r.clamped = clamp_norm(f, limits_.max_force_n);
   r.clamped = clamp_norm(tau, limits_.max_torque_nm) || r.clamped;
   // Slew limit against the last reply: a jump of the target force becomes a ramp.
-  const double dt = std::clamp(dt_since_last_s, 1e-4, 0.1);
   Eigen::Vector3d df = f - last_f_D_[j], dtau = tau - last_tau_D_[j];
   const double torque_rate = limits_.max_force_rate_n_s * limits_.max_torque_nm / limits_.max_force_n;
   r.clamped = clamp_norm(df, limits_.max_force_rate_n_s * dt) || r.clamped;
@@ -196,6 +210,8 @@ ReplyWrench ProxyHand::reply(int j, double output_scale, double dt_since_last_s)
   r.tau_D = last_tau_D_[j] + dtau;
   last_f_D_[j] = r.f_D;
   last_tau_D_[j] = r.tau_D;
+  // The device moving against the wrench it feels does work on the rendering.
+  energy_in_[j] -= (r.f_D.dot(v_D) + (r.tau_D - r_D.cross(r.f_D)).dot(w_D)) * dt;
   if (r.clamped) ++clamps_;
   return r;
 }

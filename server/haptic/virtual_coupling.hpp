@@ -74,6 +74,12 @@ struct DeviceMap {
 // with a 1.5x margin at the haptic period T keeps the sampled coupling passive.
 CouplingGains coupling_gains_for(double device_stiffness_n_m, double scale, double haptic_period_s);
 
+// Device-space damping the passivity controller may add, N s/m (a Phantom-class
+// device renders a few N s/m stably at 1 kHz).
+constexpr double kMaxPassivityDamping_ns_m = 5.0;
+// Its rotational damping is the translational one times this (a lever of 2 cm, a phalanx's), m^2.
+constexpr double kPassivityRotationWeight_m2 = 4e-4;
+
 struct ReplyWrench {
   Eigen::Vector3d f_D = Eigen::Vector3d::Zero(), tau_D = Eigen::Vector3d::Zero();  // on the device, device frame
   bool clamped = false;
@@ -85,6 +91,8 @@ class ProxyHand {
   // `mass_kg` and `inertia_kg_m2` per handle (the simulated handles'); `handles` <= kMaxHapticHandles.
   void configure(int handles, const double* mass_kg, const Eigen::Matrix3d* inertia_B, const CouplingGains& gains,
                  const DeviceLimits& limits, const DeviceMap& map);
+  // The passivity controller of reply() (on by default; off: a baseline for tests).
+  void set_passivity_control(bool on) { passivity_control_ = on; }
 
   // A pose sample: the device pose of every handle in device space (set_device_pose
   // for each, then commit_sample with the sample's time). A first sample, or one
@@ -107,7 +115,12 @@ class ProxyHand {
   // The wrench for handle j now: coupling force reversed, in device space,
   // about the tracked frame's origin, scaled by `output_scale` (session ramp),
   // clamped and rate-limited against the last reply for this handle,
-  // `dt_since_last_s` ago.
+  // `dt_since_last_s` ago. A time-domain passivity controller (Hannaford and
+  // Ryu) guards the device port: an observer sums the work the device does on
+  // the rendering, and while it is negative (the rendering has given out more
+  // than it took: multi-rate lag, gating, a model that changed under the
+  // finger) the reply adds the damping that takes the deficit back, up to
+  // kMaxPassivityDamping.
   ReplyWrench reply(int j, double output_scale, double dt_since_last_s);
 
   // Puts every proxy on its device pose and zeroes velocities.
@@ -122,6 +135,10 @@ class ProxyHand {
   const HapticPose& device(int j) const { return device_[j]; }
   long resets() const { return resets_; }
   long clamps() const { return clamps_; }
+  // Replies the passivity controller added damping to.
+  long passivity_actions() const { return passivity_actions_; }
+  // The passivity observer's energy of frame j: the work its device has done on the rendering, J.
+  double energy_in(int j) const { return energy_in_[j]; }
   bool has_device_pose() const { return have_device_; }
   const CouplingGains& gains() const { return gains_; }
 
@@ -138,7 +155,9 @@ class ProxyHand {
   double t_dev_ = 0;
   bool have_device_ = false;
   Eigen::Vector3d last_f_D_[kMaxHapticHandles], last_tau_D_[kMaxHapticHandles];
-  long resets_ = 0, clamps_ = 0;
+  double energy_in_[kMaxHapticHandles]{};
+  bool passivity_control_ = true;  // passivity observer: work the device has done on the rendering, J
+  long resets_ = 0, clamps_ = 0, passivity_actions_ = 0;
   // Workspace of the implicit step, sized once.
   HapticMatrix A_;
   HapticVector b_, x_rel_, v_next_;

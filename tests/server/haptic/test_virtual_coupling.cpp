@@ -154,6 +154,51 @@ TEST(VirtualCoupling, StiffWallAtTheDeclaredStiffnessIsPassiveAndDoesNotRing) {
   EXPECT_LE(r.max_force, 8.0 + 1e-9);
 }
 
+// An active environment (a model that pushes along the handle's velocity:
+// negative damping) would feed energy into the device; the passivity
+// controller takes it back. The energy into the device is what a client
+// integrates, the reply held over each tick times the device's displacement.
+TEST(VirtualCoupling, PassivityControllerTakesBackWhatAnActiveModelGivesOut) {
+  HapticModel active = wall_model(0.0);
+  active.D(0, 0) = 2.0;  // N s/m along x: a force with the velocity
+  active.in_contact = false;
+  double energy[2];
+  long actions[2];
+  for (bool control : {false, true}) {
+    ProxyHand p = make_proxy();
+    p.set_passivity_control(control);
+    double t = 0, e = 0;
+    Eigen::Vector3d x = Eigen::Vector3d::Zero();
+    for (int k = 0; k < 4000; ++k) {  // 4 s of a 2 Hz, 3 cm stroke
+      t += kPeriod;
+      p.set_device_pose(0, x, Eigen::Quaterniond::Identity());
+      p.commit_sample(t, 0.05);
+      const ReplyWrench r = p.reply(0, 1.0, kPeriod);
+      p.integrate(active, kPeriod);
+      const Eigen::Vector3d next(0.03 * std::sin(2 * std::numbers::pi * 2.0 * (t + kPeriod)), 0, 0);
+      e += r.f_D.dot(next - x);
+      x = next;
+    }
+    energy[control] = e;
+    actions[control] = p.passivity_actions();
+  }
+  std::printf("energy into the device: %.4f J without the controller, %.4f J with it (%ld actions)\n", energy[0],
+              energy[1], actions[1]);
+  EXPECT_GT(energy[0], 0.05);
+  EXPECT_EQ(actions[0], 0);
+  EXPECT_LE(energy[1], 0.02 * energy[0]);
+  EXPECT_GT(actions[1], 0);
+}
+
+// A passive wall never trips the controller: it changes nothing there.
+TEST(VirtualCoupling, PassivityControllerStaysOutOfAPassiveContact) {
+  ProxyHand p = make_proxy();
+  double t = 0;
+  hold(p, wall_model(1e5, 5.0), Eigen::Vector3d(0, 0, -0.002), 1.0, t);
+  EXPECT_EQ(p.passivity_actions(), 0);
+  EXPECT_GE(p.energy_in(0), 0.0);
+}
+
 TEST(VirtualCoupling, ForceNeverExceedsTheLimitAndItsRateOfChangeIsBounded) {
   DeviceLimits limits{3.0, 0.2, 500.0};
   ProxyHand p = make_proxy({}, 1000.0, limits);
