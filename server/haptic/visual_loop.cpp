@@ -18,7 +18,9 @@ void fill_haptic_model(World& world, int h, HandleLinearization& lin, HapticMode
   for (const ContactRecord& c : snap.contacts) {
     if (c.hand != h || c.depth_m <= 0) continue;
     out.in_contact = true;
-    const int j = c.point >= 0 && c.point < static_cast<int>(hand.skin_handle.size()) ? hand.skin_handle[c.point] : 0;
+    // A contact without a skin point of this hand (another hand's skin inside its flesh) marks no handle.
+    if (c.point < 0 || c.point >= static_cast<int>(hand.skin_handle.size())) continue;
+    const int j = hand.skin_handle[c.point];
     if (j < kMaxHapticHandles) out.handle_in_contact[j] = true;
   }
   if (!linearize_next_step(*hand.model, hand.state, *hand.solver, lin)) return;

@@ -1,5 +1,6 @@
 #include "server/world/world.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdint>
@@ -30,6 +31,14 @@ std::uint64_t cluster_key(int object, const Eigen::Vector3d& p_W, double cell_m)
     key = (key << 16) | (static_cast<std::uint64_t>(cell) & 0xffff);
   }
   return key;
+}
+
+// A point embedded in a tet of `mesh` by barycentric weights w, at nodal values x (positions or velocities).
+Eigen::Vector3d embedded_at(const TetMesh& mesh, const Eigen::VectorXd& x, int tet, const Eigen::Vector4d& w) {
+  const Tet& t = mesh.tets[tet];
+  Eigen::Vector3d p = Eigen::Vector3d::Zero();
+  for (int k = 0; k < 4; ++k) p += w[k] * x.segment<3>(3 * t[k]);
+  return p;
 }
 
 int handle_count(HandleSet set) {
@@ -93,8 +102,9 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
   build.touched_by_hands = !hands_.empty() && options.hand_contacts;
   for (const ObjectDesc& o : scene.objects)
     if (o.kind == BodyKind::deformable) deformables_.push_back(make_deformable_object(o, build));
-  if ((rigid_ ? rigid_->num_objects() : 0) + num_deformables() > 0xffff)
-    throw std::runtime_error(scene.path + ": more than 65535 objects");  // cluster keys hold 16 bits of object
+  // Cluster keys hold 16 bits of the other body: objects, deformable objects, then two per hand (hand-hand contact).
+  if ((rigid_ ? rigid_->num_objects() : 0) + num_deformables() + 2 * num_hands() > 0xffff)
+    throw std::runtime_error(scene.path + ": more than 65535 objects");
   // Hands collide with their skin points, deformable objects with their surface points.
   auto add_soft = [&](const HandModel* model, HandState* state, const std::vector<int>* tets,
                       const std::vector<Eigen::Vector4d>* barys, double friction, int hand, int deformable) {
@@ -117,6 +127,27 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
     DeformableObject& o = *deformables_[d];
     add_soft(o.model.get(), &o.state, &o.body.surface_tet, &o.body.surface_bary, o.friction, -1, d);
   }
+  // Hand-hand contact only when the scene has two hands or more: each hand's
+  // flesh as a point-location query on its deformed tets, depths from the
+  // signed distance of its rest skin (3 mm cells as for the deformable
+  // objects; exact within 1.8 cm of the skin, deeper than half the palm is thick).
+  if (num_hands() >= 2 && options.hand_contacts && options.hand_hand_contacts) {
+    for (const std::unique_ptr<WorldHand>& h : hands_) {
+      const SurfaceMesh skin{h->shape.skin_vertices, h->shape.skin_triangles};
+      Eigen::AlignedBox3d box;
+      for (const Eigen::Vector3d& v : skin.vertices) box.extend(v);
+      const double cell = std::clamp(box.sizes().maxCoeff() / 40, 0.001, 0.003);
+      h->query = std::make_unique<DeformedMeshQuery>(h->model->mesh(), skin, cell, 6);
+      h->f_hands_W = Eigen::VectorXd::Zero(3 * h->model->num_nodes());
+    }
+  }
+  // Each hand's element rotations start at its placement (the polar factors of
+  // its rigidly placed rest shape). Started at the identity, a hand placed half
+  // a turn round (a left hand turned palm up to face a right hand) has F = R,
+  // symmetric, which the polar decomposition keeps as a stretch: its first step
+  // flung the flesh at 11 m/s.
+  for (size_t h = 0; h < hands_.size(); ++h)
+    hands_[h]->state.R.assign(hands_[h]->state.R.size(), scene.hands[h].pose.q_W.normalized().toRotationMatrix());
   collide_all();
   record_contacts();
   publish();
@@ -131,7 +162,12 @@ void World::collide_all() {
     for (int v = 0; v < static_cast<int>(o.body.surface_tet.size()); ++v) o.surface_bounds.extend(surface_point(o, v));
     collide(soft_[num_hands() + d]);
   }
+  find_hand_hits();
   for (int h = 0; h < num_hands(); ++h) collide(soft_[h]);
+  // The coming step's external forces as far as known now, for the model of the coming step.
+  if (!constraint_contact_)
+    for (int h = 0; h < num_hands(); ++h)
+      if (hands_[h]->query) anchor_hand_contacts(h, dt_);
 }
 
 int World::find_hand(const std::string& name) const {
@@ -161,9 +197,9 @@ void World::add_contact(SoftBody& b, const PointContact& c, int point, const Eig
   // not one per skin vertex (each row costs a column of A^-1 J^T). The other
   // points of the cell stay in reserve: the step makes a row of any it would
   // carry too deep (HandState::reserve_contacts). Against deformable objects
-  // the reaction must be handed over, so those points are not kept.
+  // and other hands the reaction must be handed over, so those points are not kept.
   auto keep_in_reserve = [&](const PointContact& r) {
-    if (options_.contact_reserves && touch.object < 0) s.reserve_contacts.push_back(r);
+    if (options_.contact_reserves && touch.object < 0 && touch.hand < 0) s.reserve_contacts.push_back(r);
   };
   const std::uint64_t key = cluster_key(other_key, p_W, options_.contact_cluster_m);
   PointContact warm_started = c;
@@ -268,6 +304,7 @@ void World::collide(SoftBody& b) {
     }
   }
   if (b.hand >= 0) collide_with_deformables(b, cluster);
+  if (b.hand >= 0 && hands_[b.hand]->query) collide_with_hands(b, cluster);
   // The bodies touched bring their own contacts (table, other bodies) as supports.
   std::vector<RigidWorld::BodyContact> found;
   for (int g = 0; rigid_ && g < rigid_->num_objects(); ++g) {
@@ -326,6 +363,113 @@ void World::collide_with_deformables(SoftBody& b, std::unordered_map<std::uint64
   }
 }
 
+// Every pair of hands' skin points in the other's flesh, found once for both
+// hands (collide_with_hands() makes their contacts), against every hand's
+// flesh where it is now.
+void World::find_hand_hits() {
+  hand_hits_.clear();
+  for (int h = 0; h < num_hands(); ++h) {
+    WorldHand& hand = *hands_[h];
+    if (!hand.query) continue;
+    hand.query->update(hand.state.x);
+    hand.skin_bounds.setEmpty();
+    for (size_t v = 0; v < hand.shape.skin_tet.size(); ++v)
+      hand.skin_bounds.extend(
+          embedded_at(hand.model->mesh(), hand.state.x, hand.shape.skin_tet[v], hand.shape.skin_bary[v]));
+  }
+  const double margin = constraint_contact_ ? kSpeculativeMargin_m : 0.0;
+  const Eigen::Vector3d grow = Eigen::Vector3d::Constant(margin);
+  for (int a = 0; a < num_hands(); ++a)
+    for (int o = a + 1; o < num_hands(); ++o) {
+      const WorldHand& A = *hands_[a];
+      const WorldHand& O = *hands_[o];
+      if (!A.query || !O.query || A.query->empty() || O.query->empty()) continue;
+      // Only points in both skins' boxes (grown by the margin) can touch: none for hands apart.
+      const Eigen::AlignedBox3d box_a(A.skin_bounds.min() - grow, A.skin_bounds.max() + grow);
+      const Eigen::AlignedBox3d box_o(O.skin_bounds.min() - grow, O.skin_bounds.max() + grow);
+      if (!box_a.intersects(box_o)) continue;
+      const Eigen::AlignedBox3d both = box_a.intersection(box_o);
+      for (const bool reversed : {false, true}) {
+        const int skin = reversed ? o : a, flesh = reversed ? a : o;
+        const WorldHand& S = *hands_[skin];
+        for (size_t v = 0; v < S.shape.skin_tet.size(); ++v) {
+          HandHit hit;
+          hit.skin = skin, hit.flesh = flesh, hit.vertex = static_cast<int>(v);
+          hit.p_W = embedded_at(S.model->mesh(), S.state.x, S.shape.skin_tet[v], S.shape.skin_bary[v]);
+          if (both.contains(hit.p_W) && hands_[flesh]->query->penetration(hit.p_W, margin, hit.pen))
+            hand_hits_.push_back(hit);
+        }
+      }
+    }
+}
+
+// Hand-hand contact of hand a with another hand o, both ways: a's skin points
+// in o's deformed flesh, and o's skin points in a's flesh (each hand's
+// DeformedMeshQuery), the latter a contact of a's flesh where the point is (the
+// query's tet and weights in a), normal reversed: the two surfaces face each
+// other there. The reaction of the first lies at o's tet and weights of a's
+// skin point, that of the second at o's skin point.
+// a meets o as two bodies of like inertia at the point meet (the hands are
+// mirror images of one flesh): at the midpoint of the two points, moving at
+// their mean velocity at the start of the step (the pair's centre of mass for
+// equal masses, which their contact cannot move), half the depth deep. The
+// other hand as a kinematic body instead (infinite inertia, as deformable
+// objects' penalty contacts have it) stopped a dead against it: o, taking the
+// whole impulse, was thrown back, or, answering implicitly, barely moved while
+// a bounced off; momentum was lost either way.
+//  - penalty contacts: o holds the same pairs the other way round, with twice
+//    the stiffness and damping over the half depth (the same force k d, and,
+//    for equal inertia, the force of one implicit solve of both hands): each
+//    hand's step is implicit in its own motion, and o's forces are the
+//    reactions of a's when the pair's mean velocity stays as it was (equal
+//    inertia at the point; exactly at rest). Handed over to o as external
+//    forces instead, a's forces left o's answer explicit in o, any mismatch
+//    between the inertias amplified k h^2 / m >> 1 times: the contacts
+//    chattered and never settled. See also anchor_hand_contacts().
+//  - constraint contacts: the lower-numbered hand a holds both ways of the
+//    pair, each point stopped at the mean velocity, and o takes the impulses
+//    whole (take_hand_reactions()): momentum passes exactly, the meeting is
+//    inelastic for equal inertia at the point, and the interface settles
+//    where the two hands' pushes balance (o gives way where a's impulse is
+//    more than it answers). Held by both hands, each against the midpoint as
+//    a wall, it stays wherever it is, the forces unbalanced. A point twice as
+//    heavy on a's side as on o's throws o back as fast as a came.
+void World::collide_with_hands(SoftBody& b, std::unordered_map<std::uint64_t, int>& cluster) {
+  const int a = b.hand;
+  const int first_key = (rigid_ ? rigid_->num_objects() : 0) + num_deformables();
+  for (const HandHit& hit : hand_hits_) {
+    if (hit.skin != a && hit.flesh != a) continue;
+    const bool reversed = hit.flesh == a;  // the other hand's skin point, in a's flesh
+    const int o = reversed ? hit.skin : hit.flesh;
+    if (constraint_contact_ && o < a) continue;  // the lower-numbered hand holds them
+    const WorldHand& skin = *hands_[hit.skin];
+    const WorldHand& flesh = *hands_[hit.flesh];
+    const int tet = skin.shape.skin_tet[hit.vertex];
+    const Eigen::Vector4d& w = skin.shape.skin_bary[hit.vertex];
+    const MeshPenetration& pen = hit.pen;
+    PointContact c;
+    DeformableTouch touch;  // the reaction's point in o
+    touch.hand = o;
+    touch.reversed = reversed;
+    if (!reversed) {  // a's skin point in o's flesh
+      c.tet = tet, c.bary = w, c.n_W = pen.n_W;
+      touch.tet = pen.tet, touch.bary = pen.bary;
+    } else {  // o's skin point in a's flesh
+      c.tet = pen.tet, c.bary = pen.bary, c.n_W = -pen.n_W;
+      touch.tet = tet, touch.bary = w;
+    }
+    // The two points, one in each hand, meet at their midpoint: it moves at their mean velocity.
+    c.v_other_W = 0.5 * (embedded_at(skin.model->mesh(), skin.state.v, tet, w) +
+                         embedded_at(flesh.model->mesh(), flesh.state.v, pen.tet, pen.bary));
+    c.depth_m = 0.5 * pen.depth_m;
+    c.stiffness_n_m = 2 * options_.contact_stiffness_n_m;
+    c.damping_ns_m = 2 * options_.contact_damping_ns_m;
+    c.friction = std::sqrt(skin.friction * flesh.friction);
+    c.constraint = constraint_contact_;
+    add_contact(b, c, hit.vertex, hit.p_W, first_key + 2 * o + (reversed ? 1 : 0), touch, cluster);
+  }
+}
+
 // A deformable object as the hand's constraint solve sees it: one rigid body
 // (its mass, its inertia at its current shape, the velocities that carry its
 // momentum) supported by the object's own contacts with static and rigid
@@ -360,10 +504,16 @@ void World::step(double dt_s) {
   snapshot_.linear_model_valid.assign(hands_.size(), false);
   for (int h = 0; h < num_hands(); ++h) {
     WorldHand& hand = *hands_[h];
+    if (hand.query && constraint_contact_) {
+      take_hand_reactions(h);  // in index order: the impulses of the hands that stepped before this one
+    } else if (hand.query) {
+      anchor_hand_contacts(h, step_dt_);
+    }
     hapticd::step(*hand.model, hand.state, *hand.solver, options_.linearize ? &snapshot_.linear_models[h] : nullptr);
     snapshot_.linear_model_valid[h] = snapshot_.linear_models[h].K.size() > 0;
     timings.linearize_ms += hand.state.timings.linearize_ms;
     timings.contact_ms += hand.state.timings.contact_ms;
+    if (hand.query) sum_hand_forces(h);
     remember_impulses(soft_[h]);
   }
   timings.hands_ms = ms_since(t0) - timings.linearize_ms - timings.contact_ms;
@@ -462,6 +612,67 @@ void World::step_deformables() {
   }
 }
 
+// Constraint contacts: hand h takes the impulses of the hands before it that
+// hold contacts with it (collide_with_hands()), reversed, as external forces.
+// They stay in f_ext after its step, so the model of its coming step (the
+// visual loop's linearize_next_step) predicts them unchanged: as a force,
+// without the contacts' stiffness.
+void World::take_hand_reactions(int h) {
+  HandState& s = hands_[h]->state;
+  const TetMesh& mesh = hands_[h]->model->mesh();
+  s.f_ext.setZero();
+  for (int g = 0; g < h; ++g) {
+    const SoftBody& from = soft_[g];
+    for (size_t k = 0; k < from.touches.size(); ++k) {
+      const DeformableTouch& touch = from.touches[k];
+      if (touch.hand != h) continue;
+      const Tet& t = mesh.tets[touch.tet];
+      for (int a = 0; a < 4; ++a) s.f_ext.segment<3>(3 * t[a]) -= touch.bary[a] * from.state->contacts[k].f_W;
+    }
+  }
+}
+
+// Penalty contacts: hand_models' penalty contact takes the far end of its
+// spring as still over the step (only its damping and friction see
+// v_other_W): the spring's force k (d - h n . (v_end - v_other)) misses
+// k h (n . v_other) n, known before the step, which comes in as an external
+// force. Against the midpoint of two hands moving along n it is not small:
+// both hands' springs pulled the pair toward rest, and a hand meeting another
+// at 0.3 m/s lost nearly all their momentum within five steps. The recorded contact
+// forces (f_W) have it: they take the relative velocity.
+void World::anchor_hand_contacts(int h, double dt) {
+  HandState& s = hands_[h]->state;
+  const SoftBody& b = soft_[h];
+  const TetMesh& mesh = hands_[h]->model->mesh();
+  s.f_ext.setZero();
+  for (size_t k = 0; k < b.touches.size(); ++k) {
+    const PointContact& c = s.contacts[k];
+    if (b.touches[k].hand < 0 || c.constraint) continue;
+    const Eigen::Vector3d f = c.stiffness_n_m * dt * c.n_W.dot(c.v_other_W) * c.n_W;
+    const Tet& t = mesh.tets[c.tet];
+    for (int a = 0; a < 4; ++a) s.f_ext.segment<3>(3 * t[a]) += c.bary[a] * f;
+  }
+}
+
+// What the other hands did to hand h over the step, per node: the impulses it
+// took and its own hand-hand contacts' forces.
+void World::sum_hand_forces(int h) {
+  WorldHand& hand = *hands_[h];
+  const SoftBody& b = soft_[h];
+  const TetMesh& mesh = hand.model->mesh();
+  if (constraint_contact_) {
+    hand.f_hands_W = hand.state.f_ext;  // the impulses taken
+  } else {
+    hand.f_hands_W.setZero();  // f_ext holds part of the contacts' own forces (anchor_hand_contacts())
+  }
+  for (size_t k = 0; k < b.touches.size(); ++k) {
+    if (b.touches[k].hand < 0) continue;
+    const PointContact& c = hand.state.contacts[k];
+    const Tet& t = mesh.tets[c.tet];
+    for (int a = 0; a < 4; ++a) hand.f_hands_W.segment<3>(3 * t[a]) += c.bary[a] * c.f_W;
+  }
+}
+
 void World::apply_reactions() {
   // Each body a hand or a deformable object touched was solved implicitly with
   // it, with its gravity and supports: its end-of-step velocity is the result,
@@ -489,18 +700,31 @@ void World::record_contacts() {
     const HandState& s = *b.state;
     for (size_t k = 0; k < s.contacts.size(); ++k) {
       const PointContact& c = s.contacts[k];
+      const DeformableTouch& touch = b.touches[k];
       ContactRecord r;
       r.hand = b.hand;
       r.deformable = b.deformable;
       r.object = c.other;
       r.point = b.point_of[k];
-      r.other_deformable = b.touches[k].object;
+      r.other_deformable = touch.object;
+      r.other_hand = touch.hand;
       r.p_W = b.points[k];
       r.n_W = c.n_W;
       r.f_W = c.f_W;
       r.depth_m = c.depth_m;
+      if (touch.hand >= 0) r.depth_m = 2 * c.depth_m;  // held at half depth (collide_with_hands())
+      if (touch.reversed) r.point = -1;                // the other hand's skin point, in this hand's flesh
       snapshot_.contacts.push_back(r);
-      snapshot_.max_penetration_m = std::max(snapshot_.max_penetration_m, c.depth_m);  // gaps are < 0
+      snapshot_.max_penetration_m = std::max(snapshot_.max_penetration_m, r.depth_m);  // gaps are < 0
+      if (touch.hand >= 0 && c.constraint) {
+        // The other hand took this impulse reversed: its record too.
+        r.hand = touch.hand;
+        r.other_hand = b.hand;
+        r.point = touch.reversed ? b.point_of[k] : -1;
+        r.n_W = -c.n_W;
+        r.f_W = -c.f_W;
+        snapshot_.contacts.push_back(r);
+      }
     }
   }
 }

@@ -4,11 +4,12 @@
 // each hand's handle-space force model), deformables (the deformable objects'
 // implicit FEM steps, with the hands' contact reactions), reactions (contact
 // impulses onto ODE bodies), rigid (ODE step), collide (hand skin and deformable
-// surfaces vs static and rigid geometry, hand skin vs deformable objects, for
-// the next step), publish (snapshot). Built from a SceneDesc, building only what
-// the scene names. Contact is the implicit penalty baseline by default, or
-// constraint contact (see WorldOptions::contact); rigid bodies a hand or a
-// deformable object touches are solved implicitly with it either way.
+// surfaces vs static and rigid geometry, hand skin vs deformable objects and
+// the other hands' flesh, for the next step), publish (snapshot). Built from a
+// SceneDesc, building only what the scene names. Contact is the implicit
+// penalty baseline by default, or constraint contact (see WorldOptions::contact);
+// rigid bodies a hand or a deformable object touches are solved implicitly
+// with it either way.
 #include <cstdint>
 #include <memory>
 #include <optional>
@@ -35,6 +36,9 @@ struct WorldOptions {
   SolverKind solver = SolverKind::schur_cholmod;
   DriveParams drive;  // how each handle is pulled toward its target (zero: the hand is let go)
   bool hand_contacts = true;  // false: hands pass through everything (a cost baseline for benches)
+  // False: hands pass through each other, still touching everything else (a
+  // cost baseline). Only scenes with two hands or more build hand-hand contact.
+  bool hand_hand_contacts = true;
   // False: hands are weightless (their inertia stays), as the server runs them, so
   // a device in free space feels no virtual hand weight; objects keep gravity.
   bool hand_gravity = true;
@@ -61,19 +65,31 @@ struct WorldHand {
   HandState state;
   std::unique_ptr<CoupledSolver> solver;
   double friction = 0.5;
+  // Hand-hand contact (a scene with two hands or more, hand contacts on): where
+  // a point lies in this hand's deformed flesh and how deep it is inside its
+  // skin; null otherwise (one hand builds nothing for it).
+  std::unique_ptr<DeformedMeshQuery> query;
+  Eigen::AlignedBox3d skin_bounds;  // of the deformed skin, at the last collision
+  // The other hands' contact forces on the nodes over the last step, N, 3n
+  // (World::step): with query only, else empty.
+  Eigen::VectorXd f_hands_W;
 };
 
 // One contact of a point of flesh: a hand's skin point (hand >= 0) or a
 // deformable object's surface point (deformable >= 0), against a RigidWorld
 // object (object >= 0) or, for hand points, a deformable object
-// (other_deformable >= 0). f_W is the force on the point's body, N; n_W points
-// out of the other side.
+// (other_deformable >= 0) or another hand's flesh (other_hand >= 0). f_W is the
+// force on the point's body, N; n_W points out of the other side. A hand's
+// contact with another hand's flesh is at its skin point, or at a point of its
+// own flesh where the other hand's skin point is (point -1); the other hand
+// has the same pair the other way round (World::collide_with_hands).
 struct ContactRecord {
   int hand = -1, object = -1;
   int point = -1;  // the body's contact point: a hand's skin vertex, a deformable object's surface point
   Eigen::Vector3d p_W = Eigen::Vector3d::Zero(), n_W = Eigen::Vector3d::Zero(), f_W = Eigen::Vector3d::Zero();
   double depth_m = 0;
   int deformable = -1, other_deformable = -1;
+  int other_hand = -1;
 };
 
 struct WorldTimings {
@@ -133,11 +149,16 @@ class World {
   double dt() const { return dt_; }
 
  private:
-  // A point of a hand that touches a deformable object: where in the object.
+  // A point of a hand that touches a deformable object or another hand: where in that body.
   struct DeformableTouch {
     int object = -1;  // index of the deformable object, -1: the contact is with a RigidWorld object
-    int tet = 0;
+    int tet = 0;  // the tet and weights where the contact's reaction goes
     Eigen::Vector4d bary = Eigen::Vector4d::Zero();
+    // Hand-hand: the other hand, -1 if none. `reversed`: the skin point is the
+    // other hand's (SoftBody::point_of is its skin vertex) and the contact sits
+    // in this hand's flesh; else this hand's skin point in the other's flesh.
+    int hand = -1;
+    bool reversed = false;
   };
   struct LastContact {
     int object = -1;
@@ -153,7 +174,7 @@ class World {
     const std::vector<Eigen::Vector4d>* point_bary = nullptr;
     double friction = 0.5;
     int hand = -1, deformable = -1;  // which body it is
-    // Per contact of state->contacts: world point, and for hands the deformable object touched.
+    // Per contact of state->contacts: world point, and for hands the deformable object or other hand touched.
     std::vector<Eigen::Vector3d> points;
     std::vector<DeformableTouch> touches;
     // Constraint contacts: each contact's cluster cell, and the impulse (N s)
@@ -171,6 +192,14 @@ class World {
   void collide(SoftBody& body);
   int add_rigid_proxy(HandState& state, int deformable);
   void collide_with_deformables(SoftBody& body, std::unordered_map<std::uint64_t, int>& cluster);
+  void find_hand_hits();
+  void collide_with_hands(SoftBody& body, std::unordered_map<std::uint64_t, int>& cluster);
+  // Hand-hand: before hand h steps, the constraint impulses of the hands
+  // stepping before it, or its penalty contacts' forces from their far end's
+  // motion (over a step of dt); after, what the other hands did to it.
+  void take_hand_reactions(int h);
+  void anchor_hand_contacts(int h, double dt);
+  void sum_hand_forces(int h);
   void remember_impulses(SoftBody& body);
   // Adds a found contact to the body, clustered per other body and cell for constraint contacts.
   void add_contact(SoftBody& body, const PointContact& c, int point, const Eigen::Vector3d& p_W, int other_key,
@@ -191,6 +220,13 @@ class World {
   std::unique_ptr<RigidWorld> rigid_;
   std::vector<SoftBody> soft_;          // the hands, then the deformable objects
   std::vector<PointContact> mirrored_;  // workspace: hand contacts seen from a deformable object
+  // A hand's skin vertex in another hand's flesh, at the last collision.
+  struct HandHit {
+    int skin = -1, flesh = -1, vertex = -1;
+    Eigen::Vector3d p_W = Eigen::Vector3d::Zero();
+    MeshPenetration pen;
+  };
+  std::vector<HandHit> hand_hits_;
   WorldSnapshot snapshot_;
 };
 

@@ -10,21 +10,10 @@ bin=$1
 scene=$2
 seconds=${3:-3}
 work=$(mktemp -d)
+server_pid=""
 trap 'kill "$server_pid" 2>/dev/null || true; rm -rf "$work"' EXIT
-
-"$bin/hapticd" --scene "$scene" --port 0 --duration $((seconds + 20)) --stats "$work/server.json" \
-  > "$work/server.out" 2> "$work/server.err" &
-server_pid=$!
-port=""
-for _ in $(seq 1 200); do
-  port=$(sed -n 's/^hapticd listening on [0-9.]*:\([0-9]*\)$/\1/p' "$work/server.out")
-  [ -n "$port" ] && break
-  if ! kill -0 "$server_pid" 2>/dev/null; then
-    echo "hapticd exited before listening:"; cat "$work/server.err"; exit 1
-  fi
-  sleep 0.05
-done
-[ -n "$port" ] || { echo "hapticd did not print its port within 10 s"; exit 1; }
+source "$(dirname "$0")/lib.sh"
+start_hapticd "$bin" "$scene" "$seconds" "$work"
 
 "$bin/haptic-device" --server "127.0.0.1:$port" --device stylus --trajectory press-stroke --rate 1000 \
   --duration "$seconds" --report "$work/device.json"

@@ -193,6 +193,7 @@ TEST(VirtualCoupling, PassivityControllerTakesBackWhatAnActiveModelGivesOut) {
 // A passive wall never trips the controller: it changes nothing there.
 TEST(VirtualCoupling, PassivityControllerStaysOutOfAPassiveContact) {
   ProxyHand p = make_proxy();
+  p.set_passivity_control(true);
   double t = 0;
   hold(p, wall_model(1e5, 5.0), Eigen::Vector3d(0, 0, -0.002), 1.0, t);
   EXPECT_EQ(p.passivity_actions(), 0);

@@ -1,0 +1,53 @@
+#!/usr/bin/env bash
+# End to end on loopback: hapticd on the glove scene and a simulated 16-frame
+# glove closing into a power grasp over the box. Asserts: no loss, every pose
+# answered, no resets, the grasp touches the box with at least three fingers,
+# the palm (which touches nothing) gets no force, and no frame's force exceeds
+# the device limit. It does not assert passivity: with the virtual hand's
+# flesh joints a grasp still puts net energy into the glove (README, Gloves).
+# Usage: glove_loopback.sh BIN_DIR SCENE [SECONDS]
+set -euo pipefail
+bin=$1
+scene=$2
+seconds=${3:-4}
+work=$(mktemp -d)
+server_pid=""
+trap 'kill "$server_pid" 2>/dev/null || true; rm -rf "$work"' EXIT
+source "$(dirname "$0")/lib.sh"
+start_hapticd "$bin" "$scene" "$seconds" "$work"
+
+"$bin/haptic-device" --server "127.0.0.1:$port" --device glove --frames 16 --trajectory grasp --rate 1000 \
+  --duration "$seconds" --report "$work/device.json" --trace "$work/trace.csv"
+kill -INT "$server_pid"
+wait "$server_pid"
+
+python3 - "$work/device.json" "$work/server.json" "$work/trace.csv" <<'PY'
+import csv, json, math, sys
+d = json.load(open(sys.argv[1]))
+s = json.load(open(sys.argv[2]))
+fingers = d["fingers"]
+touching = [f for f, v in fingers.items() if v["contact_fraction"] > 0]
+limit = d["welcome"]["force_limit_n"]
+print(f"loss {100 * d['loss_fraction']:.2f} %, late {100 * d['late_fraction']:.2f} %; fingers touching: {touching}; "
+      f"palm contact {100 * d['palm']['contact_fraction']:.0f} %; passivity {d['passivity_energy_j']:.3f} J; "
+      f"visual {s['visual']['rate_hz_achieved']:.1f} Hz")
+failures = []
+if d["loss_fraction"] != 0: failures.append(f"loss {d['loss_fraction']}")
+if s["replies"] < d["samples_sent"]: failures.append(f"server replied {s['replies']} of {d['samples_sent']}")
+if s["proxy_resets"] or s["visual"]["hand_resets"]: failures.append("resets")
+if len(touching) < 3: failures.append(f"only {touching} touched the box")
+for name, part in list(fingers.items()) + [("palm", d["palm"])]:
+    if part["contact_fraction"] == 0 and part["force_n"]["max"] > 0.05:
+        failures.append(f"the {name} touched nothing but felt {part['force_n']['max']} N")
+worst = 0.0
+with open(sys.argv[3]) as f:
+    rows = csv.DictReader(f)
+    cols = [c[: -len("_x_n")] for c in rows.fieldnames if c.startswith("f_") and c.endswith("_x_n")]
+    for row in rows:
+        for base in cols:
+            worst = max(worst, math.sqrt(sum(float(row[base + a]) ** 2 for a in ("_x_n", "_y_n", "_z_n"))))
+if not cols: failures.append("the trace has no per-frame forces")
+if worst > limit + 1e-3: failures.append(f"a frame felt {worst} N over the {limit} N limit")
+if failures:
+    print("FAILED: " + "; ".join(failures)); sys.exit(1)
+PY

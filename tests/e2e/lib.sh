@@ -1,0 +1,19 @@
+# Shared by the end-to-end scripts: start_hapticd BIN SCENE SECONDS WORKDIR starts
+# hapticd on a free loopback port for SECONDS + 20 s, writing its stats to
+# WORKDIR/server.json, and sets server_pid and port (exits 1 if it never listens).
+start_hapticd() {
+  local bin=$1 scene=$2 seconds=$3 work=$4
+  "$bin/hapticd" --scene "$scene" --port 0 --duration $((seconds + 20)) --stats "$work/server.json" \
+    > "$work/server.out" 2> "$work/server.err" &
+  server_pid=$!
+  port=""
+  for _ in $(seq 1 200); do
+    port=$(sed -n 's/^hapticd listening on [0-9.]*:\([0-9]*\)$/\1/p' "$work/server.out" 2>/dev/null || true)
+    [ -n "$port" ] && return 0
+    if ! kill -0 "$server_pid" 2>/dev/null; then
+      echo "hapticd exited before listening:"; cat "$work/server.err"; exit 1
+    fi
+    sleep 0.05
+  done
+  echo "hapticd did not print its port within 10 s"; exit 1
+}
