@@ -353,6 +353,29 @@ TEST(ShippedScenes, StylusBunnyLoads) {
   EXPECT_FALSE(scene.needs_deformable_objects());
 }
 
+// The glove scenes: each hand with phalanx handles, driven by its own 16-frame glove.
+TEST(ShippedScenes, GloveScenesGiveEachPhalanxHandItsOwnGlove) {
+  for (const char* name : {"glove_grasp.json", "two_hands.json"}) {
+    const SceneDesc scene = load_scene((kScenes / name).string());
+    ASSERT_FALSE(scene.hands.empty()) << name;
+    EXPECT_EQ(scene.devices.size(), scene.hands.size()) << name;
+    for (const HandDesc& hand : scene.hands) {
+      EXPECT_EQ(hand.handles, HandleSet::phalanges) << name;
+      const DeviceDesc* glove = scene.device_for_hand(hand.name);
+      ASSERT_NE(glove, nullptr) << name << " " << hand.name;
+      EXPECT_EQ(glove->kind, DeviceKind::glove);
+      // The glove's tracker space puts the hand frame where the scene places the hand.
+      EXPECT_LT((glove->workspace.offset_W - hand.pose.p_W).norm(), 1e-12) << name << " " << hand.name;
+    }
+    const ObjectDesc* box = scene.find_object("box");
+    ASSERT_NE(box, nullptr) << name;
+    EXPECT_EQ(box->mass_kg, 0.1);
+  }
+  const SceneDesc two = load_scene((kScenes / "two_hands.json").string());
+  ASSERT_EQ(two.hands.size(), 2u);
+  EXPECT_NE(two.hands[0].side, two.hands[1].side);
+}
+
 TEST(ShippedScenes, DeformableBunnyLoads) {
   for (const char* asset :
        {"assets/bunny.obj", "assets/bunny_271.node", "assets/bunny_271.ele", "assets/bunny_271.embed"})
