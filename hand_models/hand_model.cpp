@@ -381,7 +381,7 @@ void assemble(const HandModel& model, HandState& s) {
     v << B.v_W, B.w_W;
     sys.A_h.block<6, 6>(6 * (m + b), 6 * (m + b)) = M;
     sys.b_h.segment<6>(6 * (m + b)) = M * v;
-    sys.b_h.segment<3>(6 * (m + b)) += h * B.mass_kg * cfg.gravity_m_s2;
+    sys.b_h.segment<3>(6 * (m + b)) += h * B.mass_kg * B.gravity_W;
   }
   for (const PointContact& c : s.active_contacts)
     if (c.body >= 0 && !c.constraint) assemble_body_contact(model, c, s, 6 * (m + c.body), h, th, ht);

@@ -149,6 +149,9 @@ struct ContactBody {
   Eigen::Matrix3d inertia_W = Eigen::Matrix3d::Identity();  // about the centre of mass, world axes, kg m^2
   Eigen::Vector3d p_com_W = Eigen::Vector3d::Zero();
   Eigen::Vector3d v_W = Eigen::Vector3d::Zero(), w_W = Eigen::Vector3d::Zero();
+  // The body's own gravity, m/s^2: the world's, whatever the hand's (a weightless
+  // hand still carries the weight of what it holds).
+  Eigen::Vector3d gravity_W{0, 0, -9.81};
   // Out, after a step: the body's velocity change over the step, from its
   // gravity, its supports and the hand's contacts together.
   Eigen::Vector3d dv_W = Eigen::Vector3d::Zero(), dw_W = Eigen::Vector3d::Zero();

@@ -292,6 +292,7 @@ void World::collide(SoftBody& b) {
         if (body_of_object[g] < 0) {
           body_of_object[g] = static_cast<int>(s.bodies.size());
           s.bodies.push_back(rigid_->contact_body(g));
+          s.bodies.back().gravity_W = gravity_m_s2_;
         }
         c.body = body_of_object[g];
       }
@@ -479,6 +480,7 @@ void World::collide_with_hands(SoftBody& b, std::unordered_map<std::uint64_t, in
 int World::add_rigid_proxy(HandState& s, int d) {
   const int index = static_cast<int>(s.bodies.size());
   s.bodies.push_back(rigid_proxy(*deformables_[d]));
+  s.bodies.back().gravity_W = gravity_m_s2_;
   const SoftBody& own = soft_[num_hands() + d];
   for (size_t k = 0; k < own.state->contacts.size(); ++k) {
     const PointContact& c = own.state->contacts[k];

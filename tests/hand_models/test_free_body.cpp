@@ -117,6 +117,7 @@ TEST(FreeBody, EverySolverFollowsTheMonolithicReferenceWithContactsAndABody) {
     auto solver = make_solver(kind);
     for (int k = 0; k < 20; ++k) {
       ContactBody body;
+      body.gravity_W = config.gravity_m_s2;  // as weightless as the cube
       body.mass_kg = 0.05;
       body.inertia_W = 1e-5 * Eigen::Matrix3d::Identity();
       body.p_com_W = Eigen::Vector3d(0, 0, 0.05);

@@ -151,6 +151,7 @@ TEST(PointContact, ImplicitBodyContactConservesMomentumAtAnyMassRatio) {
     for (int i = 0; i < model.num_nodes(); ++i) s.v[3 * i] = 0.5;  // the slab moves along +x
     s.handles[0].v_WH = Eigen::Vector3d(0.5, 0, 0);
     ContactBody body;
+    body.gravity_W.setZero();  // no gravity anywhere: momentum is conserved
     body.mass_kg = body_mass;
     body.inertia_W = body_mass * 1e-4 * Eigen::Matrix3d::Identity();
     body.p_com_W = Eigen::Vector3d(0.06, 0, 0.01);
@@ -220,6 +221,7 @@ TEST(ConstraintContact, PushingAnImplicitBodyConservesMomentum) {
   for (int i = 0; i < model.num_nodes(); ++i) s.v[3 * i] = 0.5;
   s.handles[0].v_WH = Eigen::Vector3d(0.5, 0, 0);
   ContactBody body;
+  body.gravity_W.setZero();  // no gravity anywhere: momentum is conserved
   body.mass_kg = 0.05;
   body.inertia_W = 0.05 * 1e-4 * Eigen::Matrix3d::Identity();
   body.p_com_W = Eigen::Vector3d(0.06, 0, 0.01);

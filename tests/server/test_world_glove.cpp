@@ -1,0 +1,424 @@
+// Glove grasps in the world: a right hand with 16 handles (palm + 15 phalanges,
+// 1.7k tets, separate fingers) driven like a glove (every handle's target set
+// each step from posture_targets, with the velocity from the last target; the
+// visual loop's stiff drive) picks up rigid objects standing on a static table:
+// descend open, close, lift 5 cm, hold 5 s, open. Measured: the object's lift,
+// its slip in the palm frame while held, how soon it falls once the hand opens,
+// and the per-finger contact forces on it, with penalty and constraint contact.
+//
+// The postures and object placements come from a kinematic search (skin points
+// carried rigidly by their handles; the distal phalanges' skin lands within
+// 2-4 mm of the FEM hand's):
+// each fingertip's skin enters its face of the object by a few mm in the closed
+// posture, and no skin point comes within a few mm of any other face, at the
+// end or on the way there from the open hand, so closing squeezes the object
+// instead of shoving it across the table. The thumb abducts toward +x+y, so the
+// thumb-finger opposition of this skeleton is diagonal: the objects stand
+// turned -30 degrees about z.
+//
+// The tests run the hand with gravity (with the 1e6 N/m drive its own weight
+// moves the handles by micrometres); WeightlessHandStillCarriesTheCubesWeight
+// checks the server's weightless hand. A library limitation shapes the options:
+//  - constraint contacts' reserve rows (WorldOptions::contact_reserves) carry
+//    force the snapshot's ContactRecords do not show, and they make the pinch
+//    lose the cube; the pinch runs constraint contact without reserves.
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdio>
+#include <numbers>
+#include <vector>
+
+#include "hand_models/press_scenario.hpp"
+#include "hand_models/skeleton/hand_skeleton.hpp"
+#include "server/world/world.hpp"
+
+namespace hapticd {
+namespace {
+
+constexpr double kDeg = std::numbers::pi / 180.0;
+constexpr double kMm = 0.001;
+constexpr double kG = 9.81;
+
+HandJointAngles degrees(const std::array<std::array<double, 4>, kHandFingers>& d) {
+  HandJointAngles a;
+  for (int f = 0; f < kHandFingers; ++f)
+    for (int k = 0; k < 4; ++k) a.finger[f][k] = d[f][k] * kDeg;
+  return a;
+}
+
+// A grasp: the closed posture, and where the object stands in the hand frame
+// (palm centre, fingers +y, palmar side -z) when the hand closes on it.
+struct GraspSpec {
+  double size_m = 0.05, mass_kg = 0.1;
+  Eigen::Vector3d object_H = Eigen::Vector3d::Zero();  // object centre in the hand frame, m
+  double yaw = 0;                                       // the object's turn about z, rad
+  HandJointAngles closed;
+};
+
+// Tripod grasp of the 5 cm box: thumb on the near face (-y of the box), index
+// and middle fingertips on the far face; ring and little stay open above the
+// box. The distal pads enter the box by 4 mm (thumb), 2.5 mm (index) and 3.5 mm
+// (middle); the box top is 1.1 cm under the palm's skin.
+GraspSpec box_grasp() {
+  GraspSpec g;
+  g.size_m = 0.05;
+  g.mass_kg = 0.1;
+  g.object_H = {-0.040, 0.050, -0.052};
+  g.yaw = -30 * kDeg;
+  g.closed = degrees({{{-30, 30, 20, 60}, {-4, 5, 70, 65}, {0, 15, 95, 40}, {8, 0, 6, 6}, {16, 0, 6, 6}}});
+  return g;
+}
+
+// Pinch of the 2.5 cm cube between the thumb and index fingertips, each pad 3 mm
+// into its face; the other fingers stay open. Compare the simulated glove's
+// pinch, fingertips touching (clients/sim/glove_trajectory.hpp: thumb -14 31 10
+// -8, index -5 50 55 30): here the index bends less, its tip a cube away.
+GraspSpec cube_pinch() {
+  GraspSpec g;
+  g.size_m = 0.025;
+  g.mass_kg = 0.02;
+  g.object_H = {-0.035, 0.060, -0.055};
+  g.yaw = -30 * kDeg;
+  g.closed = degrees({{{-15, 30, 5, 15}, {1, 30, 45, 55}, {0, 0, 6, 6}, {8, 0, 6, 6}, {16, 0, 6, 6}}});
+  return g;
+}
+
+// A static table (top at z = 0), the object standing on it at the origin, the
+// hand 4 cm above its grasping pose, in the rest posture.
+SceneDesc grasp_scene(const GraspSpec& g, const Eigen::Vector3d& palm_W) {
+  SceneDesc scene;
+  ObjectDesc table;
+  table.name = "table";
+  table.kind = BodyKind::static_body;
+  table.shape.type = ShapeType::box;
+  table.shape.size = {0.6, 0.6, 0.1};
+  table.pose.p_W = {0, 0, -0.05};
+  table.material.friction = 0.5;
+  scene.objects.push_back(table);
+  ObjectDesc object;
+  object.name = "object";
+  object.shape.type = ShapeType::box;
+  object.shape.size = Eigen::Vector3d::Constant(g.size_m);
+  object.mass_kg = g.mass_kg;
+  object.pose.p_W = {0, 0, 0.5 * g.size_m};
+  object.pose.q_W = Eigen::Quaterniond(Eigen::AngleAxisd(g.yaw, Eigen::Vector3d::UnitZ()));
+  object.material.friction = 0.8;
+  scene.objects.push_back(object);
+  HandDesc hand;
+  hand.name = "right";
+  hand.resolution_tets = 1700;
+  hand.handles = HandleSet::phalanges;
+  hand.material.friction = 0.9;  // skin on the object: sqrt(0.9 * 0.8) = 0.85
+  hand.pose.p_W = palm_W;
+  scene.hands.push_back(hand);
+  return scene;
+}
+
+WorldOptions glove_options(ContactModel contact) {
+  WorldOptions o;
+  o.drive = DriveParams{1e6, 1e3, 1e3, 10};  // the visual loop's almost kinematic drive
+  o.contact = contact;
+  o.hand_gravity = true;  // see the file comment: false makes the held object weightless
+  o.linearize = false;    // no handle-space model needed here (it costs ~50 % more per step)
+  return o;
+}
+
+// The force of the hand on the object, summed per finger (0-4 thumb..little) and
+// for the palm (5), N; with the normal forces' sum. f_W is the force on the
+// hand, so the object gets -f_W.
+struct HandForces {
+  std::array<Eigen::Vector3d, 6> on_object;
+  std::array<int, 6> contacts{};
+  double normal_sum = 0;
+};
+
+HandForces hand_forces(const World& w, int object) {
+  HandForces out;
+  for (Eigen::Vector3d& f : out.on_object) f.setZero();
+  const std::vector<int>& skin_handle = w.hand(0).skin_handle;  // procedural_skin_handles(shape, 16)
+  for (const ContactRecord& c : w.snapshot().contacts) {
+    if (c.hand != 0 || c.object != object) continue;
+    const int j = skin_handle[c.point];
+    const int part = j == 0 ? 5 : (j - 1) / 3;  // handle j >= 1 is phalanx j - 1, finger-major
+    out.on_object[part] -= c.f_W;
+    ++out.contacts[part];
+    out.normal_sum += std::max(0.0, c.f_W.dot(c.n_W));
+  }
+  return out;
+}
+
+struct GraspRun {
+  double lift_m = 0;        // the object's rise from the table to the end of the lift (the palm rises 5 cm)
+  double slip_m = 0;        // change of the object's position in the palm frame over the 5 s hold
+  double slip_z_m = 0;      // its vertical part (palm frame z is world z)
+  double turn_rad = 0;      // the object's rotation in the palm frame over the hold
+  double release_s = -1;    // from the start of opening until the object is 5 mm lower; -1: never
+  double landed_z_m = 0;    // the object's centre 0.75 s after opening starts
+  double normal_sum_n = 0;  // the hand's normal forces on the object, summed, averaged over the hold
+  std::array<Eigen::Vector3d, 6> force_n;  // per finger (and palm) on the object, averaged over the hold
+  std::array<int, 6> contacts{};           // per finger, at the end of the hold
+  std::array<double, 5> into_object{};     // cosine between a finger's force and its distal handle -> object centre
+  double step_ms = 0, step_ms_max = 0;
+  long resets = 0;
+};
+
+// Picks up the object: 0.3 s open above it, descend 4 cm in 0.5 s, close in 0.5 s,
+// 0.25 s settling, lift 5 cm in 1 s, hold 5 s, open in 0.25 s, 0.5 s more.
+// Moves are half-cosine ramps; each step's targets carry the velocity from the last.
+GraspRun run_grasp(const GraspSpec& g, const WorldOptions& options) {
+  const Eigen::Vector3d grip = Eigen::Vector3d(0, 0, 0.5 * g.size_m) - g.object_H;  // palm when grasping
+  const Eigen::Vector3d above = grip + Eigen::Vector3d(0, 0, 0.04);
+  World w(grasp_scene(g, above), options);
+  WorldHand& hand = w.hand(0);
+  const int object = w.rigid()->find("object");
+  const HandJointAngles open = rest_joint_angles();
+  HandJointAngles angles = open;
+  Eigen::Vector3d palm = above;
+  GraspRun run;
+  long steps = 0;
+  auto object_p = [&] { return w.snapshot().bodies[object].p_WO; };
+  auto step_to = [&](const HandJointAngles& a, const Eigen::Vector3d& p) {
+    std::vector<HandleTarget> t = posture_targets(hand.shape, *hand.model, a, p, Eigen::Quaterniond::Identity(), false);
+    for (int j = 0; j < hand.model->num_handles(); ++j) {
+      t[j].v_W = (t[j].p_W - hand.state.targets[j].p_W) / w.dt();
+      t[j].w_W = rotation_difference(t[j].q_W, hand.state.targets[j].q_W) / w.dt();
+      set_target(hand.state, j, t[j]);
+    }
+    w.step();
+    angles = a;
+    palm = p;
+    ++steps;
+    run.step_ms += w.snapshot().timings.total_ms;
+    run.step_ms_max = std::max(run.step_ms_max, w.snapshot().timings.total_ms);
+  };
+  auto move = [&](const HandJointAngles& to, const Eigen::Vector3d& palm_to, double seconds, auto each) {
+    const HandJointAngles a0 = angles;
+    const Eigen::Vector3d p0 = palm;
+    const int n = static_cast<int>(std::lround(seconds / w.dt()));
+    for (int k = 1; k <= n; ++k) {
+      const double s = 0.5 * (1.0 - std::cos(std::numbers::pi * k / n));
+      step_to(HandJointAngles::from_vector((1 - s) * a0.vector() + s * to.vector()), p0 + s * (palm_to - p0));
+      each();
+    }
+  };
+  auto nothing = [] {};
+  move(open, above, 0.3, nothing);
+  move(open, grip, 0.5, nothing);
+  move(g.closed, grip, 0.5, nothing);
+  move(g.closed, grip, 0.25, nothing);
+  const double z0 = object_p().z();
+  move(g.closed, grip + Eigen::Vector3d(0, 0, 0.05), 1.0, nothing);
+  run.lift_m = object_p().z() - z0;
+  auto in_palm = [&] {
+    const HandleState& p = w.snapshot().handles[0][0];
+    return Eigen::Vector3d(p.q_WH.conjugate() * (object_p() - p.p_WH));
+  };
+  auto turned_in_palm = [&] { return w.snapshot().handles[0][0].q_WH.conjugate() * w.snapshot().bodies[object].q_WO; };
+  const Eigen::Vector3d held0 = in_palm();
+  const Eigen::Quaterniond turned0 = turned_in_palm();
+  int samples = 0;
+  for (Eigen::Vector3d& f : run.force_n) f.setZero();
+  std::array<Eigen::Vector3d, 5> to_object;
+  for (Eigen::Vector3d& d : to_object) d.setZero();
+  move(g.closed, palm, 5.0, [&] {
+    const HandForces F = hand_forces(w, object);
+    for (int f = 0; f < 6; ++f) run.force_n[f] += F.on_object[f];
+    for (int f = 0; f < 5; ++f)
+      to_object[f] += (object_p() - w.snapshot().handles[0][3 * f + 3].p_WH).normalized();  // distal handle
+    run.normal_sum_n += F.normal_sum;
+    ++samples;
+  });
+  const Eigen::Vector3d held1 = in_palm();
+  run.slip_m = (held1 - held0).norm();
+  run.slip_z_m = held1.z() - held0.z();
+  run.turn_rad = Eigen::AngleAxisd(turned_in_palm() * turned0.conjugate()).angle();
+  for (Eigen::Vector3d& f : run.force_n) f /= samples;
+  run.normal_sum_n /= samples;
+  for (int f = 0; f < 5; ++f)
+    run.into_object[f] = run.force_n[f].norm() > 0 ? run.force_n[f].normalized().dot(to_object[f].normalized()) : 0;
+  run.contacts = hand_forces(w, object).contacts;
+  const double opened_at = w.snapshot().t_s, z_held = object_p().z();
+  auto watch = [&] {
+    if (run.release_s < 0 && z_held - object_p().z() > 5 * kMm) run.release_s = w.snapshot().t_s - opened_at;
+  };
+  move(open, palm, 0.25, watch);
+  move(open, palm, 0.5, watch);
+  run.landed_z_m = object_p().z();
+  run.step_ms /= static_cast<double>(steps);
+  run.resets = w.snapshot().resets;
+  return run;
+}
+
+Eigen::Vector3d total_force(const GraspRun& r) {
+  Eigen::Vector3d s = Eigen::Vector3d::Zero();
+  for (const Eigen::Vector3d& f : r.force_n) s += f;
+  return s;
+}
+
+void print_run(const char* what, const GraspRun& r) {
+  std::printf("[glove grasp] %s: lift %.1f mm, slip over the 5 s hold %.2f mm (vertical %.2f), turn %.1f deg, "
+              "released after %.3f s, object at z = %.1f mm 0.75 s after opening; normal forces %.2f N; %.1f ms/step "
+              "(max %.1f), %ld resets\n",
+              what, r.lift_m / kMm, r.slip_m / kMm, r.slip_z_m / kMm, r.turn_rad / kDeg, r.release_s, r.landed_z_m / kMm,
+              r.normal_sum_n, r.step_ms, r.step_ms_max, r.resets);
+  for (int f = 0; f < 6; ++f) {
+    if (r.force_n[f].norm() == 0 && r.contacts[f] == 0) continue;
+    std::printf("[glove grasp]   %-6s %2d contacts, force on the object (%.3f, %.3f, %.3f) N", f < 5 ? finger_name(f) : "palm",
+                r.contacts[f], r.force_n[f].x(), r.force_n[f].y(), r.force_n[f].z());
+    if (f < 5) std::printf(", cosine to the object centre %.2f", r.into_object[f]);
+    std::printf("\n");
+  }
+  const Eigen::Vector3d total = total_force(r);
+  std::printf("[glove grasp]   total (%.3f, %.3f, %.3f) N\n", total.x(), total.y(), total.z());
+}
+
+// ---------------------------------------------------------------------------------------------
+// The 100 g box.
+
+// Constraint contacts hold the box with static friction: it rises with the hand
+// (49 mm of the palm's 50), stays within 0.6 mm and 1.7 degrees of its place in
+// the palm frame over 5 s (0.0-0.6 mm for the box placed 2 mm off either way
+// along x and y), and falls as soon as the fingers let go (5 mm lower 0.083 s
+// after opening starts, on the table before 0.75 s). With reserve rows (the
+// default) the snapshot's forces on the held box do not balance (they sum to
+// about (-6.1, -6.5, 1.9) N), so no force is asserted here.
+TEST(WorldGloveGrasp, ConstraintContactsLiftA100gBoxHoldItFiveSecondsAndDropItOnOpening) {
+  const GraspSpec g = box_grasp();
+  const GraspRun r = run_grasp(g, glove_options(ContactModel::constraint));
+  print_run("box, constraint contact", r);
+  EXPECT_EQ(r.resets, 0);
+  EXPECT_GT(r.lift_m, 0.045);
+  EXPECT_LT(r.lift_m, 0.051);
+  EXPECT_LT(r.slip_m, 2 * kMm);
+  EXPECT_LT(r.turn_rad, 3 * kDeg);
+  // Thumb, index and middle all hold it.
+  for (int f = 0; f < 3; ++f) EXPECT_GT(r.contacts[f], 0) << finger_name(f);
+  EXPECT_GT(r.release_s, 0.0);
+  EXPECT_LT(r.release_s, 0.3);
+  EXPECT_NEAR(r.landed_z_m, 0.5 * g.size_m, 1 * kMm);  // back on the table (a cube lands on a face)
+}
+
+// Penalty friction is viscous below PointContact::kStickSpeed_m_s (1 cm/s): a
+// held weight W slides at the speed where that viscous force carries it,
+// u = W v_stick / (mu sum N), the normal forces N summed. Here 28 N of normal
+// force and mu = 0.85 let the 0.98 N box creep down at 0.45 mm/s (0.41 predicted):
+// 2.0-3.0 mm over the 5 s hold for the box placed 2 mm off either way, over the
+// 2 mm the issue allows. Lifting works as with constraint contact; the box falls
+// 5 mm 0.13-0.15 s after opening starts.
+TEST(WorldGloveGrasp, PenaltyContactsLiftAndDropTheBoxButItCreepsDownAtTheRegularizedFrictionSpeed) {
+  const GraspSpec g = box_grasp();
+  const GraspRun r = run_grasp(g, glove_options(ContactModel::penalty));
+  print_run("box, penalty contact", r);
+  EXPECT_EQ(r.resets, 0);
+  EXPECT_GT(r.lift_m, 0.045);
+  EXPECT_LT(r.lift_m, 0.051);
+  for (int f = 0; f < 3; ++f) EXPECT_GT(r.contacts[f], 0) << finger_name(f);
+  EXPECT_GT(r.release_s, 0.0);
+  EXPECT_LT(r.release_s, 0.3);
+  EXPECT_NEAR(r.landed_z_m, 0.5 * g.size_m, 1 * kMm);
+  // The hand's forces carry the box's weight (penalty ContactRecords hold every force).
+  EXPECT_NEAR(total_force(r).z(), g.mass_kg * kG, 0.1 * g.mass_kg * kG);
+  // The creep: downward, at the regularized friction's speed within 40 %.
+  const double mu = std::sqrt(0.9 * 0.8);
+  const double predicted = g.mass_kg * kG * PointContact::kStickSpeed_m_s / (mu * r.normal_sum_n);
+  const double measured = -r.slip_z_m / 5.0;
+  std::printf("[glove grasp] penalty creep %.3f mm/s, W v_stick / (mu sum N) = %.3f mm/s\n", measured / kMm,
+              predicted / kMm);
+  EXPECT_GT(measured, 0.6 * predicted);
+  EXPECT_LT(measured, 1.4 * predicted);
+}
+
+// ---------------------------------------------------------------------------------------------
+// The 20 g cube in a pinch.
+
+void expect_pinch_forces(const GraspSpec& g, const GraspRun& r) {
+  // Thumb and index each push the cube toward its centre (within 45 degrees)...
+  for (int f = 0; f < 2; ++f) {
+    EXPECT_GT(r.contacts[f], 0) << finger_name(f);
+    EXPECT_GT(r.into_object[f], std::cos(45 * kDeg)) << finger_name(f);
+  }
+  // ...and nothing else touches it.
+  for (int f = 2; f < 6; ++f) EXPECT_EQ(r.force_n[f].norm(), 0.0) << f;
+  // Held still, the hand's forces balance the weight: vertically within 10 %,
+  // the squeeze cancelling horizontally.
+  const Eigen::Vector3d total = total_force(r);
+  EXPECT_NEAR(total.z(), g.mass_kg * kG, 0.1 * g.mass_kg * kG);
+  EXPECT_LT(total.head<2>().norm(), 0.1 * g.mass_kg * kG);
+}
+
+// Without reserve rows every constraint force is in the snapshot: thumb and
+// index squeeze the cube with ~11 N each (3 mm of flesh), their sum carries its
+// 0.196 N weight to 0.1 %, and it stays put (0.0-0.4 mm and at most 1.4 degrees
+// over the hold for the cube placed 2 mm off either way along x and y); it
+// falls 5 mm 0.067 s after opening starts.
+TEST(WorldGlovePinch, ConstraintContactsHoldA20gCubeAndTheFingerForcesBalanceItsWeight) {
+  const GraspSpec g = cube_pinch();
+  WorldOptions o = glove_options(ContactModel::constraint);
+  o.contact_reserves = false;  // see the file comment
+  const GraspRun r = run_grasp(g, o);
+  print_run("cube pinch, constraint contact without reserves", r);
+  EXPECT_EQ(r.resets, 0);
+  EXPECT_GT(r.lift_m, 0.045);
+  EXPECT_LT(r.slip_m, 2 * kMm);
+  EXPECT_LT(r.turn_rad, 3 * kDeg);
+  expect_pinch_forces(g, r);
+  EXPECT_GT(r.release_s, 0.0);
+  EXPECT_LT(r.release_s, 0.3);
+  EXPECT_NEAR(r.landed_z_m, 0.5 * g.size_m, 1 * kMm);
+}
+
+// Penalty contact carries the cube too, forces balanced the same way, but two
+// fingertip pads hold the torque of its weight about the pinch axis only
+// through the creeping viscous friction: it turns 52 degrees in the pinch over
+// the hold and its centre moves 5.4 mm (34-59 degrees and 2.3-8.9 mm for the
+// cube placed 2 mm off either way).
+TEST(WorldGlovePinch, PenaltyContactsLiftTheCubeWithBalancedFingerForcesButItTurnsInThePinch) {
+  const GraspSpec g = cube_pinch();
+  const GraspRun r = run_grasp(g, glove_options(ContactModel::penalty));
+  print_run("cube pinch, penalty contact", r);
+  EXPECT_EQ(r.resets, 0);
+  EXPECT_GT(r.lift_m, 0.04);
+  expect_pinch_forces(g, r);
+  EXPECT_GT(r.turn_rad, 20 * kDeg);
+  EXPECT_LT(r.slip_m, 15 * kMm);
+  EXPECT_GT(r.release_s, 0.0);
+  EXPECT_LT(r.release_s, 0.3);
+}
+
+// ---------------------------------------------------------------------------------------------
+// The same pinch as the server runs it. Disabled: both fail until the library
+// changes described in the file comment are made; enable them with those.
+
+// hand_gravity = false (as hapticd runs hands): the cube keeps the world's
+// gravity in the hand's implicit step (ContactBody::gravity_W), so the fingers
+// carry its 0.196 N weight. They summed to 0.000 N when the body took the
+// hand's zero gravity.
+TEST(WorldGlovePinch, WeightlessHandStillCarriesTheCubesWeight) {
+  const GraspSpec g = cube_pinch();
+  WorldOptions o = glove_options(ContactModel::constraint);
+  o.contact_reserves = false;
+  o.hand_gravity = false;
+  const GraspRun r = run_grasp(g, o);
+  print_run("cube pinch, weightless hand", r);
+  expect_pinch_forces(g, r);
+}
+
+// Known failure, disabled until fixed: constraint contacts with reserve rows
+// (the default): the cube turns 51 degrees
+// in the pinch and slips 10 mm (in 4 of 5 placements 2 mm apart it slips
+// 10-50 mm, once out of the hand), and the snapshot's forces on it sum to
+// (-0.03, -0.17, -0.15) N instead of its weight (the reserve rows' are missing).
+TEST(WorldGlovePinch, DISABLED_ConstraintContactsWithReservesHoldTheCubeAndShowEveryForce) {
+  const GraspSpec g = cube_pinch();
+  const GraspRun r = run_grasp(g, glove_options(ContactModel::constraint));
+  print_run("cube pinch, constraint contact with reserves", r);
+  EXPECT_LT(r.slip_m, 2 * kMm);
+  expect_pinch_forces(g, r);
+}
+
+}  // namespace
+}  // namespace hapticd
