@@ -4,6 +4,10 @@
 # machine; haptic-bench latency holds the real targets): no loss, late replies
 # under 2 %, RTT p99 under 5 ms, forces within the device limit, contact with
 # the bunny, no resets, and a rendering that put no net energy into the device.
+# The scene (stylus_static_bunny.json) is the stylus scene with the bunny
+# static: the shipped scene's rigid bunny rests on one vertex, and tipping it
+# under the stylus releases its potential energy (a few mJ) into the device,
+# which no passive rendering may prevent; the bound is the rendering's alone.
 # Usage: stylus_loopback.sh BIN_DIR SCENE [SECONDS]
 set -euo pipefail
 bin=$1
