@@ -15,8 +15,7 @@ void DeviceSimulation::advance() noexcept {
   ++steps_;
   const double t = time_s();
   const double f = norm(f_DT_N_);
-  force_max_n_ = std::max(force_max_n_, f);
-  force_sq_sum_ += f * f;
+  force_.add(f);
   energy_j_ += step(params_, state_, trajectory_.position(t), trajectory_.velocity(t), f_DT_N_, dt_s_);
 }
 
@@ -33,7 +32,7 @@ void DeviceSimulation::record_tick() noexcept {
 }
 
 double DeviceSimulation::force_rms_n() const noexcept {
-  return steps_ == 0 ? 0.0 : std::sqrt(force_sq_sum_ / static_cast<double>(steps_));
+  return force_.rms_n(steps_);
 }
 
 }  // namespace hapticd::sim

@@ -7,6 +7,7 @@
 #include <cstdint>
 
 #include "clients/sim/device_model.hpp"
+#include "clients/sim/force_figures.hpp"
 #include "clients/sim/trajectory.hpp"
 
 namespace hapticd::sim {
@@ -34,7 +35,7 @@ class DeviceSimulation {
   // rendering keeps it <= 0 (up to what it stores elastically at the end); > 0 means it generated
   // energy.
   [[nodiscard]] double passivity_energy_j() const noexcept { return energy_j_; }
-  [[nodiscard]] double force_max_n() const noexcept { return force_max_n_; }
+  [[nodiscard]] double force_max_n() const noexcept { return force_.max_n; }
   // RMS over steps of |f| (time-weighted: one sample per tick), N.
   [[nodiscard]] double force_rms_n() const noexcept;
   // Largest |p_C - p| over recorded ticks with contact: how far the hand wanted the tip beyond
@@ -56,8 +57,7 @@ class DeviceSimulation {
   std::uint64_t recorded_ticks_ = 0;
   std::uint64_t contact_ticks_ = 0;
   double energy_j_ = 0.0;
-  double force_max_n_ = 0.0;
-  double force_sq_sum_ = 0.0;
+  ForceFigures force_;
   double penetration_max_m_ = 0.0;
 };
 

@@ -57,14 +57,8 @@ void GloveSimulation::advance() noexcept {
     total += f_N_[id];
     group[glove_frame_group(frames_, id)] += f_N_[id];
   }
-  const double f = norm(total);
-  force_max_n_ = std::max(force_max_n_, f);
-  force_sq_sum_ += f * f;
-  for (int g = 0; g < kGroups; ++g) {
-    const double fg = norm(group[g]);
-    group_force_max_n_[g] = std::max(group_force_max_n_[g], fg);
-    group_force_sq_sum_[g] += fg * fg;
-  }
+  force_.add(norm(total));
+  for (int g = 0; g < kGroups; ++g) group_force_[g].add(norm(group[g]));
   const JointVector tau = external_joint_torques();
   energy_j_ += step_joints(params_, joints_, trajectory_.angles(t), trajectory_.angle_rates(t), tau, dt_s_);
   energy_j_ += step(params_.palm, palm_, trajectory_.palm_position(t), trajectory_.palm_velocity(t), f_N_[0], dt_s_);
@@ -98,14 +92,14 @@ void GloveSimulation::record_tick() noexcept {
 }
 
 double GloveSimulation::force_rms_n() const noexcept {
-  return steps_ == 0 ? 0.0 : std::sqrt(force_sq_sum_ / static_cast<double>(steps_));
+  return force_.rms_n(steps_);
 }
 
 GloveGroupFigures GloveSimulation::group_figures(int group) const noexcept {
   GloveGroupFigures g;
   if (group < 0 || group >= kGroups) return g;
-  g.force_max_n = group_force_max_n_[group];
-  g.force_rms_n = steps_ == 0 ? 0.0 : std::sqrt(group_force_sq_sum_[group] / static_cast<double>(steps_));
+  g.force_max_n = group_force_[group].max_n;
+  g.force_rms_n = group_force_[group].rms_n(steps_);
   g.contact_fraction = recorded_ticks_ == 0
                            ? 0.0
                            : static_cast<double>(group_contact_ticks_[group]) / static_cast<double>(recorded_ticks_);

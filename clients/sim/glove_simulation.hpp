@@ -8,6 +8,7 @@
 #include <array>
 #include <cstdint>
 
+#include "clients/sim/force_figures.hpp"
 #include "clients/sim/glove_model.hpp"
 #include "clients/sim/glove_trajectory.hpp"
 
@@ -62,7 +63,7 @@ class GloveSimulation {
   // > 0: the rendering put energy in), |sum of every frame's force| max and RMS over steps, and the
   // largest distance between a frame in contact and where the commanded posture would put it.
   [[nodiscard]] double passivity_energy_j() const noexcept { return energy_j_; }
-  [[nodiscard]] double force_max_n() const noexcept { return force_max_n_; }
+  [[nodiscard]] double force_max_n() const noexcept { return force_.max_n; }
   [[nodiscard]] double force_rms_n() const noexcept;
   [[nodiscard]] double penetration_max_m() const noexcept { return penetration_max_m_; }
   // group: a finger 0..4, or kPalmGroup.
@@ -89,11 +90,9 @@ class GloveSimulation {
   std::uint64_t recorded_ticks_ = 0;
   std::uint64_t contact_ticks_ = 0;
   double energy_j_ = 0.0;
-  double force_max_n_ = 0.0;
-  double force_sq_sum_ = 0.0;
+  ForceFigures force_;
   double penetration_max_m_ = 0.0;
-  std::array<double, kGroups> group_force_max_n_{};
-  std::array<double, kGroups> group_force_sq_sum_{};
+  std::array<ForceFigures, kGroups> group_force_{};
   std::array<std::uint64_t, kGroups> group_contact_ticks_{};
   std::array<double, kGroups> group_lag_max_rad_{};
 };
