@@ -1,5 +1,4 @@
 #include <gtest/gtest.h>
-#include <unistd.h>
 
 #include <chrono>
 #include <cmath>
@@ -11,6 +10,7 @@
 
 #include "clients/sim/child_process.hpp"
 #include "clients/sim/glove_model.hpp"
+#include "device_cli.hpp"
 #include "fake_server.hpp"
 
 // haptic-device --device glove as built, against the in-test fake server on loopback: the Hello,
@@ -21,9 +21,7 @@ namespace {
 
 using namespace std::chrono_literals;
 
-std::string temp_path(const std::string& name) {
-  return ::testing::TempDir() + "haptic_glove_" + std::to_string(::getpid()) + "_" + name;
-}
+std::string temp_path(const std::string& name) { return testing_util::temp_path("haptic_glove_", name); }
 
 constexpr float kIndexForceZ = 0.5f;  // N on every index frame, reported in contact
 constexpr float kPalmForceX = 1.0f;   // N on the palm, not in contact
@@ -170,10 +168,6 @@ TEST(HapticDeviceGloveEndToEnd, SixteenFramesRightHand) { run_glove(16, false); 
 TEST(HapticDeviceGloveEndToEnd, SixFramesLeftHand) { run_glove(6, true); }
 
 TEST(HapticDeviceGloveEndToEnd, BadGloveFlagsAreRefusedWithTheReason) {
-  struct Case {
-    std::vector<std::string> args;
-    std::string expected;
-  };
   const std::string bad_csv = temp_path("bad_glove.csv");
   {
     std::ofstream out(bad_csv);
@@ -184,7 +178,7 @@ TEST(HapticDeviceGloveEndToEnd, BadGloveFlagsAreRefusedWithTheReason) {
     out << "\n";
   }
   const std::string server = "127.0.0.1:7000";
-  const Case cases[] = {
+  const std::vector<testing_util::RefusedCase> cases = {
       {{"--server", server, "--device", "glove", "--frames", "5"}, "--frames"},
       {{"--server", server, "--device", "glove", "--hand", "both"}, "--hand"},
       {{"--server", server, "--device", "stylus", "--frames", "6"}, "--frames: is for --device glove"},
@@ -196,13 +190,7 @@ TEST(HapticDeviceGloveEndToEnd, BadGloveFlagsAreRefusedWithTheReason) {
        bad_csv + ":2:7: index_flexion1_deg: 'ten' is not a number"},
       {{"--server", server, "--device", "gauntlet"}, "--device"},
   };
-  for (const Case& c : cases) {
-    ChildProcess device(HAPTICD_DEVICE_BIN, c.args);
-    const std::optional<int> status = device.wait(10s);
-    ASSERT_TRUE(status.has_value());
-    EXPECT_NE(*status, 0) << c.args.back();
-    EXPECT_NE(device.output().find(c.expected), std::string::npos) << c.args.back() << ":\n" << device.output();
-  }
+  testing_util::expect_refused(HAPTICD_DEVICE_BIN, cases);
   std::filesystem::remove(bad_csv);
 }
 

@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "clients/sim/child_process.hpp"
+#include "device_cli.hpp"
 #include "fake_server.hpp"
 
 // The tools as built: haptic-device against haptic-echo over loopback, and haptic-device's
@@ -20,9 +21,7 @@ namespace {
 
 using namespace std::chrono_literals;
 
-std::string temp_path(const std::string& name) {
-  return ::testing::TempDir() + "haptic_device_" + std::to_string(::getpid()) + "_" + name;
-}
+std::string temp_path(const std::string& name) { return testing_util::temp_path("haptic_device_", name); }
 
 TEST(HapticEcho, ListensOnAPickedPortAndSaysWhere) {
   ChildProcess echo(HAPTICD_ECHO_BIN, {"--port", "0", "--duration", "30"});
@@ -128,13 +127,9 @@ TEST(HapticDeviceEndToEnd, ASilentServerFailsTheHandshakeAfterTwoSeconds) {
 }
 
 TEST(HapticDeviceEndToEnd, BadFlagsAreRefusedWithTheReason) {
-  struct Case {
-    std::vector<std::string> args;
-    std::string expected;
-  };
   const std::string bad_csv = temp_path("bad.csv");
   std::ofstream(bad_csv) << "t_s,x_m,y_m,z_m\n0,0,0,0\n1,0,0\n";
-  const Case cases[] = {
+  const std::vector<testing_util::RefusedCase> cases = {
       {{"--server", "localhost"}, "expected HOST:PORT with PORT in 1..65535"},
       {{"--server", "127.0.0.1:0"}, "expected HOST:PORT with PORT in 1..65535"},
       {{"--server", "127.0.0.1:70000"}, "expected HOST:PORT with PORT in 1..65535"},
@@ -147,13 +142,7 @@ TEST(HapticDeviceEndToEnd, BadFlagsAreRefusedWithTheReason) {
       {{"--server", "127.0.0.1:7000", "--report", "/nonexistent/dir/r.json"}, "--report: cannot write"},
       {{"--trajectory", "press"}, "--server is required"},
   };
-  for (const Case& c : cases) {
-    ChildProcess device(HAPTICD_DEVICE_BIN, c.args);
-    const std::optional<int> status = device.wait(10s);
-    ASSERT_TRUE(status.has_value());
-    EXPECT_NE(*status, 0) << c.args.back();
-    EXPECT_NE(device.output().find(c.expected), std::string::npos) << c.args.back() << ":\n" << device.output();
-  }
+  testing_util::expect_refused(HAPTICD_DEVICE_BIN, cases);
   std::filesystem::remove(bad_csv);
 }
 
