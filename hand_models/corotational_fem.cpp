@@ -78,13 +78,21 @@ Eigen::Matrix3d rotation_of(const Eigen::Matrix3d& F) {
   return U * V.transpose();
 }
 
-CorotationalFem::CorotationalFem(const TetMesh& mesh, const Material& material)
+CorotationalFem::CorotationalFem(const TetMesh& mesh, const Material& material,
+                                 const std::vector<double>& stiffness_scale)
     : num_nodes_(mesh.num_nodes()), material_(material), tets_(mesh.tets) {
   validate(material);
   const double E = material.youngs_modulus_pa, nu = material.poisson_ratio;
   lambda_ = E * nu / ((1 + nu) * (1 - 2 * nu));
   mu_ = E / (2 * (1 + nu));
   const size_t ne = tets_.size();
+  if (!stiffness_scale.empty() && stiffness_scale.size() != ne)
+    throw std::invalid_argument("element stiffness: must have one entry per tet (" + std::to_string(ne) +
+                                "), got " + std::to_string(stiffness_scale.size()));
+  for (double k : stiffness_scale)
+    if (!(std::isfinite(k) && k > 0))
+      throw std::invalid_argument("element stiffness: must be > 0 (a factor on the Young's modulus)");
+  stiffness_ = stiffness_scale.empty() ? std::vector<double>(ne, 1.0) : stiffness_scale;
   Dm_inv_.resize(ne);
   grad_.resize(ne);
   volume_.resize(ne);
@@ -106,7 +114,7 @@ CorotationalFem::CorotationalFem(const TetMesh& mesh, const Material& material)
     for (int a = 0; a < 4; ++a) {
       for (int b = 0; b < 4; ++b) {
         Ke_[e].block<3, 3>(3 * a, 3 * b) =
-            volume_[e] * (lambda_ * g.col(a) * g.col(b).transpose() + mu_ * g.col(b) * g.col(a).transpose() +
+            stiffness_[e] * volume_[e] * (lambda_ * g.col(a) * g.col(b).transpose() + mu_ * g.col(b) * g.col(a).transpose() +
                           mu_ * g.col(a).dot(g.col(b)) * Eigen::Matrix3d::Identity());
       }
     }
@@ -154,7 +162,7 @@ void CorotationalFem::add_elastic_forces(const Eigen::VectorXd& x, const std::ve
     const Eigen::Matrix3d S = R[e].transpose() * deformation_gradient(static_cast<int>(e), x);
     const Eigen::Matrix3d strain = 0.5 * (S + S.transpose()) - Eigen::Matrix3d::Identity();
     // f_a = -V R sigma g_a, identical to -R K_e (R^T x - X) for linear tets.
-    const Eigen::Matrix<double, 3, 4> fe = -volume_[e] * (R[e] * stress(strain)) * grad_[e];
+    const Eigen::Matrix<double, 3, 4> fe = -stiffness_[e] * volume_[e] * (R[e] * stress(strain)) * grad_[e];
     for (int k = 0; k < 4; ++k) f.segment<3>(3 * tets_[e][k]) += fe.col(k);
   }
 }
@@ -166,7 +174,8 @@ Eigen::Matrix3d CorotationalFem::warped_block(int e, int a, int b, const Eigen::
 void CorotationalFem::warped_blocks(int e, const Eigen::Matrix3d& R, double scale, Eigen::Matrix3d blocks[4][4]) const {
   const Eigen::Matrix<double, 3, 4> g = R * grad_[e];
   const Eigen::Matrix<double, 3, 4>& g0 = grad_[e];
-  const double s_lambda = scale * volume_[e] * lambda_, s_mu = scale * volume_[e] * mu_;
+  const double kV = scale * stiffness_[e] * volume_[e];
+  const double s_lambda = kV * lambda_, s_mu = kV * mu_;
   for (int a = 0; a < 4; ++a) {
     for (int b = a; b < 4; ++b) {
       Eigen::Matrix3d B = s_lambda * g.col(a) * g.col(b).transpose() + s_mu * g.col(b) * g.col(a).transpose();
@@ -182,7 +191,7 @@ Vector12d CorotationalFem::element_force(int e, const Eigen::VectorXd& x) const 
   const Eigen::Matrix3d R = rotation_of(F);
   const Eigen::Matrix3d S = R.transpose() * F;
   const Eigen::Matrix3d strain = 0.5 * (S + S.transpose()) - Eigen::Matrix3d::Identity();
-  const Eigen::Matrix<double, 3, 4> fe = -volume_[e] * (R * stress(strain)) * grad_[e];
+  const Eigen::Matrix<double, 3, 4> fe = -stiffness_[e] * volume_[e] * (R * stress(strain)) * grad_[e];
   return Eigen::Map<const Vector12d>(fe.data());
 }
 
@@ -205,7 +214,7 @@ Matrix12d CorotationalFem::element_exact_tangent(int e, const Eigen::VectorXd& x
       const Eigen::Matrix3d dS = RtdF - skew(w) * S;
       const Eigen::Matrix3d dstrain = 0.5 * (dS + dS.transpose());
       const Eigen::Matrix3d dP = R * skew(w) * sigma + R * stress(dstrain);
-      const Eigen::Matrix<double, 3, 4> dfe = -volume_[e] * dP * grad_[e];
+      const Eigen::Matrix<double, 3, 4> dfe = -stiffness_[e] * volume_[e] * dP * grad_[e];
       K.col(3 * c + i) = Eigen::Map<const Vector12d>(dfe.data());
     }
   }

@@ -27,7 +27,9 @@ using Vector12d = Eigen::Matrix<double, 12, 1>;
 
 class CorotationalFem {
  public:
-  CorotationalFem(const TetMesh& mesh, const Material& material);
+  // `stiffness_scale`: per element, its Young's modulus over the material's
+  // (empty: all 1), e.g. a glove hand's soft joint flesh.
+  CorotationalFem(const TetMesh& mesh, const Material& material, const std::vector<double>& stiffness_scale = {});
 
   int num_nodes() const { return num_nodes_; }
   int num_tets() const { return static_cast<int>(tets_.size()); }
@@ -36,7 +38,9 @@ class CorotationalFem {
   // Lumped nodal masses (a quarter of each adjacent tet's mass), kg.
   const Eigen::VectorXd& lumped_mass() const { return mass_; }
   double rest_volume(int e) const { return volume_[e]; }
-  // Rest-state linear stiffness of element e (K_e = V B^T C B), N/m, node-major 3x3 blocks.
+  double stiffness_scale(int e) const { return stiffness_[e]; }
+  // Rest-state linear stiffness of element e (K_e = k V B^T C B, k its stiffness scale), N/m,
+  // node-major 3x3 blocks.
   const Matrix12d& rest_stiffness(int e) const { return Ke_[e]; }
 
   // Deformation gradient F = Ds Dm^-1 of element e at positions x (3n vector).
@@ -50,7 +54,7 @@ class CorotationalFem {
   void compute_rotations(const Eigen::VectorXd& x, std::vector<Eigen::Matrix3d>& R) const;
 
   // Adds the elastic forces f_a = -R K_e (R^T x - X) to f (3n), using the
-  // stress form f_a = -V R sigma(eps) g_a with eps = sym(R^T F) - I.
+  // stress form f_a = -k V R sigma(eps) g_a with eps = sym(R^T F) - I.
   void add_elastic_forces(const Eigen::VectorXd& x, const std::vector<Eigen::Matrix3d>& R,
                           Eigen::VectorXd& f) const;
 
@@ -79,6 +83,7 @@ class CorotationalFem {
   std::vector<Eigen::Matrix3d> Dm_inv_;
   std::vector<Eigen::Matrix<double, 3, 4>> grad_;  // shape function gradients g_a (columns)
   std::vector<double> volume_;
+  std::vector<double> stiffness_;  // per element: Young's modulus over the material's
   std::vector<Matrix12d> Ke_;
   Eigen::VectorXd mass_;
 };

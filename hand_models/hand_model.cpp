@@ -151,7 +151,9 @@ void validate(const HandConfig& c) {
 }
 
 HandModel::HandModel(TetMesh mesh, HandConfig config)
-    : mesh_(std::move(mesh)), config_(std::move(config)), fem_((validate(config_), mesh_), config_.material) {
+    : mesh_(std::move(mesh)),
+      config_(std::move(config)),
+      fem_((validate(config_), mesh_), config_.material, config_.element_stiffness) {
   for (size_t i = 0; i < config_.handles.size(); ++i) {
     const HandleSpec& spec = config_.handles[i];
     handles_.push_back(make_handle(mesh_, fem_.lumped_mass(), spec.seed, spec.radius_m, spec.nodes,
@@ -750,7 +752,7 @@ double total_energy(const HandModel& model, const HandState& s) {
     const Eigen::Matrix3d F = fem.deformation_gradient(e, s.x);
     const Eigen::Matrix3d S = rotation_of(F).transpose() * F;
     const Eigen::Matrix3d eps = 0.5 * (S + S.transpose()) - Eigen::Matrix3d::Identity();
-    E += fem.rest_volume(e) * (mu * eps.squaredNorm() + 0.5 * lambda * eps.trace() * eps.trace());
+    E += fem.stiffness_scale(e) * fem.rest_volume(e) * (mu * eps.squaredNorm() + 0.5 * lambda * eps.trace() * eps.trace());
   }
   for (int j = 0; j < model.num_handles(); ++j) {
     const RigidHandle& H = model.handles()[j];

@@ -100,6 +100,9 @@ struct HandConfig {
   // must be empty); a hand has at least one.
   bool free_body = false;
   std::vector<HandleSpec> handles;
+  // Non-empty (one per tet): each element's Young's modulus over the
+  // material's, e.g. a glove hand's soft joint flesh (procedural_joint_stiffness).
+  std::vector<double> element_stiffness;
 };
 
 // Throws std::invalid_argument naming the offending field (e.g. "coupling.stiffness_n_m: must be > 0").

@@ -1,11 +1,12 @@
 #include "hand_models/press_scenario.hpp"
 
 #include <algorithm>
-
-#include "hand_models/skeleton/hand_skeleton.hpp"
 #include <cmath>
+#include <cstdlib>
 #include <numbers>
 #include <stdexcept>
+
+#include "hand_models/skeleton/hand_skeleton.hpp"
 
 namespace hapticd {
 namespace {
@@ -56,6 +57,59 @@ std::vector<int> procedural_skin_handles(const ProceduralHand& hand, int m) {
     }
   }
   return out;
+}
+
+namespace {
+
+// Where a finger node of a separate-fingers hand sits on its finger's bones:
+// the handle of its phalanx (m = 16 numbering: 1 + 3 finger + phalanx; 0 for
+// the palm) and whether it lies within a joint's band, +-kJointBand flesh
+// radii (at most 0.4 of either bone) along the bisector of the joint's bones.
+struct BoneSide {
+  int handle = 0;
+  bool in_joint = false;
+};
+
+BoneSide bone_side(const ProceduralHand& hand, int i) {
+  const int f = hand.node_part[i];
+  if (f == kHandPalmPart) return {};
+  const Eigen::Vector3d& X = hand.mesh.X[i];
+  const auto& J = hand.joints[f];
+  // The nearest bone k of the node's finger and where along it the node is.
+  int k = 0;
+  double t = 0, best = 1e300;
+  for (int b = 0; b < 3; ++b) {
+    const Eigen::Vector3d ab = J[b + 1] - J[b];
+    const double tb = ab.dot(X - J[b]) / ab.squaredNorm();
+    const double d = (X - (J[b] + std::clamp(tb, 0.0, 1.0) * ab)).norm();
+    if (d < best) best = d, k = b, t = tb;
+  }
+  // The nearer joint along that bone (0: the base joint, whose proximal side is the palm).
+  const int j = t <= 0.5 ? k : k + 1;
+  if (j == 3) return {1 + 3 * f + 2, false};  // the fingertip
+  const Eigen::Vector3d u_in = j == 0 ? Eigen::Vector3d(J[1] - J[0]) : Eigen::Vector3d(J[j] - J[j - 1]);
+  const Eigen::Vector3d u = (u_in.normalized() + (J[j + 1] - J[j]).normalized()).normalized();
+  double band = std::min(kJointBand * finger_geometry()[f].radius[j], 0.4 * (J[j + 1] - J[j]).norm());
+  if (j > 0) band = std::min(band, 0.4 * (J[j] - J[j - 1]).norm());
+  const double s = (X - J[j]).dot(u);
+  const int distal = 1 + 3 * f + j;
+  return {s >= 0 ? distal : (j == 0 ? 0 : distal - 1), std::abs(s) < band};
+}
+
+}  // namespace
+
+std::vector<double> procedural_joint_stiffness(const ProceduralHand& hand, int m, double scale) {
+  if (m != 1 + kHandPhalanges || hand.node_part.empty()) return {};
+  std::vector<BoneSide> side(hand.mesh.num_nodes());
+  for (int i = 0; i < hand.mesh.num_nodes(); ++i) side[i] = bone_side(hand, i);
+  std::vector<double> k(hand.mesh.tets.size(), 1.0);
+  for (size_t e = 0; e < k.size(); ++e) {
+    const Tet& t = hand.mesh.tets[e];
+    bool joint = false;
+    for (int a = 0; a < 4; ++a) joint = joint || side[t[a]].in_joint || side[t[a]].handle != side[t[0]].handle;
+    if (joint) k[e] = scale;
+  }
+  return k;
 }
 
 std::vector<HandleTarget> posture_targets(const ProceduralHand& hand, const HandModel& model,

@@ -25,6 +25,17 @@ std::vector<HandFrame> procedural_handle_frames(const ProceduralHand& hand, int 
 // a finger's base joint is palm), that finger's handle when only its distal
 // phalanx has one (m = 6), else the palm's handle 0.
 std::vector<int> procedural_skin_handles(const ProceduralHand& hand, int m);
+// Per tet of a 16-handle glove hand (HandConfig::element_stiffness): `scale`
+// for joint flesh, 1 elsewhere. Joint flesh: a tet with a node within
+// +-kJointBand flesh radii of a joint (along the bisector of its bones), or
+// with nodes on two bones (a finger's bones, or the palm at its base joint).
+// Per-bone flesh joined by soft joints: bending a finger costs little elastic
+// work, so a glove frame feels the flesh little beyond what it touches. Empty
+// for other handle sets and for a hand without separate fingers.
+inline constexpr double kJointBand = 0.6;
+// The joint flesh's Young's modulus over the hand's, for gloves.
+inline constexpr double kGloveJointStiffness = 0.05;
+std::vector<double> procedural_joint_stiffness(const ProceduralHand& hand, int m, double scale);
 // The handle targets of a hand in posture `angles` with its hand frame (palm
 // centre) at (p_W, q_W): each handle's tracked frame posed by the skeleton
 // (hand_skeleton.hpp), then carried to the handle by frame_to_handle. What a

@@ -83,6 +83,8 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
     config.coupling.stiffness_n_m = d.coupling_stiffness_n_m;
     config.coupling.damping_ns_m = d.coupling_damping_ns_m;
     config.handles = procedural_handles(h->shape, handle_count(d.handles));
+    // A glove hand's joints are soft flesh between its bones: bending a finger costs little work.
+    config.element_stiffness = procedural_joint_stiffness(h->shape, handle_count(d.handles), kGloveJointStiffness);
     config.drive = options.drive;
     h->friction = d.material.friction;
     h->model = std::make_unique<HandModel>(h->shape.mesh, config);

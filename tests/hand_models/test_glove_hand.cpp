@@ -241,7 +241,7 @@ struct Glove {
 
 // m handles as the glove server makes them (procedural_handles), the visual loop's almost
 // kinematic drive (kProxyDrive), default flesh at the hand's mass, gravity off.
-std::unique_ptr<Glove> make_glove(const ProceduralHand& hand, int m) {
+std::unique_ptr<Glove> make_glove(const ProceduralHand& hand, int m, bool soft_joints = true) {
   single_threaded_cholmod();  // as the visual loop runs it
   auto g = std::make_unique<Glove>();
   g->hand = &hand;
@@ -250,6 +250,7 @@ std::unique_ptr<Glove> make_glove(const ProceduralHand& hand, int m) {
   config.gravity_m_s2.setZero();
   config.drive = DriveParams{1e6, 1e3, 1e3, 10.0};
   config.handles = procedural_handles(hand, m);
+  if (soft_joints) config.element_stiffness = procedural_joint_stiffness(hand, m, kGloveJointStiffness);
   config.material.density_kg_m3 = embedding_density(hand, config.material.density_kg_m3);
   g->model = std::make_unique<HandModel>(hand.mesh, config);
   g->state = make_rest_state(*g->model);
@@ -328,6 +329,14 @@ void hold(Glove& g, double seconds) {
 }
 
 double energy(const Glove& g) { return total_energy(*g.model, g.state); }
+
+// Largest drive force on a handle, N: what holding the flesh in this posture costs the tracked frame.
+double largest_drive_force(const Glove& g) {
+  double f = 0;
+  for (int j = 0; j < g.m; ++j)
+    f = std::max(f, g.model->config().drive.stiffness_n_m * (g.state.targets[j].p_W - g.state.handles[j].p_WH).norm());
+  return f;
+}
 
 void print_run(const char* what, const Glove& g) {
   std::printf("[glove] %s: %d tets, %d handles, %ld steps: %.2f ms/step mean, %.2f max; largest handle error "
@@ -441,10 +450,10 @@ TEST(GloveHand, SixteenHandlesTwentyFistAndSpreadCyclesLeaveNoInvertedElement) {
     EXPECT_NEAR(spread_energy[k], spread_energy.front(), 1e-3 * spread_energy.front());
   }
   EXPECT_LT(g->max_energy, 1.05 * fist_energy.front());
-  // 1.5 cm cells folded 85-100 degrees at the finger joints: palmar elements at the knuckles invert
-  // while the fist is held (22 of 1692); all come back on opening.
-  EXPECT_LE(fist_inverted, 25);
-  EXPECT_LE(g->max_inverted, 28);
+  // 1.5 cm cells folded 85-100 degrees at soft finger joints: palmar elements at the knuckles invert
+  // while the fist is held (76 of 1692; 22 with joints as stiff as the rest); all come back on opening.
+  EXPECT_LE(fist_inverted, 80);
+  EXPECT_LE(g->max_inverted, 86);
 }
 
 // The skeleton's thumb flexes in one plane turned by its abduction, so the tip reaches the little
@@ -479,9 +488,9 @@ TEST(GloveHand, SixteenHandlesThumbOppositionToTheLittleFingerBaseAndBack) {
   EXPECT_LT(hold_error, 2 * kMm);
   EXPECT_EQ(g->failed_steps, 0);
   EXPECT_EQ(g->state.resets, 0);
-  // Thumb and thenar elements invert on the way (38 at worst) and in the held pose (26); all come back.
-  EXPECT_LE(g->max_inverted, 42);
-  EXPECT_LE(held_inverted, 30);
+  // Thumb and thenar elements invert on the way (62 at worst) and in the held pose (52); all come back.
+  EXPECT_LE(g->max_inverted, 66);
+  EXPECT_LE(held_inverted, 56);
 }
 
 // Index taps (flexing 45, 40 and 20 degrees at its three joints) at 4 Hz for 2 s, then 6 Hz for 2 s.
@@ -509,8 +518,29 @@ TEST(GloveHand, SixteenHandlesFastIndexTapsAtFourAndSixHertz) {
   EXPECT_LT(hold_error, 2 * kMm);
   EXPECT_EQ(g->failed_steps, 0);
   EXPECT_EQ(g->state.resets, 0);
-  // With each handle on its own nodes no element of the tapping index inverts.
-  EXPECT_EQ(g->max_inverted, 0);
+  // With each handle on its own nodes, one soft joint element of the tapping index inverts at most
+  // for a moment (none with joints as stiff as the rest); none is left.
+  EXPECT_LE(g->max_inverted, 2);
+}
+
+// Per-bone flesh joined by soft joints (procedural_joint_stiffness): a held fist stores a tenth of
+// the elastic work of flesh as stiff at the joints as elsewhere, and the tracked frames' drives
+// hold it with a fraction of the force, so a glove frame feels the flesh little beyond contact.
+TEST(GloveHand, SoftJointsCutTheWorkAndTheForceOfAFist) {
+  const ProceduralHand& hand = split_hand(1700);
+  double fist_energy[2], fist_force[2];
+  for (bool soft : {false, true}) {
+    auto g = make_glove(hand, 16, soft);
+    move_to(*g, fist(), 0.5);
+    hold(*g, 0.3);
+    fist_energy[soft] = energy(*g);
+    fist_force[soft] = largest_drive_force(*g);
+  }
+  std::printf("[glove] held fist, joints as stiff as the flesh / soft (x%.2f): %.3f / %.3f J, largest frame force "
+              "%.2f / %.2f N\n",
+              kGloveJointStiffness, fist_energy[0], fist_energy[1], fist_force[0], fist_force[1]);
+  EXPECT_LT(fist_energy[1], 0.15 * fist_energy[0]);
+  EXPECT_LT(fist_force[1], 0.3 * fist_force[0]);
 }
 
 // Palm + 5 fingertips: the proximal and middle phalanges are free flesh, bent by the fingertips alone.
