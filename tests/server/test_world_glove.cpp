@@ -33,7 +33,9 @@
 #include <vector>
 
 #include "hand_models/press_scenario.hpp"
+#include "hand_models/procedural_hand.hpp"
 #include "hand_models/skeleton/hand_skeleton.hpp"
+#include "server/world/scene_loader.hpp"
 #include "server/world/world.hpp"
 
 namespace hapticd {
@@ -151,6 +153,18 @@ HandForces hand_forces(const World& w, int object) {
   return out;
 }
 
+// Sets every handle target of `hand` for `angles` with the hand frame at (p, q), each with the
+// velocity of getting there from its last target in one step.
+void set_posture(const World& w, WorldHand& hand, const HandJointAngles& angles, const Eigen::Vector3d& p,
+                 const Eigen::Quaterniond& q, bool left) {
+  std::vector<HandleTarget> t = posture_targets(hand.shape, *hand.model, angles, p, q, left);
+  for (int j = 0; j < hand.model->num_handles(); ++j) {
+    t[j].v_W = (t[j].p_W - hand.state.targets[j].p_W) / w.dt();
+    t[j].w_W = rotation_difference(t[j].q_W, hand.state.targets[j].q_W) / w.dt();
+    set_target(hand.state, j, t[j]);
+  }
+}
+
 struct GraspRun {
   double lift_m = 0;        // the object's rise from the table to the end of the lift (the palm rises 5 cm)
   double slip_m = 0;        // change of the object's position in the palm frame over the 5 s hold
@@ -182,12 +196,7 @@ GraspRun run_grasp(const GraspSpec& g, const WorldOptions& options) {
   long steps = 0;
   auto object_p = [&] { return w.snapshot().bodies[object].p_WO; };
   auto step_to = [&](const HandJointAngles& a, const Eigen::Vector3d& p) {
-    std::vector<HandleTarget> t = posture_targets(hand.shape, *hand.model, a, p, Eigen::Quaterniond::Identity(), false);
-    for (int j = 0; j < hand.model->num_handles(); ++j) {
-      t[j].v_W = (t[j].p_W - hand.state.targets[j].p_W) / w.dt();
-      t[j].w_W = rotation_difference(t[j].q_W, hand.state.targets[j].q_W) / w.dt();
-      set_target(hand.state, j, t[j]);
-    }
+    set_posture(w, hand, a, p, Eigen::Quaterniond::Identity(), false);
     w.step();
     angles = a;
     palm = p;
@@ -418,6 +427,143 @@ TEST(WorldGlovePinch, DISABLED_ConstraintContactsWithReservesHoldTheCubeAndShowE
   print_run("cube pinch, constraint contact with reserves", r);
   EXPECT_LT(r.slip_m, 2 * kMm);
   expect_pinch_forces(g, r);
+}
+
+// ---------------------------------------------------------------------------------------------
+// The handover of scenes/two_hands.json.
+
+// How far the palmar skin of a palm-up hand stands above its hand frame's origin under a
+// w x w square centred on it and turned `yaw` about the vertical, m: the highest skin point
+// there, where a box set on the palm rests (the palmar surface's height bisected from the
+// hand's signed distance on a 2 mm grid; a palm-up left hand, turned half a turn about y,
+// is the right hand's shape over the same world offsets).
+double palm_height_under(double w, double yaw) {
+  double highest = 0;
+  const Eigen::Matrix2d R = Eigen::Rotation2Dd(yaw).toRotationMatrix();
+  for (double u = -w / 2; u <= w / 2; u += 0.002) {
+    for (double v = -w / 2; v <= w / 2; v += 0.002) {
+      const Eigen::Vector2d xy = R * Eigen::Vector2d(u, v);
+      double inside = 0, outside = -0.04;  // the palm centre is inside, 4 cm below it is not
+      for (int i = 0; i < 40; ++i) {
+        const double z = 0.5 * (inside + outside);
+        (procedural_hand_sdf(Eigen::Vector3d(xy.x(), xy.y(), z)) < 0 ? inside : outside) = z;
+      }
+      highest = std::max(highest, -inside);
+    }
+  }
+  return highest;
+}
+
+// The right glove hand picks the 100 g box up from the table (the tripod of
+// box_grasp) and lifts it 8 cm; the left hand, palm up, comes under it; the right
+// sets the box down on the left palm (4 mm lower than where it would just touch)
+// and opens and withdraws; the left carries the box 8 cm away and 2 cm up and
+// holds it. Constraint contact, as the scene says. The box must stay on the left
+// palm (within 3 mm of its place in the left palm frame from the moment the
+// right hand has let go to the end) and touch neither the right hand nor the
+// table at the end. Hand-hand contact is on (two hands); whether the hands touch
+// on the way is printed.
+TEST(WorldGloveHandover, RightHandSetsTheBoxOnTheLeftPalmAndTheLeftCarriesItAway) {
+  SceneDesc scene = load_scene(std::string(HAPTICD_SCENES_DIR) + "/two_hands.json");
+  WorldOptions options = glove_options(scene.contact);
+  World w(scene, options);
+  WorldHand& right = w.hand(0);
+  WorldHand& left = w.hand(1);
+  ASSERT_EQ(right.name, "right_hand");
+  const int box = w.rigid()->find("box");
+  const int table = w.rigid()->find("table");
+  const GraspSpec g = box_grasp();
+  const Eigen::Quaterniond q_right = scene.hands[0].pose.q_W, q_left = scene.hands[1].pose.q_W;
+  struct Driven {
+    WorldHand* hand;
+    Eigen::Quaterniond q;
+    bool left;
+    HandJointAngles angles = rest_joint_angles();
+    Eigen::Vector3d palm;
+  };
+  Driven R{&right, q_right, false, rest_joint_angles(), scene.hands[0].pose.p_W};
+  Driven L{&left, q_left, true, rest_joint_angles(), scene.hands[1].pose.p_W};
+  long steps = 0, hand_hand_steps = 0;
+  auto box_p = [&] { return w.snapshot().bodies[box].p_WO; };
+  auto touches = [&](int hand, int object) {
+    for (const ContactRecord& c : w.snapshot().contacts)
+      if (c.hand == hand && c.object == object && c.other_hand < 0 && c.f_W.norm() > 1e-6) return true;
+    return false;
+  };
+  // Both hands move together: each eased from where it is to (angles, palm) in `seconds`.
+  auto move = [&](Driven& a, const HandJointAngles& a_to, const Eigen::Vector3d& a_palm, Driven& b,
+                  const HandJointAngles& b_to, const Eigen::Vector3d& b_palm, double seconds, auto each) {
+    const HandJointAngles a0 = a.angles, b0 = b.angles;
+    const Eigen::Vector3d pa0 = a.palm, pb0 = b.palm;
+    const int n = static_cast<int>(std::lround(seconds / w.dt()));
+    for (int k = 1; k <= n; ++k) {
+      const double s = 0.5 * (1.0 - std::cos(std::numbers::pi * k / n));
+      a.angles = HandJointAngles::from_vector((1 - s) * a0.vector() + s * a_to.vector());
+      b.angles = HandJointAngles::from_vector((1 - s) * b0.vector() + s * b_to.vector());
+      a.palm = pa0 + s * (a_palm - pa0);
+      b.palm = pb0 + s * (b_palm - pb0);
+      for (Driven* d : {&a, &b}) set_posture(w, *d->hand, d->angles, d->palm, d->q, d->left);
+      w.step();
+      ++steps;
+      for (const ContactRecord& c : w.snapshot().contacts)
+        if (c.other_hand >= 0) {
+          ++hand_hand_steps;
+          break;
+        }
+      each();
+    }
+  };
+  auto nothing = [] {};
+  const HandJointAngles open = rest_joint_angles();
+  // The right hand's pick-up, as in run_grasp, then 8 cm up.
+  const Eigen::Vector3d grip = w.snapshot().bodies[box].p_WO - g.object_H;
+  move(R, open, grip, L, open, L.palm, 0.5, nothing);
+  move(R, g.closed, grip, L, open, L.palm, 0.5, nothing);
+  move(R, g.closed, grip, L, open, L.palm, 0.25, nothing);
+  const Eigen::Vector3d lifted = grip + Eigen::Vector3d(0, 0, 0.08);
+  move(R, g.closed, lifted, L, open, L.palm, 1.0, nothing);
+  ASSERT_GT(box_p().z(), scene.objects[box].pose.p_W.z() + 0.07) << "the right hand did not lift the box";
+  // The left palm under the box, 2 mm below touching it: first across below it, then up.
+  const Eigen::Vector3d c = box_p();
+  const Eigen::Vector3d box_x = w.snapshot().bodies[box].q_WO * Eigen::Vector3d::UnitX();
+  const double yaw = std::atan2(box_x.y(), box_x.x());  // about -30 degrees
+  const double under = c.z() - 0.5 * g.size_m - palm_height_under(g.size_m, yaw) - 0.002;
+  move(L, open, Eigen::Vector3d(c.x(), c.y(), under - 0.02), R, g.closed, lifted, 1.0, nothing);
+  move(L, open, Eigen::Vector3d(c.x(), c.y(), under), R, g.closed, lifted, 0.5, nothing);
+  // The right hand sets the box down 4 mm (2 mm into the left palm's flesh), opens and withdraws.
+  const Eigen::Vector3d set_down = lifted - Eigen::Vector3d(0, 0, 0.004);
+  move(R, g.closed, set_down, L, open, L.palm, 0.4, nothing);
+  move(R, g.closed, set_down, L, open, L.palm, 0.3, nothing);
+  move(R, open, set_down, L, open, L.palm, 0.5, nothing);
+  move(R, open, set_down + Eigen::Vector3d(0.05, 0, 0.06), L, open, L.palm, 0.5, nothing);
+  const bool right_touches_after_release = touches(0, box);
+  auto in_left_palm = [&] {
+    const HandleState& p = w.snapshot().handles[1][0];
+    return Eigen::Vector3d(p.q_WH.conjugate() * (box_p() - p.p_WH));
+  };
+  const Eigen::Vector3d held0 = in_left_palm();
+  double drift = 0;
+  // The left hand carries it 8 cm away (-x) and 2 cm up in 1 s and holds it 1 s.
+  const Eigen::Vector3d away = L.palm + Eigen::Vector3d(-0.08, 0, 0.02);
+  auto watch = [&] { drift = std::max(drift, (in_left_palm() - held0).norm()); };
+  move(L, open, away, R, open, R.palm, 1.0, watch);
+  move(L, open, away, R, open, R.palm, 1.0, watch);
+  const Eigen::Vector3d on_palm = in_left_palm();
+  std::printf("[handover] box at (%.1f, %.1f, %.1f) mm in the left palm frame after the right let go; largest "
+              "drift while carried %.2f mm; right hand touching the box after letting go: %s; steps with "
+              "hand-hand contact %ld of %ld; resets %ld\n",
+              held0.x() / kMm, held0.y() / kMm, held0.z() / kMm, drift / kMm,
+              right_touches_after_release ? "yes" : "no", hand_hand_steps, steps, w.snapshot().resets);
+  EXPECT_EQ(w.snapshot().resets, 0);
+  EXPECT_FALSE(right_touches_after_release);
+  EXPECT_FALSE(touches(0, box));
+  EXPECT_FALSE(touches(1, table));
+  EXPECT_TRUE(touches(1, box));
+  EXPECT_LT(drift, 3 * kMm);
+  // On the palm (palmar side is -z of the left hand frame), within its outline.
+  EXPECT_LT(on_palm.z(), -0.01);
+  EXPECT_LT(on_palm.head<2>().norm(), 0.03);
+  EXPECT_GT(box_p().z(), scene.objects[table].pose.p_W.z() + 0.05);
 }
 
 }  // namespace
