@@ -29,6 +29,7 @@
 #include <array>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <numbers>
 #include <vector>
 
@@ -565,6 +566,124 @@ TEST(WorldGloveHandover, RightHandSetsTheBoxOnTheLeftPalmAndTheLeftCarriesItAway
   EXPECT_LT(on_palm.head<2>().norm(), 0.03);
   EXPECT_GT(box_p().z(), scene.objects[table].pose.p_W.z() + 0.05);
 }
+
+// ---------------------------------------------------------------------------------------------
+// Hard cases of a glove: a finger driven deep into a table, tracking glitches.
+
+// The 16-handle hand palm down with its palm centre 3.5 cm over a static table (top at z = 0).
+World glove_over_table(ContactModel contact) {
+  GraspSpec nothing_held = box_grasp();
+  SceneDesc scene = grasp_scene(nothing_held, Eigen::Vector3d(0, 0, 0.035));
+  scene.objects.pop_back();  // the table alone
+  return World(scene, glove_options(contact));
+}
+
+// Every handle's distance from its target, largest, m.
+double largest_target_error(const WorldHand& hand, int first = 0, int last = 16) {
+  double e = 0;
+  for (int j = first; j < last; ++j) e = std::max(e, (hand.state.handles[j].p_WH - hand.state.targets[j].p_W).norm());
+  return e;
+}
+
+bool inverted_elements(const WorldHand& hand) {
+  for (int e = 0; e < hand.model->fem().num_tets(); ++e)
+    if (!(hand.model->fem().deformation_gradient(e, hand.state.x).determinant() > 0)) return true;
+  return false;
+}
+
+class WorldGloveHardCases : public testing::TestWithParam<ContactModel> {};
+
+// The index finger's three targets 5 cm under the table top, ramped in 0.1 s and held 1 s (the
+// tracked finger went through the table), then back. The index handles follow their almost
+// kinematic drive into the table (in the server the proxy stops them, its coupling feeling the
+// flesh); the flesh's coupling springs stretch and the table holds the skin: its deepest point
+// stays within a few millimetres (constraint) or a couple of centimetres (penalty springs against
+// the stretched coupling). The other fingers keep following their targets, the finger comes back,
+// nothing resets or stays inverted.
+TEST_P(WorldGloveHardCases, IndexDrivenFiveCentimetresIntoTheTable) {
+  World w = glove_over_table(GetParam());
+  WorldHand& hand = w.hand(0);
+  const Eigen::Vector3d palm(0, 0, 0.035);
+  const std::vector<HandleTarget> rest =
+      posture_targets(hand.shape, *hand.model, rest_joint_angles(), palm, Eigen::Quaterniond::Identity(), false);
+  for (int k = 0; k < 20; ++k) set_posture(w, hand, rest_joint_angles(), palm, Eigen::Quaterniond::Identity(), false), w.step();
+  const int index_first = 1 + 3 * 1, index_last = index_first + 3;  // handles of the index phalanges
+  double deepest = 0, others = 0;
+  const int ramp = 6, held = 60;
+  for (int k = 1; k <= ramp + held; ++k) {
+    const double s = std::min(1.0, static_cast<double>(k) / ramp);
+    for (int j = 0; j < 16; ++j) {
+      HandleTarget t = rest[j];
+      if (j >= index_first && j < index_last) t.p_W.z() -= s * (rest[j].p_W.z() + 0.05);  // 5 cm under the top
+      set_target(hand.state, j, t);
+    }
+    w.step();
+    ASSERT_TRUE(hand.state.x.allFinite());
+    deepest = std::max(deepest, w.snapshot().max_penetration_m);
+    if (k > ramp + 15) others = std::max({others, largest_target_error(hand, 0, index_first), largest_target_error(hand, index_last, 16)});
+  }
+  const double index_held = largest_target_error(hand, index_first, index_last);
+  for (int k = 0; k < 30; ++k) {
+    for (int j = 0; j < 16; ++j) set_target(hand.state, j, rest[j]);
+    w.step();
+  }
+  std::printf("[glove hard] %s: index targets 5 cm under the table: deepest skin point %.2f mm, index handles %.1f mm "
+              "from their targets, the other handles within %.3f mm; 0.5 s after release within %.3f mm; resets %ld\n",
+              GetParam() == ContactModel::constraint ? "constraint" : "penalty", deepest / kMm, index_held / kMm,
+              others / kMm, largest_target_error(hand) / kMm, w.snapshot().resets);
+  EXPECT_EQ(w.snapshot().resets, 0);
+  EXPECT_LT(deepest, GetParam() == ContactModel::constraint ? 3 * kMm : 20 * kMm);
+  EXPECT_LT(others, 2 * kMm);
+  EXPECT_LT(largest_target_error(hand), 2 * kMm);
+  EXPECT_FALSE(inverted_elements(hand));
+}
+
+// Tracking glitches: every phalanx target jumps 3-10 cm in a random direction for one step, then
+// for a third of a second every step; each time the tracking comes back the hand is back on its
+// targets within 0.5 s, finite, with no element left inverted, without needing a reset (the
+// safety response: the hand placed back on the palm's target, at rest).
+TEST_P(WorldGloveHardCases, EveryFingerTeleportedByTrackingGlitches) {
+  World w = glove_over_table(GetParam());
+  WorldHand& hand = w.hand(0);
+  const Eigen::Vector3d palm(0, 0, 0.06);
+  const std::vector<HandleTarget> rest =
+      posture_targets(hand.shape, *hand.model, rest_joint_angles(), palm, Eigen::Quaterniond::Identity(), false);
+  for (int k = 0; k < 30; ++k) set_posture(w, hand, rest_joint_angles(), palm, Eigen::Quaterniond::Identity(), false), w.step();
+  std::srand(7);
+  auto jump = [] {
+    const Eigen::Vector3d d = Eigen::Vector3d::Random().normalized();
+    return (0.03 + 0.07 * (0.5 + 0.5 * Eigen::Vector2d::Random().x())) * d;
+  };
+  double worst_back = 0;
+  for (int glitch_steps : {1, 20}) {
+    for (int k = 0; k < glitch_steps; ++k) {
+      for (int j = 1; j < 16; ++j) {
+        HandleTarget t = rest[j];
+        t.p_W += jump();
+        set_target(hand.state, j, t);
+      }
+      w.step();
+      ASSERT_TRUE(hand.state.x.allFinite());
+    }
+    for (int k = 0; k < 30; ++k) {
+      for (int j = 0; j < 16; ++j) set_target(hand.state, j, rest[j]);
+      w.step();
+      ASSERT_TRUE(hand.state.x.allFinite());
+    }
+    worst_back = std::max(worst_back, largest_target_error(hand));
+    EXPECT_FALSE(inverted_elements(hand)) << glitch_steps << " glitch steps";
+  }
+  std::printf("[glove hard] %s: tracking glitches of 3-10 cm on every phalanx: back within %.3f mm 0.5 s later; "
+              "resets %ld\n",
+              GetParam() == ContactModel::constraint ? "constraint" : "penalty", worst_back / kMm, w.snapshot().resets);
+  EXPECT_LT(worst_back, 2 * kMm);
+  EXPECT_EQ(w.snapshot().resets, 0);
+}
+
+INSTANTIATE_TEST_SUITE_P(Contact, WorldGloveHardCases, testing::Values(ContactModel::penalty, ContactModel::constraint),
+                         [](const testing::TestParamInfo<ContactModel>& i) {
+                           return i.param == ContactModel::penalty ? "Penalty" : "Constraint";
+                         });
 
 }  // namespace
 }  // namespace hapticd
