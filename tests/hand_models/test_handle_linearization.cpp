@@ -6,6 +6,8 @@
 #include <cstdio>
 
 #include "hand_models/handle_linearization.hpp"
+#include "hand_models/press_scenario.hpp"
+#include "hand_models/procedural_hand.hpp"
 #include "hand_test_util.hpp"
 
 namespace hapticd {
@@ -35,15 +37,14 @@ Eigen::VectorXd resimulated_wrench(const HandModel& model, const HandState& s, C
   return coupling_wrench(model, s.x + h * v_t, v_t, end);
 }
 
-void expect_quadratic_error(int handles, bool floor) {
-  HandConfig c;
-  c.floor.enabled = floor;
-  c.floor.height_m = 0.002;
-  c.floor.friction = 0.3;
-  const HandModel model = slab_hand(handles, c);
+// Presses, drags and twists `model`'s handles for 20 steps (so springs, flesh and any floor
+// contacts are loaded), then checks its model against re-simulation.
+void expect_quadratic_error(const HandModel& model) {
+  const bool floor = model.config().floor.enabled;
+  const int handles = model.num_handles();
   HandState s = make_rest_state(model);
   auto solver = make_solver(SolverKind::schur_cholmod);
-  for (int k = 0; k < 20; ++k) {  // press, drag and twist, so springs, flesh and contacts are loaded
+  for (int k = 0; k < 20; ++k) {
     for (int j = 0; j < handles; ++j)
       set_target(s, j, offset_target(model, j, Eigen::Vector3d(0.001 * k, 0.0005 * j * k, -0.0004 * k), 0.02 * k));
     ASSERT_EQ(step(model, s, *solver), StepStatus::ok);
@@ -88,9 +89,35 @@ void expect_quadratic_error(int handles, bool floor) {
   }
 }
 
+void expect_quadratic_error(int handles, bool floor) {
+  HandConfig c;
+  c.floor.enabled = floor;
+  c.floor.height_m = 0.002;
+  c.floor.friction = 0.3;
+  expect_quadratic_error(slab_hand(handles, c));
+}
+
 TEST(HandleLinearization, MatchesResimulationToSecondOrderWithoutContacts) { expect_quadratic_error(1, false); }
 TEST(HandleLinearization, MatchesResimulationToSecondOrderWithFloorContacts) { expect_quadratic_error(1, true); }
 TEST(HandleLinearization, CouplesSeveralHandlesThroughTheFleshToSecondOrder) { expect_quadratic_error(2, true); }
+
+// The glove hand: 1.7k tets with separate fingers and soft joints, 16 handles (96 handle DoF),
+// its fingertips and palm pressed on a floor.
+TEST(HandleLinearization, SixteenHandleGloveHandOnAFloorToSecondOrder) {
+  ProceduralHandOptions shape;
+  shape.separate_fingers = true;
+  const ProceduralHand hand = make_procedural_hand(shape);
+  HandConfig c;
+  c.handles = procedural_handles(hand, 16);
+  c.element_stiffness = procedural_joint_stiffness(hand, 16, kGloveJointStiffness);
+  c.material.density_kg_m3 = embedding_density(hand, c.material.density_kg_m3);
+  double lowest = 1e300;
+  for (const Eigen::Vector3d& X : hand.mesh.X) lowest = std::min(lowest, X.z());
+  c.floor.enabled = true;
+  c.floor.height_m = lowest + 0.002;
+  c.floor.friction = 0.3;
+  expect_quadratic_error(HandModel(hand.mesh, c));
+}
 
 // Constraint contacts: the slab pressed and dragged on a floor of constraint
 // contacts (with friction, some sticking, some sliding). The reference solves
