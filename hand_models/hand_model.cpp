@@ -295,6 +295,7 @@ void assemble(const HandModel& model, HandState& s) {
   // Contacts come from outside (the world): a malformed one is dropped, never assembled.
   s.active_contacts.clear();
   s.active_source.clear();
+  for (PointContact& r : s.reserve_contacts) r.f_W.setZero();
   for (size_t i = 0; i < s.contacts.size(); ++i) {
     s.contacts[i].f_W.setZero();
     if (!valid_contact(model, s, s.contacts[i])) continue;
@@ -622,7 +623,7 @@ bool solve_constraint_contacts(const HandModel& model, HandState& s, CoupledSolv
       }
       rows.push_back({static_cast<int>(s.active_contacts.size()), -1});
       s.active_contacts.push_back(pc);
-      s.active_source.push_back(-1);
+      s.active_source.push_back(kReserveSource - static_cast<int>(&pc - s.reserve_contacts.data()));
       impulses.emplace_back(Eigen::Vector3d::Zero());
     }
     if (static_cast<int>(rows.size()) == first) break;
@@ -719,7 +720,9 @@ StepStatus step(const HandModel& model, HandState& s, CoupledSolver& solver, Han
       for (size_t i = 0; i < s.active_contacts.size(); ++i) {
         if (!s.active_contacts[i].constraint) continue;
         s.active_contacts[i].f_W = impulses[i] / h;  // the impulse spread over the step
-        if (s.active_source[i] >= 0) s.contacts[s.active_source[i]].f_W = s.active_contacts[i].f_W;
+        const int source = s.active_source[i];
+        if (source >= 0) s.contacts[source].f_W = s.active_contacts[i].f_W;
+        if (source <= kReserveSource) s.reserve_contacts[kReserveSource - source].f_W = s.active_contacts[i].f_W;
       }
       if (linearized) {
         // The model is linear: anchoring it at the end-of-step state is exact.

@@ -78,6 +78,8 @@ constexpr double kContactDepthRecovery = 0.2;
 // A reserve constraint contact (HandState::reserve_contacts) joins the step's
 // rows when the step would carry it deeper than this (and deeper than it is), m.
 constexpr double kReserveDepth_m = 2e-4;
+// HandState::active_source of reserve r promoted to a row: kReserveSource - r.
+constexpr int kReserveSource = -2;
 
 struct HandleSpec {
   std::string name;
@@ -222,8 +224,8 @@ struct HandState {
   // otherwise carry it deeper, and deeper than kReserveDepth_m (an active-set
   // pass; a point already deeper and coming out stays in reserve), so
   // the skin between rows cannot sink through a thin object. Static and
-  // kinematic other sides or implicit bodies only: a promoted reserve's force
-  // is not reported back.
+  // kinematic other sides or implicit bodies only. A promoted reserve's f_W
+  // is filled by the step like a contact's (zero for the others).
   std::vector<PointContact> reserve_contacts;
   // External nodal forces for the next step, N, 3n (zero at rest; the caller
   // sets and clears them): e.g. another soft body's contact reactions handed
@@ -232,7 +234,8 @@ struct HandState {
   std::vector<ContactBody> bodies;            // the dynamic bodies contacts refer to
   std::vector<BodySupport> supports;          // those bodies' other contacts, for the next step
   std::vector<PointContact> active_contacts;  // valid contacts + floor, as last assembled
-  std::vector<int> active_source;            // index into contacts, -1 for the floor
+  // Per active contact: index into contacts, -1 for the floor, kReserveSource - r for reserve r.
+  std::vector<int> active_source;
   HeldContacts held;                          // the last step's held constraint contacts
 
   // The step length, s: the model's dt_s unless the caller sets another (a

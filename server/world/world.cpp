@@ -200,8 +200,11 @@ void World::add_contact(SoftBody& b, const PointContact& c, int point, const Eig
   // points of the cell stay in reserve: the step makes a row of any it would
   // carry too deep (HandState::reserve_contacts). Against deformable objects
   // and other hands the reaction must be handed over, so those points are not kept.
-  auto keep_in_reserve = [&](const PointContact& r) {
-    if (options_.contact_reserves && touch.object < 0 && touch.hand < 0) s.reserve_contacts.push_back(r);
+  auto keep_in_reserve = [&](const PointContact& r, int r_point, const Eigen::Vector3d& r_p_W) {
+    if (!options_.contact_reserves || touch.object >= 0 || touch.hand >= 0) return;
+    s.reserve_contacts.push_back(r);
+    b.reserve_point.push_back(r_point);
+    b.reserve_p_W.push_back(r_p_W);
   };
   const std::uint64_t key = cluster_key(other_key, p_W, options_.contact_cluster_m);
   PointContact warm_started = c;
@@ -218,10 +221,10 @@ void World::add_contact(SoftBody& b, const PointContact& c, int point, const Eig
     if (kept != b.kept_point.end() && kept->second == current) advantage -= kClusterHysteresis_m;
     if (kept != b.kept_point.end() && kept->second == point) advantage += kClusterHysteresis_m;
     if (advantage <= 0) {
-      keep_in_reserve(c);
+      keep_in_reserve(c, point, p_W);
       return;
     }
-    keep_in_reserve(s.contacts[it->second]);
+    keep_in_reserve(s.contacts[it->second], current, b.points[it->second]);
     s.contacts[it->second] = warm_started;
     b.points[it->second] = p_W;
     b.touches[it->second] = touch;
@@ -242,6 +245,8 @@ void World::collide(SoftBody& b) {
   HandState& s = *b.state;
   s.contacts.clear();
   s.reserve_contacts.clear();
+  b.reserve_point.clear();
+  b.reserve_p_W.clear();
   s.bodies.clear();
   s.supports.clear();
   b.kept_point.clear();
@@ -729,6 +734,22 @@ void World::record_contacts() {
         r.f_W = -c.f_W;
         snapshot_.contacts.push_back(r);
       }
+    }
+    // Reserve points the step made rows of (the others carry no force).
+    for (size_t k = 0; k < s.reserve_contacts.size(); ++k) {
+      const PointContact& c = s.reserve_contacts[k];
+      if (c.f_W.isZero()) continue;
+      ContactRecord r;
+      r.hand = b.hand;
+      r.deformable = b.deformable;
+      r.object = c.other;
+      r.point = b.reserve_point[k];
+      r.p_W = b.reserve_p_W[k];
+      r.n_W = c.n_W;
+      r.f_W = c.f_W;
+      r.depth_m = c.depth_m;
+      snapshot_.contacts.push_back(r);
+      snapshot_.max_penetration_m = std::max(snapshot_.max_penetration_m, r.depth_m);
     }
   }
 }

@@ -181,6 +181,9 @@ class World {
     // each cell's contact had in the last step, the next step's first guess.
     std::vector<std::uint64_t> keys;
     std::vector<int> point_of;  // the point each contact is at
+    // Per reserve contact of state->reserve_contacts: its point and world position.
+    std::vector<int> reserve_point;
+    std::vector<Eigen::Vector3d> reserve_p_W;
     std::unordered_map<std::uint64_t, Eigen::Vector3d> warm_impulse;
     std::unordered_map<std::uint64_t, int> kept_point;  // per cell, the point its contact was at last step
     // Per point: the object and normal of its last contact. A point keeps the

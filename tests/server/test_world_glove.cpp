@@ -18,10 +18,8 @@
 //
 // The tests run the hand with gravity (with the 1e6 N/m drive its own weight
 // moves the handles by micrometres); WeightlessHandStillCarriesTheCubesWeight
-// checks the server's weightless hand. A library limitation shapes the options:
-//  - constraint contacts' reserve rows (WorldOptions::contact_reserves) carry
-//    force the snapshot's ContactRecords do not show, and they make the pinch
-//    lose the cube; the pinch runs constraint contact without reserves.
+// checks the server's weightless hand. Constraint contact runs with its
+// reserve rows (the default); the snapshot shows the promoted reserves' forces.
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
@@ -293,9 +291,8 @@ void print_run(const char* what, const GraspRun& r) {
 // (49 mm of the palm's 50), stays within 0.6 mm and 1.7 degrees of its place in
 // the palm frame over 5 s (0.0-0.6 mm for the box placed 2 mm off either way
 // along x and y), and falls as soon as the fingers let go (5 mm lower 0.083 s
-// after opening starts, on the table before 0.75 s). With reserve rows (the
-// default) the snapshot's forces on the held box do not balance (they sum to
-// about (-6.1, -6.5, 1.9) N), so no force is asserted here.
+// after opening starts, on the table before 0.75 s). The snapshot's forces on
+// the held box (promoted reserve rows included) carry its weight.
 TEST(WorldGloveGrasp, ConstraintContactsLiftA100gBoxHoldItFiveSecondsAndDropItOnOpening) {
   const GraspSpec g = box_grasp();
   const GraspRun r = run_grasp(g, glove_options(ContactModel::constraint));
@@ -310,6 +307,9 @@ TEST(WorldGloveGrasp, ConstraintContactsLiftA100gBoxHoldItFiveSecondsAndDropItOn
   EXPECT_GT(r.release_s, 0.0);
   EXPECT_LT(r.release_s, 0.3);
   EXPECT_NEAR(r.landed_z_m, 0.5 * g.size_m, 1 * kMm);  // back on the table (a cube lands on a face)
+  const Eigen::Vector3d total = total_force(r);
+  EXPECT_NEAR(total.z(), g.mass_kg * kG, 0.1 * g.mass_kg * kG);
+  EXPECT_LT(total.head<2>().norm(), 0.1 * g.mass_kg * kG);
 }
 
 // Penalty friction is viscous below PointContact::kStickSpeed_m_s (1 cm/s): a
@@ -360,17 +360,14 @@ void expect_pinch_forces(const GraspSpec& g, const GraspRun& r) {
   EXPECT_LT(total.head<2>().norm(), 0.1 * g.mass_kg * kG);
 }
 
-// Without reserve rows every constraint force is in the snapshot: thumb and
-// index squeeze the cube with ~11 N each (3 mm of flesh), their sum carries its
+// Thumb and index squeeze the cube with ~11 N each (3 mm of flesh), their sum carries its
 // 0.196 N weight to 0.1 %, and it stays put (0.0-0.4 mm and at most 1.4 degrees
 // over the hold for the cube placed 2 mm off either way along x and y); it
 // falls 5 mm 0.067 s after opening starts.
 TEST(WorldGlovePinch, ConstraintContactsHoldA20gCubeAndTheFingerForcesBalanceItsWeight) {
   const GraspSpec g = cube_pinch();
-  WorldOptions o = glove_options(ContactModel::constraint);
-  o.contact_reserves = false;  // see the file comment
-  const GraspRun r = run_grasp(g, o);
-  print_run("cube pinch, constraint contact without reserves", r);
+  const GraspRun r = run_grasp(g, glove_options(ContactModel::constraint));
+  print_run("cube pinch, constraint contact", r);
   EXPECT_EQ(r.resets, 0);
   EXPECT_GT(r.lift_m, 0.045);
   EXPECT_LT(r.slip_m, 2 * kMm);
@@ -410,23 +407,9 @@ TEST(WorldGlovePinch, PenaltyContactsLiftTheCubeWithBalancedFingerForcesButItTur
 TEST(WorldGlovePinch, WeightlessHandStillCarriesTheCubesWeight) {
   const GraspSpec g = cube_pinch();
   WorldOptions o = glove_options(ContactModel::constraint);
-  o.contact_reserves = false;
   o.hand_gravity = false;
   const GraspRun r = run_grasp(g, o);
   print_run("cube pinch, weightless hand", r);
-  expect_pinch_forces(g, r);
-}
-
-// Known failure, disabled until fixed: constraint contacts with reserve rows
-// (the default): the cube turns 51 degrees
-// in the pinch and slips 10 mm (in 4 of 5 placements 2 mm apart it slips
-// 10-50 mm, once out of the hand), and the snapshot's forces on it sum to
-// (-0.03, -0.17, -0.15) N instead of its weight (the reserve rows' are missing).
-TEST(WorldGlovePinch, DISABLED_ConstraintContactsWithReservesHoldTheCubeAndShowEveryForce) {
-  const GraspSpec g = cube_pinch();
-  const GraspRun r = run_grasp(g, glove_options(ContactModel::constraint));
-  print_run("cube pinch, constraint contact with reserves", r);
-  EXPECT_LT(r.slip_m, 2 * kMm);
   expect_pinch_forces(g, r);
 }
 
