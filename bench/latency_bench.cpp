@@ -19,6 +19,9 @@
 #include "bench_common.hpp"
 #include "clients/cpp/client.hpp"
 #include "clients/sim/child_process.hpp"
+#include "clients/sim/glove_servo.hpp"
+#include "clients/sim/glove_simulation.hpp"
+#include "clients/sim/glove_trajectory.hpp"
 #include "clients/sim/servo_loop.hpp"
 #include "clients/sim/servo_report.hpp"
 #include "clients/sim/trajectory.hpp"
@@ -31,6 +34,9 @@ using namespace std::chrono_literals;
 struct LatencyBenchArgs {
   double seconds = 10.0;
   int devices = 1;
+  // Per device, "stylus" or "glove" (a 16-frame glove on the grasp trajectory, every other one a
+  // left hand); empty: `devices` styluses.
+  std::vector<std::string> mix;
   unsigned rate_hz = 1000;
   std::string trajectory = "press-stroke";
   bool busy_poll = false;
@@ -58,6 +64,8 @@ struct Phase {
 };
 
 std::filesystem::path own_directory() { return std::filesystem::read_symlink("/proc/self/exe").parent_path(); }
+
+bool is_glove(const LatencyBenchArgs& a, std::size_t i) { return i < a.mix.size() && a.mix[i] == "glove"; }
 
 protocol::Hello device_hello(int index, unsigned rate_hz) {
   protocol::Hello h;
@@ -89,7 +97,7 @@ Phase run_phase(const std::string& name, const std::string& binary, const std::v
       sim::parse_listening_line(child.wait_for_line(sim::listening_line_pattern(), 120s));
   const sim::Trajectory trajectory = sim::Trajectory::parse(a.trajectory);
 
-  const auto k = static_cast<std::size_t>(a.devices);
+  const std::size_t k = a.mix.empty() ? static_cast<std::size_t>(a.devices) : a.mix.size();
   phase.devices.resize(k);
   phase.device_errors.resize(k);
   std::latch connected(static_cast<std::ptrdiff_t>(k));
@@ -99,8 +107,12 @@ Phase run_phase(const std::string& name, const std::string& binary, const std::v
       client::Client client;
       bool ok = false;
       try {
-        const protocol::Welcome w =
-            client.connect(address.host, address.port, device_hello(static_cast<int>(i), a.rate_hz), 2s);
+        const std::string client_name = "haptic-bench-latency-" + std::to_string(i);
+        const protocol::Welcome w = client.connect(
+            address.host, address.port,
+            is_glove(a, i) ? sim::glove_hello(sim::kGloveFramesAll, client_name, a.rate_hz)
+                           : device_hello(static_cast<int>(i), a.rate_hz),
+            2s);
         ok = w.rate_hz == a.rate_hz;
         if (!ok) phase.device_errors[i] = "server granted " + std::to_string(w.rate_hz) + " Hz";
       } catch (const std::exception& e) {
@@ -112,7 +124,15 @@ Phase run_phase(const std::string& name, const std::string& binary, const std::v
       sim::ServoConfig config;
       config.rate_hz = a.rate_hz;
       config.duration_s = a.seconds;
-      phase.devices[i] = sim::run_servo_loop(client, trajectory, config);
+      if (is_glove(a, i)) {
+        // Gloves alternate right and left hands, each closing into a grasp.
+        sim::GloveSimulation glove(sim::GloveTrajectory::parse("grasp"), sim::GloveParams{}, sim::kGloveFramesAll,
+                                   i % 2 == 1, sim::servo_period_s(config.rate_hz));
+        sim::GloveServo servo(glove);
+        phase.devices[i] = sim::run_servo_loop(client, servo, config);
+      } else {
+        phase.devices[i] = sim::run_servo_loop(client, trajectory, config);
+      }
       if (i == 0) {
         try {
           phase.server_stats = sim::to_json(client.request_stats(500ms));
@@ -180,8 +200,12 @@ void run_latency_bench(const LatencyBenchArgs& a) {
   // The responders outlive the run by a margin, and exit on their own if the bench dies.
   const std::string lifetime = std::to_string(static_cast<int>(a.seconds) + 60);
   const Machine machine = describe_machine();
-  std::fprintf(stderr, "latency: %d device(s) x %.1f s at %u Hz, trajectory %s, busy-poll %s\n", a.devices, a.seconds,
-               a.rate_hz, a.trajectory.c_str(), a.busy_poll ? "on" : "off");
+  const int devices = a.mix.empty() ? a.devices : static_cast<int>(a.mix.size());
+  std::string kinds;
+  for (const std::string& m : a.mix) kinds += (kinds.empty() ? "" : ",") + m;
+  if (kinds.empty()) kinds = "stylus";
+  std::fprintf(stderr, "latency: %d device(s) (%s) x %.1f s at %u Hz, stylus trajectory %s, busy-poll %s\n", devices,
+               kinds.c_str(), a.seconds, a.rate_hz, a.trajectory.c_str(), a.busy_poll ? "on" : "off");
 
   const Phase echo = run_phase("echo", echo_binary, {"--bind", "127.0.0.1", "--port", "0", "--duration", lifetime}, a);
   if (!echo.ran()) throw std::runtime_error("the echo baseline failed: " + echo.error);
@@ -219,12 +243,13 @@ void run_latency_bench(const LatencyBenchArgs& a) {
                 ratio["p50"].get<double>(), ratio["p90"].get<double>(), ratio["p99"].get<double>(),
                 ratio["p999"].get<double>(), ratio["max"].get<double>());
   }
-  std::printf("machine: %s, %d cores, revision %s; %d device thread(s) per responder, run one after the other\n",
-              machine.cpu.c_str(), machine.cores, machine.git_revision.c_str(), a.devices);
+  std::printf("machine: %s, %d cores, revision %s; %d device thread(s) (%s) per responder, run one after the other\n",
+              machine.cpu.c_str(), machine.cores, machine.git_revision.c_str(), devices, kinds.c_str());
 
   if (!a.json.empty()) {
     const nlohmann::json doc = {
-        {"suite", "latency"},    {"seconds", a.seconds},       {"devices", a.devices},
+        {"suite", "latency"},    {"seconds", a.seconds},       {"devices", devices},
+        {"device_kinds", kinds},
         {"rate_hz", a.rate_hz},  {"trajectory", a.trajectory}, {"busy_poll", a.busy_poll},
         {"echo", to_json(echo)}, {"server", to_json(server)},  {"ratio_server_over_echo", ratio},
         {"cpu", machine.cpu},    {"machine", to_json(machine)}};
@@ -249,9 +274,15 @@ void add_latency_suite(CLI::App& app) {
   sub->add_option("--seconds", args->seconds, "seconds each responder is driven")
       ->check(CLI::Range(0.1, 3600.0))
       ->capture_default_str();
-  sub->add_option("--devices", args->devices, "simulated devices, each on its own thread and socket")
+  CLI::Option* devices = sub->add_option("--devices", args->devices, "simulated devices, each on its own thread and socket")
       ->check(CLI::Range(1, 16))
       ->capture_default_str();
+  sub->add_option("--mix", args->mix,
+                  "device kinds, one per device, instead of --devices styluses: stylus | glove (16 frames, grasp "
+                  "trajectory, alternately right and left), e.g. --mix glove,glove,stylus")
+      ->delimiter(',')
+      ->check(CLI::IsMember({"stylus", "glove"}))
+      ->excludes(devices);
   sub->add_option("--rate", args->rate_hz, "servo rate of every device, Hz")
       ->check(CLI::Range(10u, 10000u))
       ->capture_default_str();
