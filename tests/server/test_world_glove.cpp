@@ -633,7 +633,7 @@ TEST_P(WorldGloveHardCases, EveryFingerTeleportedByTrackingGlitches) {
       posture_targets(hand.shape, *hand.model, rest_joint_angles(), palm, Eigen::Quaterniond::Identity(), false);
   for (int k = 0; k < 30; ++k) set_posture(w, hand, rest_joint_angles(), palm, Eigen::Quaterniond::Identity(), false), w.step();
   std::srand(7);
-  auto jump = [] {
+  auto jump = []() -> Eigen::Vector3d {  // a value, not an expression of the local d
     const Eigen::Vector3d d = Eigen::Vector3d::Random().normalized();
     return (0.03 + 0.07 * (0.5 + 0.5 * Eigen::Vector2d::Random().x())) * d;
   };
