@@ -162,6 +162,11 @@ RejectReason read(const wire::Welcome& w, Welcome& m) noexcept {
     const wire::FrameMapEntry& e = *map->Get(static_cast<flatbuffers::uoffset_t>(i));
     m.frame_map[i] = {e.client_frame(), e.handle()};
   }
+  const auto* nonce = w.server_nonce();
+  if (!m.server_nonce.assign(nonce != nullptr ? std::span(nonce->data(), nonce->size())
+                                              : std::span<const std::uint8_t>())) {
+    return RejectReason::kFieldTooLong;
+  }
   return validate(m);
 }
 
@@ -486,8 +491,10 @@ EncodeResult Encoder::encode(const Welcome& m) noexcept {
   auto& b = impl_->start();
   const auto map = impl_->structs<wire::FrameMapEntry>(
       m.frame_map, [](const FrameMapEntry& e) { return wire::FrameMapEntry(e.client_frame, e.handle); });
+  const auto nonce =
+      m.server_nonce.empty() ? 0 : b.CreateVector(m.server_nonce.span().data(), m.server_nonce.size());
   const auto body = wire::CreateWelcome(b, m.session_id, m.rate_hz, m.force_limit_n, m.torque_limit_nm,
-                                        m.max_force_rate_n_per_s, map);
+                                        m.max_force_rate_n_per_s, map, nonce);
   return impl_->finish(wire::Body::Welcome, body.Union());
 }
 

@@ -34,6 +34,10 @@ inline constexpr std::size_t kMaxFrameName = 31;
 inline constexpr std::size_t kMaxErrorMessage = 256;
 inline constexpr std::size_t kMaxCredentials = 128;
 
+// Authentication (auth.hpp): a Hello's credentials and a Welcome's server_nonce are nonces of this
+// many random bytes; the pre-shared key has as many.
+inline constexpr std::size_t kNonceBytes = 32;
+
 // Rates a device may request or a server may grant, Hz.
 inline constexpr std::uint32_t kMinRateHz = 10;
 inline constexpr std::uint32_t kMaxRateHz = 10000;

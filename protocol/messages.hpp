@@ -83,7 +83,8 @@ struct Hello {
   DeviceKind device_kind = DeviceKind::kUnspecified;
   BoundedArray<TrackedFrame, kMaxFrames> frames;
   std::uint32_t requested_rate_hz = 1000;
-  BoundedArray<std::uint8_t, kMaxCredentials> credentials;  // opaque here; the server checks them
+  // Opaque to the codec; with authentication, the client's kNonceBytes nonce (auth.hpp).
+  BoundedArray<std::uint8_t, kMaxCredentials> credentials;
   bool operator==(const Hello&) const = default;
 };
 
@@ -100,6 +101,8 @@ struct Welcome {
   float torque_limit_nm = 0.0f;  // 0 for 3-DoF devices
   float max_force_rate_n_per_s = 0.0f;
   BoundedArray<FrameMapEntry, kMaxFrames> frame_map;  // client_frame strictly increasing
+  // kNonceBytes random bytes from a server that authenticates (auth.hpp), else empty.
+  BoundedArray<std::uint8_t, kNonceBytes> server_nonce;
   bool operator==(const Welcome&) const = default;
 };
 

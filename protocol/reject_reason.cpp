@@ -29,6 +29,13 @@ std::string_view to_string(RejectReason reason) noexcept {
       "field_too_long",
       "bad_string",
       "bad_session",
+      "missing_mac",
+      "bad_mac",
+      "replayed",
+      "wrong_peer",
+      "unknown_session",
+      "bad_nonce",
+      "rate_limited",
   };
   const auto i = static_cast<std::size_t>(reason);
   return i < kNames.size() ? kNames[i] : "unknown";

@@ -31,9 +31,19 @@ enum class RejectReason : std::uint8_t {
   kFieldTooLong,           // string or byte field longer than its bound
   kBadString,              // empty where a name is required, or holds control characters
   kBadSession,             // session id 0 where a session is required
+  // Authentication and sessions (a server with a key; auth.hpp): every one of these is dropped
+  // without a reply, except a Hello's kMissingMac / kBadMac (a plain Error{Unauthorized}).
+  kMissingMac,      // no authentication trailer where the key requires one
+  kBadMac,          // the trailer's tag does not verify (wrong key, corrupted, forged, wrong kind)
+  kReplayed,        // authentic, but its counter (or a Hello's nonce) was seen or is too old
+  kWrongPeer,       // names a live session but comes from another address than the session's
+  kUnknownSession,  // names no live session
+  kBadNonce,        // an authenticated Hello whose credentials are not a kNonceBytes client nonce
+  // Resource bounds (the server's haptic loop): dropped before it is authenticated or decoded.
+  kRateLimited,  // its source (address and port) sent more than its allowance (ServerOptions::source_rate_hz)
 };
 
-inline constexpr std::size_t kRejectReasonCount = static_cast<std::size_t>(RejectReason::kBadSession) + 1;
+inline constexpr std::size_t kRejectReasonCount = static_cast<std::size_t>(RejectReason::kRateLimited) + 1;
 
 // Stable snake_case name, for logs and stats ("too_short"); "unknown" past the last enumerator.
 std::string_view to_string(RejectReason reason) noexcept;

@@ -92,6 +92,7 @@ inline Welcome sample_welcome(std::size_t frames = 20) {
   for (std::size_t i = 0; i < frames; ++i) {
     m.frame_map.push_back({static_cast<std::uint16_t>(3 * i + 1), i == 5 ? kNoHandle : static_cast<std::uint16_t>(i)});
   }
+  for (std::size_t i = 0; i < kNonceBytes; ++i) m.server_nonce.push_back(static_cast<std::uint8_t>(7 * i + 3));
   return m;
 }
 

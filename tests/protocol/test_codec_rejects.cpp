@@ -471,7 +471,7 @@ TEST(RejectReasons, EachHasADistinctName) {
     names.insert(name);
   }
   EXPECT_EQ(names.size(), kRejectReasonCount);
-  EXPECT_EQ(kRejectReasonCount, 22u);
+  EXPECT_EQ(kRejectReasonCount, 29u);
   EXPECT_EQ(to_string(static_cast<RejectReason>(kRejectReasonCount)), "unknown");
   EXPECT_EQ(to_string(RejectReason::kVerifyFailed), "verify_failed");
 }

@@ -78,6 +78,8 @@ TEST(CodecRoundTrip, WelcomeKeepsEveryField) {
     EXPECT_EQ(out.frame_map[i].client_frame, 3 * i + 1);
     EXPECT_EQ(out.frame_map[i].handle, i == 5 ? kNoHandle : i);
   }
+  ASSERT_EQ(out.server_nonce.size(), kNonceBytes);
+  EXPECT_EQ(out.server_nonce[31], 7 * 31 + 3);
   EXPECT_EQ(out, in);
 }
 
