@@ -5,6 +5,7 @@
 
 #include "hand_bench.hpp"
 #include "latency_bench.hpp"
+#include "multirate_bench.hpp"
 #include "world_bench.hpp"
 
 int main(int argc, char** argv) {
@@ -13,6 +14,7 @@ int main(int argc, char** argv) {
   hapticd::bench::add_hand_suite(app);
   hapticd::bench::add_world_suite(app);
   hapticd::bench::add_latency_suite(app);
+  hapticd::bench::add_multirate_suite(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

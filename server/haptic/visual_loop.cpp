@@ -9,10 +9,9 @@
 
 namespace hapticd {
 
-void fill_haptic_model(World& world, int h, HandleLinearization& lin, HapticModel& out) {
+void fill_contact_flags(const World& world, int h, HapticModel& out) {
   const WorldSnapshot& snap = world.snapshot();
-  out.handles = 0;
-  WorldHand& hand = world.hand(h);
+  const WorldHand& hand = world.hand(h);
   out.in_contact = false;
   std::fill(std::begin(out.handle_in_contact), std::end(out.handle_in_contact), false);
   for (const ContactRecord& c : snap.contacts) {
@@ -23,6 +22,12 @@ void fill_haptic_model(World& world, int h, HandleLinearization& lin, HapticMode
     const int j = hand.skin_handle[c.point];
     if (j < kMaxHapticHandles) out.handle_in_contact[j] = true;
   }
+}
+
+void fill_haptic_model(World& world, int h, HandleLinearization& lin, HapticModel& out) {
+  out.handles = 0;
+  WorldHand& hand = world.hand(h);
+  fill_contact_flags(world, h, out);
   if (!linearize_next_step(*hand.model, hand.state, *hand.solver, lin)) return;
   const int m = static_cast<int>(lin.x0.size());
   if (m > kMaxHapticHandles || lin.F0.size() != 6 * m) return;
@@ -101,6 +106,7 @@ void VisualLoop::run(const std::atomic<bool>& stop) {
     stats_.world_us.add(1e-3 * static_cast<double>(t_world - t0));
     stats_.model_us.add(1e-3 * static_cast<double>(t1 - t_world));
     stats_.resets = world_.snapshot().resets;
+    stats_.body_resets = world_.snapshot().body_resets;
     stats_.elapsed_s = 1e-9 * static_cast<double>(t1 - start);
     if (report_to_) {
       report_to_->visual_step_ms.store(1e-3 * stats_.step_us.percentile(50), std::memory_order_relaxed);

@@ -23,7 +23,7 @@ constexpr double kMaxStep_s = 0.1;
 constexpr double kLatencyMargin = 2.0;
 
 struct VisualStats {
-  long steps = 0, late_steps = 0, resets = 0;
+  long steps = 0, late_steps = 0, resets = 0, body_resets = 0;  // resets: the world's hands and deformables
   MicrosecondHistogram step_us;   // the whole iteration: world step and model
   MicrosecondHistogram world_us;  // of which the world step
   MicrosecondHistogram model_us;  // of which the next step's handle-space model
@@ -34,6 +34,8 @@ struct VisualStats {
 // the step about to be taken from the world's current state; `lin` is scratch),
 // in_contact from the hand's contacts; out.handles = 0 when it cannot.
 void fill_haptic_model(World& world, int h, HandleLinearization& lin, HapticModel& out);
+// Only its contact flags (in_contact, handle_in_contact) from the world's last contacts.
+void fill_contact_flags(const World& world, int h, HapticModel& out);
 
 class VisualLoop {
  public:

@@ -1,0 +1,75 @@
+#pragma once
+// The multi-rate experiment (seed 004 section 3): how far the force a device
+// receives drifts from the force of a world stepped at every haptic tick when
+// the visual loop runs slower, with the handle-space linearized model or with a
+// zero-order hold of the last visual force between visual steps
+// (HandleModelKind).
+//
+// Open loop: the reference run is closed (its simulated device feels the
+// reference forces); every other run replays the device poses the reference
+// recorded, tick by tick, whatever it renders. Both runs then see the same
+// device input at every tick, and the error at a tick is the model's alone:
+// the force the haptic loop renders against the reference's force for the same
+// input. (Driving each run by the same device command instead would let the
+// device's motion diverge with the rendered force, and the error would mix the
+// model's with the device's response to it.)
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "server/offline/offline_run.hpp"
+
+namespace hapticd {
+
+// A scripted interaction: a scene and the simulated device that drives it.
+struct Interaction {
+  std::string name;
+  SceneDesc scene;
+  double seconds = 1.0;
+  // Every run's rigid bodies first settle this long at the haptic period
+  // (OfflineOptions::settle_s), so all runs start from the same world.
+  double settle_s = 1.0;
+  // The device of the reference run (closed loop), built for its loops (it may start at their handles).
+  std::function<std::unique_ptr<OfflineDevice>(const OfflineLoops&)> device;
+};
+
+// The simulated stylus along sim::Trajectory::press (settle, 2 cm down over
+// 1 s, hold; device space), starting where the scene's handle is.
+Interaction stylus_press(SceneDesc scene, double seconds);
+// The simulated glove along sim::GloveTrajectory::grasp (rest, close into the
+// power grasp over 1 s, hold), its palm starting on the palm handle; `frames`
+// 16 (phalanges handles) or 6 (fingertips), the scene's first hand set to match.
+Interaction glove_grasp(SceneDesc scene, double seconds, int frames);
+
+struct ForceError {
+  // Per tick, e = sqrt(sum over frames |f_D - f_D,ref|^2) (the force each frame
+  // receives, device space); its RMS and largest value over the ticks, N.
+  double rms_n = 0, max_n = 0;
+};
+ForceError force_error(const OfflineTrace& run, const OfflineTrace& reference);
+// RMS over ticks of sqrt(sum over frames |f_D|^2): the scale of the errors, N.
+double rms_force(const OfflineTrace& trace);
+
+struct MultirateRow {
+  std::string interaction;
+  int visual_ticks = 1;  // the world steps every this many haptic ticks
+  double visual_hz = 0;  // 1 / (visual_ticks T)
+  HandleModelKind model = HandleModelKind::linearized;
+  ForceError error;
+  OfflineTimings timings;
+  long resets = 0;
+};
+
+struct MultirateRuns {
+  OfflineTrace reference;  // visual step every tick, linearized, closed loop
+  std::vector<MultirateRow> rows;
+};
+
+// The reference run, then for each visual period (in ticks) and model an open-loop
+// replay of the reference's device poses. A visual period of 1 with the linearized
+// model is the reference itself (its row has no error by definition).
+MultirateRuns run_multirate(const Interaction& interaction, const std::vector<int>& visual_ticks,
+                            const std::vector<HandleModelKind>& models, double haptic_period_s = 1e-3);
+
+}  // namespace hapticd

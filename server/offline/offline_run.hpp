@@ -1,0 +1,233 @@
+#pragma once
+// Deterministic offline mode: the whole pipeline of hapticd (device, haptic
+// loop, visual loop, world) on simulated time, in lockstep, on one thread,
+// without sockets. Each haptic tick of period T the device moves and sends its
+// frames' poses, the proxies answer (ProxyHand::reply, as HapticServer::handle)
+// and are integrated under the last published model (as HapticServer::tick);
+// every k ticks the visual loop drives the world's handles to the proxies,
+// steps the world by k T and builds the model of the coming step (as
+// VisualLoop::run with a latency of `model_delay_ticks`). Nothing reads a
+// clock except to time the stages: the same inputs give bit-identical outputs.
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <functional>
+#include <memory>
+#include <vector>
+
+#include "clients/sim/device_model.hpp"
+#include "clients/sim/glove_model.hpp"
+#include "clients/sim/glove_simulation.hpp"
+#include "server/haptic/device_link.hpp"
+#include "server/haptic/visual_loop.hpp"
+#include "server/world/world.hpp"
+
+namespace hapticd {
+
+// How the haptic loop renders the hand between visual steps.
+enum class HandleModelKind {
+  // hapticd (seed 004 section 3): the proxies, coupled to the device, integrated
+  // every tick under the coming step's handle-space linearization
+  // F*(x, v) = F0 + K (x - x0) + D (v - v0) (fill_haptic_model).
+  linearized,
+  // The same pipeline with the model cut to its zeroth order: the proxies feel
+  // the coupling wrench the last visual step ended with (the flesh on the
+  // handles, seed 004 eq. 4-5), held until the next (K = D = 0). No linearization is built.
+  zoh,
+  // A naive multi-rate server without a proxy: the virtual coupling (the same
+  // gains) is simulated in the visual loop, the world's handles pulled toward the
+  // device by it, and the device receives the coupling force of the last visual
+  // step, held until the next.
+  zoh_coupling,
+};
+const char* to_string(HandleModelKind kind);
+
+struct OfflineOptions {
+  double haptic_period_s = 1e-3;
+  // The world steps every this many haptic ticks, by that many periods (1: at
+  // every tick, the reference of the multi-rate error).
+  int visual_every_ticks = 17;
+  // How long after its step a model reaches the haptic loop (the visual step's
+  // compute time); the world then simulates up to that publication, as VisualLoop does.
+  int model_delay_ticks = 0;
+  HandleModelKind model = HandleModelKind::linearized;
+  int device = 0;  // the scene device served
+  // Before the first tick, the scene's rigid bodies (ODE alone) settle this long
+  // in steps of one haptic period. Runs at different visual rates then start
+  // from the same world: a body placed a little off its rest pose otherwise
+  // settles differently at each step length (the stylus scene's bunny comes to
+  // rest 5 mm apart after 1 s at 1 ms and at 33 ms steps).
+  double settle_s = 0;
+  // The proxies a visual step reads were integrated to the end of their tick
+  // (t + T), and the world and the model's step end are timed from there. True:
+  // timed from the tick's start instead, as hapticd's VisualLoop times them when
+  // it reads them right after a tick (ProxyTargets carries no time; the bias is
+  // up to one period, by the phase of the two threads). Measured with that bias:
+  // a free-space sweep at 60 Hz puts energy into the device (+0.03 J of 0.41 J
+  // exchanged, against -0.23 J at 1 kHz and with exact timing), and at 240 Hz
+  // the loops go unstable.
+  bool targets_one_tick_stale = false;
+};
+
+// A device's frames in device space, per tick.
+struct DeviceFrames {
+  int frames = 0;
+  Eigen::Vector3d p_D[kMaxHapticHandles];
+  Eigen::Quaterniond q_D[kMaxHapticHandles];
+};
+
+// What a device receives at a tick: the reply's wrench per frame (device
+// space, about the frame's origin) and its contact flag.
+struct DeviceReply {
+  int frames = 0;
+  ReplyWrench wrench[kMaxHapticHandles];
+  bool in_contact[kMaxHapticHandles]{};
+};
+
+// Median and 99th percentile of the stage timings of a run (wall clock; they do
+// not feed back into the simulation).
+struct OfflineTimings {
+  double haptic_us_median = 0, haptic_us_p99 = 0;  // one tick: sample, reply, proxy integration
+  double visual_ms_median = 0, visual_ms_p99 = 0;  // one visual step: world step and the model it publishes
+  long visual_steps = 0;
+};
+
+// The two loops and the world of one scene device, ticked in lockstep.
+class OfflineLoops {
+ public:
+  // Builds the world as hapticd does (weightless hands, handles driven by the
+  // proxies, no in-step linearization) with the scene's step set to k T.
+  // Throws std::runtime_error when the scene's device cannot be served.
+  OfflineLoops(SceneDesc scene, const OfflineOptions& options);
+
+  // Where tracked frame j sits in device space when it carries its handle at the
+  // handle's current pose (a device starting there starts without force).
+  void frame_pose_at_handle(int j, Eigen::Vector3d& p_D, Eigen::Quaterniond& q_D) const;
+
+  // One haptic tick at t = ticks() T with the device's poses of this tick: the
+  // sample (a first one re-syncs the proxies), the reply the device receives,
+  // the proxies' integration, and the visual step when one is due.
+  void tick(const DeviceFrames& sample, DeviceReply& reply);
+
+  long ticks() const { return ticks_; }
+  double time_s() const { return static_cast<double>(ticks_) * options_.haptic_period_s; }
+  World& world() { return *world_; }
+  const World& world() const { return *world_; }
+  const DeviceLink& link() const { return link_; }
+  const ProxyHand& proxy() const { return proxy_; }
+  const OfflineOptions& options() const { return options_; }
+  // The model the haptic loop integrates under now (handles = 0: none yet).
+  const HapticModel& model() const { return current_; }
+  // Proxy resets plus world resets.
+  long resets() const;
+  // Timings so far (sorts copies of the samples: not for the hot path).
+  OfflineTimings timings() const;
+
+ private:
+  void visual_step(double t_s);
+  void reply_held(DeviceReply& reply);
+  void build_model(HapticModel& out);
+
+  OfflineOptions options_;
+  std::unique_ptr<World> world_;
+  DeviceLink link_;
+  ProxyHand proxy_;
+  HandleLinearization scratch_;
+  HapticModel current_, next_, none_;
+  double t_end_s_ = 0, next_t_end_s_ = 0;
+  double output_scale_ = 0;  // the session's force ramp (HapticServer)
+  bool pending_ = false;
+  long publish_at_ = 0, ticks_ = 0;
+  std::uint32_t resyncs_ = 0, resyncs_seen_ = 0;  // the haptic loop's re-sync count, the visual loop's
+  // zoh_coupling: the device frames' handle poses (world) and velocities, the coupling
+  // wrench held since the last visual step, the last reply per frame (slew limit).
+  HapticPose device_W_[kMaxHapticHandles];
+  Eigen::Vector3d device_v_W_[kMaxHapticHandles], device_w_W_[kMaxHapticHandles];
+  Eigen::Vector3d held_f_W_[kMaxHapticHandles], held_tau_W_[kMaxHapticHandles];
+  Eigen::Vector3d last_f_D_[kMaxHapticHandles], last_tau_D_[kMaxHapticHandles];
+  bool have_device_ = false;
+  std::vector<double> haptic_us_, visual_ms_;
+};
+
+// --- Devices -------------------------------------------------------------------------------------
+
+// The device side of an offline run, ticked with the loops.
+class OfflineDevice {
+ public:
+  virtual ~OfflineDevice() = default;
+  virtual int frames() const = 0;
+  // Tick `tick` (t = tick T): move over the last period under the reply last
+  // received (not at tick 0: the device starts where it is), then write the
+  // frames' poses.
+  virtual void advance(long tick, double t_s, DeviceFrames& out) = 0;
+  // This tick's reply, held until the next (a device's DAC holds its command).
+  virtual void receive(const DeviceReply& reply) = 0;
+};
+
+// The simulated stylus (clients/sim/device_model.hpp: the tip and the arm that
+// holds it) following `start_D + command(t)`, with its velocity by a central
+// difference of 1 us. Sends its tip with the identity orientation.
+class SimulatedStylus final : public OfflineDevice {
+ public:
+  using Command = std::function<Eigen::Vector3d(double t_s)>;
+  SimulatedStylus(const Eigen::Vector3d& start_D, Command command, double period_s,
+                  const sim::DeviceParams& params = {});
+  int frames() const override { return 1; }
+  void advance(long tick, double t_s, DeviceFrames& out) override;
+  void receive(const DeviceReply& reply) override;
+  const sim::DeviceState& state() const { return state_; }
+  // Work of the received forces on the tip so far, J (> 0: the rendering put energy in).
+  double energy_j() const { return energy_j_; }
+
+ private:
+  Eigen::Vector3d start_D_;
+  Command command_;
+  double period_s_;
+  sim::DeviceParams params_;
+  sim::DeviceState state_;
+  Eigen::Vector3d f_D_ = Eigen::Vector3d::Zero();
+  double energy_j_ = 0;
+};
+
+// The simulated glove (clients/sim/glove_simulation.hpp: 20 joints on their
+// impedance, the palm on the arm model) along a glove trajectory.
+class SimulatedGlove final : public OfflineDevice {
+ public:
+  SimulatedGlove(sim::GloveTrajectory trajectory, int frames, bool left, double period_s,
+                 const sim::GloveParams& params = {});
+  int frames() const override { return sim_.frames(); }
+  void advance(long tick, double t_s, DeviceFrames& out) override;
+  void receive(const DeviceReply& reply) override;
+  const sim::GloveSimulation& simulation() const { return sim_; }
+
+ private:
+  sim::GloveSimulation sim_;
+};
+
+// Poses recorded from another run, replayed tick by tick whatever the replies:
+// the open-loop input of a comparison (every run sees the same device motion).
+class RecordedDevice final : public OfflineDevice {
+ public:
+  explicit RecordedDevice(const std::vector<DeviceFrames>& poses) : poses_(poses) {}
+  int frames() const override { return poses_.empty() ? 0 : poses_[0].frames; }
+  void advance(long tick, double t_s, DeviceFrames& out) override;
+  void receive(const DeviceReply&) override {}
+
+ private:
+  const std::vector<DeviceFrames>& poses_;
+};
+
+// --- Whole runs ----------------------------------------------------------------------------------
+
+// A run's per-tick record: the device's poses and what it received.
+struct OfflineTrace {
+  std::vector<DeviceFrames> poses;
+  std::vector<DeviceReply> replies;
+  OfflineTimings timings;
+  long resets = 0;
+};
+
+// Runs `loops` with `device` for `ticks` ticks (device advance, loops tick, device
+// receives) and records every tick. Deterministic: no clock reaches the simulation.
+OfflineTrace run_offline(OfflineLoops& loops, OfflineDevice& device, long ticks);
+
+}  // namespace hapticd
