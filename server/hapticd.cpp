@@ -12,6 +12,7 @@
 #include <nlohmann/json.hpp>
 #include <thread>
 
+#include "protocol/key_file.hpp"
 #include "server/haptic/haptic_server.hpp"
 #include "server/haptic/visual_loop.hpp"
 #include "server/world/scene_loader.hpp"
@@ -41,10 +42,19 @@ int main(int argc, char** argv) {
   std::string scene_path = std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json";
   ServerOptions options;
   double visual_rate = 60, duration = 0;
-  std::string stats_path, level = "info";
+  std::string stats_path, level = "info", key_path, generate_key_path;
   app.add_option("--scene", scene_path, "scene file (default: the stylus, bunny and blocks scene)")
       ->check(CLI::ExistingFile);
-  app.add_option("--bind", options.bind, "address to listen on (default 127.0.0.1)");
+  app.add_option("--bind", options.bind,
+                 "address to listen on (default 127.0.0.1); an address other than loopback needs --key-file or "
+                 "--insecure-bind");
+  app.add_option("--key-file", key_path,
+                 "pre-shared key (one line of 64 hex digits, mode 600): every session is authenticated and every "
+                 "datagram carries a MAC; clients need the same file");
+  app.add_option("--generate-key", generate_key_path, "write a new random key file (mode 600) and exit");
+  app.add_flag("--insecure-bind", options.insecure_bind,
+               "allow --bind to a non-loopback address without --key-file (anyone who reaches it can drive the "
+               "device)");
   app.add_option("--port", options.port, "UDP port; 0 picks a free one and prints it")->check(CLI::Range(0, 65535));
   app.add_option("--haptic-rate", options.haptic_rate_hz, "haptic loop rate, Hz (default 1000)")
       ->check(CLI::Range(100.0, 10000.0));
@@ -57,10 +67,42 @@ int main(int argc, char** argv) {
   app.add_flag("--busy-poll", options.busy_poll, "spin on the socket instead of sleeping (for a dedicated core)");
   app.add_option("--session-timeout", options.session_timeout_s, "drop a silent session after this many seconds")
       ->check(CLI::Range(0.2, 3600.0));
+  app.add_option("--model-stale-after", options.model_stale_after_s,
+                 "seconds a hand's model may be overdue (the visual loop stalled) before it fades to the safe "
+                 "model, where the proxy feels only its device (default 0.1)")
+      ->check(CLI::Range(0.001, 10.0));
+  app.add_option("--model-fade", options.model_fade_s, "seconds that fade takes, and the recovery (default 0.1)")
+      ->check(CLI::Range(0.0, 10.0));
+  app.add_option("--source-rate", options.source_rate_hz,
+                 "datagrams a second allowed per source address and port; 0: 4x the haptic rate (default)")
+      ->check(CLI::Range(0.0, 1e7));
+  app.add_option("--source-burst", options.source_burst, "datagrams a source may send at once (default 200)")
+      ->check(CLI::Range(1.0, 1e6));
   CLI11_PARSE(app, argc, argv);
   g_level = level == "error" ? Level::error : level == "warn" ? Level::warn : level == "debug" ? Level::debug : Level::info;
 
+  if (!generate_key_path.empty()) {
+    try {
+      const protocol::Key key = protocol::generate_key_file(generate_key_path);
+      std::printf("hapticd: wrote a new key to %s (fingerprint %s); give it to hapticd and its clients\n",
+                  generate_key_path.c_str(), protocol::key_fingerprint(key).c_str());
+      return 0;
+    } catch (const std::exception& e) {
+      say(Level::error, std::string("--generate-key ") + e.what());
+      return 1;
+    }
+  }
+  if (!key_path.empty()) {
+    try {
+      options.key = protocol::load_key_file(key_path);
+    } catch (const std::exception& e) {
+      say(Level::error, std::string("--key-file ") + e.what());
+      return 1;
+    }
+  }
+
   try {
+    HapticServer::check_bind(options);  // before the scene: a refused address fails at once
     SceneDesc scene = load_scene(scene_path);
     scene.visual_rate_hz = visual_rate;
     scene.dt_s = 1.0 / visual_rate;
@@ -95,6 +137,15 @@ int main(int argc, char** argv) {
     std::thread haptic_thread([&] { server.run(stop_loops); });
     std::printf("hapticd listening on %s:%u\n", server.address().c_str(), static_cast<unsigned>(server.port()));
     std::fflush(stdout);
+    if (options.key) {
+      say(Level::info, "sessions authenticated with the key of " + key_path + " (fingerprint " +
+                           protocol::key_fingerprint(*options.key) + ")");
+    } else if (options.insecure_bind && !boost::asio::ip::make_address(server.address()).is_loopback()) {
+      say(Level::warn, "no --key-file and --insecure-bind: sessions are NOT authenticated on " + server.address() +
+                           "; anyone who can reach this port can drive the device");
+    } else {
+      say(Level::info, "no --key-file: sessions are not authenticated; listening on loopback only");
+    }
     say(Level::info, "scene " + scene.name + ": " + std::to_string(world.num_hands()) + " hand(s), " +
                          std::to_string(links.size()) + " device(s); haptic " +
                          std::to_string(static_cast<int>(options.haptic_rate_hz)) + " Hz, visual " +
@@ -126,7 +177,14 @@ int main(int argc, char** argv) {
           {"tick_jitter_us", histogram_json(st.tick_jitter_us)},
           {"reply_compute_us", histogram_json(st.reply_compute_us)},
           {"realtime", st.realtime},
-          {"busy_poll", options.busy_poll}}},
+          {"busy_poll", options.busy_poll},
+          {"cpu_s", st.cpu_s},
+          {"model_watchdog",
+           {{"stale_after_s", options.model_stale_after_s},
+            {"fade_s", options.model_fade_s},
+            {"stale_models", st.stale_models},
+            {"stale_model_ticks", st.stale_model_ticks},
+            {"overdue_max_s", st.model_overdue_max_s}}}}},
         {"visual",
          {{"rate_hz_configured", visual_rate},
           {"rate_hz_achieved", vs.elapsed_s > 0 ? static_cast<double>(vs.steps) / vs.elapsed_s : 0.0},
@@ -136,7 +194,8 @@ int main(int argc, char** argv) {
           {"step_ms_p99", 1e-3 * vs.step_us.percentile(99)},
           {"world_step_ms_median", 1e-3 * vs.world_us.percentile(50)},
           {"model_ms_median", 1e-3 * vs.model_us.percentile(50)},
-          {"hand_resets", vs.resets}}},
+          {"hand_resets", vs.resets},
+          {"body_resets", vs.body_resets}}},
         {"packets",
          {{"in", st.packets_in},
           {"out", st.packets_out},
@@ -147,13 +206,28 @@ int main(int argc, char** argv) {
           {"duplicates", st.duplicates},
           {"stale", st.stale},
           {"gaps", st.gaps},
-          {"send_errors", st.send_errors}}},
+          {"frames_lost", st.frames_lost},
+          {"authenticated", options.key.has_value()},
+          {"send_errors", st.send_errors},
+          {"rate_limited", st.rate_limited},
+          {"rate_sources_evicted", st.rate_sources_evicted},
+          {"source_rate_hz", options.source_rate_hz > 0 ? options.source_rate_hz : 4.0 * options.haptic_rate_hz},
+          {"source_burst", options.source_burst},
+          {"receive_buffer_bytes", st.receive_buffer_bytes}}},
         {"replies", st.replies},
         {"clamps", st.clamps},
         {"proxy_resets", st.resets},
         {"resyncs", st.resyncs},
         {"sessions",
-         {{"opened", st.sessions_opened}, {"closed", st.sessions_closed}, {"timed_out", st.sessions_timed_out}}}};
+         {{"opened", st.sessions_opened},
+          {"closed", st.sessions_closed},
+          {"timed_out", st.sessions_timed_out},
+          {"replaced", st.sessions_replaced},
+          {"pending_expired", st.pending_expired},
+          {"max", kMaxSessions}}},
+        {"memory",
+         {{"session_bytes", HapticServer::session_bytes()},
+          {"server_bytes", server.memory_bytes()}}}};
     if (!stats_path.empty()) {
       std::ofstream out(stats_path);
       if (!out) throw std::runtime_error("--stats " + stats_path + ": cannot write");

@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cmath>
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/ip/udp.hpp>
 #include <cerrno>
@@ -36,6 +37,8 @@ std::string_view to_string(ErrorKind kind) noexcept {
       return "invalid";
     case ErrorKind::kNotConnected:
       return "not_connected";
+    case ErrorKind::kUnauthenticated:
+      return "unauthenticated";
   }
   return "unknown";
 }
@@ -92,6 +95,17 @@ Client::Client() {
 
 Client::~Client() { bye(); }
 
+void Client::set_key(const protocol::Key& key) {
+  if (connected()) throw ClientError(ErrorKind::kInvalid, "set_key() while connected: bye() first");
+  auth_ = std::make_unique<protocol::AuthKeys>(key);
+  if (!sealer_) sealer_ = std::make_unique<protocol::Sealer>();
+}
+
+void Client::clear_key() {
+  if (connected()) throw ClientError(ErrorKind::kInvalid, "clear_key() while connected: bye() first");
+  auth_.reset();
+}
+
 protocol::Welcome Client::connect(const std::string& host, std::uint16_t port, const protocol::Hello& hello,
                                   std::chrono::nanoseconds timeout, std::chrono::nanoseconds resend_interval) {
   bye();
@@ -137,6 +151,11 @@ protocol::Welcome Client::connect(const std::string& host, std::uint16_t port, c
   last_peer_heartbeat_ns_ = 0;
   handshake_answered_ = false;
   hellos_sent_ = 0;
+  session_keys_ = {};
+  counters_in_.reset();
+  counter_out_ = 0;
+  unverified_ = Unverified::kNothing;
+  protocol::Hello sealed_hello = hello;  // with a key: a fresh nonce as credentials for each send
 
   const auto refused = [this] {
     close_socket();
@@ -150,12 +169,45 @@ protocol::Welcome Client::connect(const std::string& host, std::uint16_t port, c
     const std::uint64_t now = now_ns();
     if (now >= deadline) {
       close_socket();
+      const std::string waited = " within " + milliseconds(timeout);
+      switch (unverified_) {
+        case Unverified::kNothing:
+          break;
+        case Unverified::kPlainWelcome:
+          throw ClientError(ErrorKind::kUnauthenticated,
+                            "hapticd at " + server_address_ +
+                                " answered the Hello without a MAC (it runs without --key-file), and this client "
+                                "has a key: no unauthenticated session" +
+                                waited);
+        case Unverified::kPlainError:
+        case Unverified::kBadMac: {
+          const std::string code(protocol::to_string(unverified_error_.code));
+          throw ClientError(ErrorKind::kUnauthenticated,
+                            "hapticd at " + server_address_ + " answered the Hello with " +
+                                (unverified_ == Unverified::kPlainError ? "an Error without a MAC"
+                                                                        : "a reply whose MAC does not verify") +
+                                (unverified_ == Unverified::kPlainError
+                                     ? ": " + code + ": " + std::string(unverified_error_.message.view())
+                                     : std::string()) +
+                                " (is the key file the server's?), and nothing authentic" + waited);
+        }
+      }
       throw ClientError(ErrorKind::kTimeout, "no answer from hapticd at " + server_address_ + " to the Hello within " +
                                                  milliseconds(timeout) + " (is the server running on that port?)");
     }
     if (now >= next_send) {
       const std::uint64_t refused_before = counters_.refused;
-      const SendResult sent = send_bytes(encoder_.encode(hello).bytes);
+      std::span<const std::uint8_t> bytes;
+      if (auth_) {
+        protocol::Nonce& nonce = hello_nonces_[static_cast<std::size_t>(hellos_sent_) % kHelloNonces];
+        nonce = protocol::random_nonce();
+        sealed_hello.credentials.assign(std::span<const std::uint8_t>(nonce));
+        bytes = sealer_->seal(encoder_.encode(sealed_hello).bytes, {protocol::TrailerKind::kHello, 0, 0},
+                              auth_->hello_key());
+      } else {
+        bytes = encoder_.encode(hello).bytes;
+      }
+      const SendResult sent = send_bytes(bytes);
       const int err = errno;
       ++hellos_sent_;
       if (counters_.refused != refused_before) refused();
@@ -183,6 +235,19 @@ protocol::Welcome Client::connect(const std::string& host, std::uint16_t port, c
 
 SendResult Client::send_pose(protocol::PoseSample& pose) noexcept {
   if (!connected()) return SendResult::kNotConnected;
+  // A frame whose tracking failed (a non-finite pose) is left out: the server holds its last pose
+  // and ramps its force to zero while the other frames keep working.
+  std::size_t kept = 0;
+  for (std::size_t i = 0; i < pose.poses.size(); ++i) {
+    const protocol::FramePose& f = pose.poses[i];
+    const bool finite = std::isfinite(f.position_m.x) && std::isfinite(f.position_m.y) &&
+                        std::isfinite(f.position_m.z) && std::isfinite(f.orientation.w) &&
+                        std::isfinite(f.orientation.x) && std::isfinite(f.orientation.y) &&
+                        std::isfinite(f.orientation.z);
+    if (finite) pose.poses[kept++] = f;
+  }
+  counters_.frames_dropped += pose.poses.size() - kept;
+  pose.poses.resize(kept);
   pose.session_id = session_id_;
   pose.sequence = next_sequence_;
   if (pose.client_timestamp_ns == 0) pose.client_timestamp_ns = now_ns();
@@ -194,7 +259,7 @@ SendResult Client::send_pose(protocol::PoseSample& pose) noexcept {
   // A sequence is spent once a valid pose was handed to the socket, sent or not: the server then
   // sees a failed send as the lost datagram it is.
   ++next_sequence_;
-  const SendResult sent = send_bytes(e.bytes);
+  const SendResult sent = send_message(e);
   if (sent == SendResult::kSent) ++counters_.poses_sent;
   return sent;
 }
@@ -222,7 +287,7 @@ SendResult Client::heartbeat() noexcept {
   h.echo_timestamp_ns = last_peer_heartbeat_ns_;
   const protocol::EncodeResult e = encoder_.encode(h);
   if (!e.ok()) return SendResult::kInvalid;
-  return send_bytes(e.bytes);
+  return send_message(e);
 }
 
 protocol::Stats Client::request_stats(std::chrono::nanoseconds timeout) {
@@ -230,7 +295,7 @@ protocol::Stats Client::request_stats(std::chrono::nanoseconds timeout) {
   protocol::StatsRequest request;
   request.session_id = session_id_;
   stats_received_ = false;
-  if (const SendResult r = send_bytes(encoder_.encode(request).bytes); r != SendResult::kSent)
+  if (const SendResult r = send_message(encoder_.encode(request)); r != SendResult::kSent)
     throw ClientError(ErrorKind::kSocket,
                       "cannot send a StatsRequest to " + server_address_ + ": " + std::string(to_string(r)));
   const std::uint64_t deadline = deadline_after(timeout);
@@ -250,7 +315,7 @@ void Client::bye() noexcept {
     protocol::Bye b;
     b.session_id = session_id_;
     const protocol::EncodeResult e = encoder_.encode(b);
-    if (e.ok()) (void)send_bytes(e.bytes);
+    if (e.ok()) (void)send_message(e);
     session_id_ = protocol::kNoSession;
   }
   close_socket();
@@ -275,6 +340,69 @@ SendResult Client::send_bytes(std::span<const std::uint8_t> bytes) noexcept {
   }
 }
 
+SendResult Client::send_message(const protocol::EncodeResult& encoded) noexcept {
+  if (!encoded.ok()) return SendResult::kInvalid;
+  if (!auth_) return send_bytes(encoded.bytes);
+  // A counter is spent like a sequence: a failed send looks like a lost datagram.
+  const auto sealed =
+      sealer_->seal(encoded.bytes, {protocol::TrailerKind::kClientToServer, session_id_, ++counter_out_},
+                    session_keys_.client_to_server);
+  if (sealed.empty()) return SendResult::kInvalid;
+  return send_bytes(sealed);
+}
+
+bool Client::authenticate(std::span<const std::uint8_t> datagram, std::span<const std::uint8_t>& body) noexcept {
+  protocol::Trailer trailer;
+  const bool awaiting_handshake = !connected() && !handshake_answered_;
+  if (protocol::split_trailer(datagram, body, trailer) != protocol::RejectReason::kNone) {
+    // A plain answer to the Hello: a server without a key, or one saying ours is missing or wrong.
+    // Not believed (anyone can send it), only remembered to explain a timeout.
+    if (awaiting_handshake && protocol::decode(datagram, message_).ok()) {
+      if (message_.type == MessageType::kWelcome && unverified_ == Unverified::kNothing)
+        unverified_ = Unverified::kPlainWelcome;
+      if (message_.type == MessageType::kError) {
+        unverified_ = Unverified::kPlainError;
+        unverified_error_ = message_.error;
+      }
+    }
+    ++counters_.datagrams_unauthenticated;
+    return false;
+  }
+  switch (trailer.kind) {
+    case protocol::TrailerKind::kHandshakeReply: {
+      // Late answers to re-sent Hellos once a Welcome verified: the server drops their sessions.
+      if (!awaiting_handshake) break;
+      const auto sent = static_cast<std::size_t>(std::min<int>(hellos_sent_, static_cast<int>(kHelloNonces)));
+      for (std::size_t i = 0; i < sent; ++i) {
+        if (!protocol::verify_mac(datagram, auth_->reply_key(hello_nonces_[i]))) continue;
+        if (!protocol::decode(body, message_).ok()) break;
+        if (message_.type == MessageType::kWelcome) {
+          const protocol::Welcome& w = message_.welcome;
+          if (w.session_id != trailer.session_id || w.server_nonce.size() != protocol::kNonceBytes) break;
+          protocol::Nonce server_nonce;
+          std::copy_n(w.server_nonce.span().begin(), server_nonce.size(), server_nonce.begin());
+          session_keys_ = auth_->session_keys(hello_nonces_[i], server_nonce, w.session_id);
+        } else if (message_.type != MessageType::kError) {
+          break;
+        }
+        return true;
+      }
+      if (unverified_ == Unverified::kNothing) unverified_ = Unverified::kBadMac;
+      break;
+    }
+    case protocol::TrailerKind::kServerToClient:
+      if (connected() && trailer.session_id == session_id_ &&
+          protocol::verify_mac(datagram, session_keys_.server_to_client) &&
+          protocol::accept_counter(counters_in_, trailer.counter) == protocol::RejectReason::kNone)
+        return true;
+      break;
+    default:
+      break;
+  }
+  ++counters_.datagrams_unauthenticated;
+  return false;
+}
+
 Client::Received Client::receive_one(std::uint64_t deadline_ns) noexcept {
   if (fd_ < 0) return Received::kNothing;
   ssize_t n = -1;
@@ -296,7 +424,9 @@ Client::Received Client::receive_one(std::uint64_t deadline_ns) noexcept {
   }
   const std::uint64_t received_ns = now_ns();
 
-  const protocol::DecodeResult r = protocol::decode({rx_.bytes.data(), static_cast<std::size_t>(n)}, message_);
+  std::span<const std::uint8_t> body{rx_.bytes.data(), static_cast<std::size_t>(n)};
+  if (auth_ && !authenticate(body, body)) return Received::kOther;
+  const protocol::DecodeResult r = protocol::decode(body, message_);
   if (!r.ok()) {
     ++counters_.datagrams_rejected;
     return Received::kOther;
@@ -319,7 +449,7 @@ Client::Received Client::receive_one(std::uint64_t deadline_ns) noexcept {
     }
     case MessageType::kWelcome:
     case MessageType::kError:
-      if (connected() && r.type == MessageType::kWelcome && hellos_sent_ > 1 &&
+      if (!auth_ && connected() && r.type == MessageType::kWelcome && hellos_sent_ > 1 &&
           message_.welcome.session_id != session_id_) {
         // The answer to a re-sent Hello: a server replaces a peer's session when it says hello
         // again, so the newest Welcome names the live one.

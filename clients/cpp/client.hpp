@@ -12,17 +12,25 @@
 // connect() may allocate and throws; after it, send_pose(), poll_force() and heartbeat() neither
 // allocate nor throw (tests/clients/test_client_no_allocation.cpp proves it): they sit in a
 // device's servo loop. A Client belongs to one thread.
+//
+// With set_key() (the server's pre-shared key, protocol/key_file.hpp) the session is authenticated
+// (protocol/auth.hpp): the Hello carries a fresh nonce and a MAC, only answers whose MAC verifies
+// are believed, and every datagram either way carries a MAC and a counter checked against replay.
 
+#include <array>
 #include <chrono>
 #include <cstdint>
+#include <memory>
 #include <optional>
 #include <span>
 #include <stdexcept>
 #include <string>
 #include <string_view>
 
+#include "protocol/auth.hpp"
 #include "protocol/codec.hpp"
 #include "protocol/messages.hpp"
+#include "protocol/sequence_window.hpp"
 
 namespace hapticd::client {
 
@@ -35,6 +43,9 @@ enum class ErrorKind : std::uint8_t {
   kRejected,      // the server answered the Hello with an Error: server_code(), server_message()
   kInvalid,       // the message handed in breaks a protocol rule (validate() names the reason)
   kNotConnected,  // a session call before connect() or after bye()
+  // With a key: the server answered, but nothing it sent verified with this client's key (a server
+  // without a key, or with another one); what it said is in the message.
+  kUnauthenticated,
 };
 
 std::string_view to_string(ErrorKind kind) noexcept;
@@ -78,6 +89,7 @@ struct ForceReply {
 // Datagram bookkeeping since connect(); what a device's report and a bench read.
 struct ClientCounters {
   std::uint64_t poses_sent = 0;
+  std::uint64_t frames_dropped = 0;  // non-finite frame poses left out of samples (lost tracking)
   std::uint64_t send_failures = 0;  // kInvalid, kWouldBlock, kFailed
   std::uint64_t forces_accepted = 0;
   // ForceSamples not newer than the newest accepted one (late or duplicated): an old force is
@@ -88,6 +100,9 @@ struct ClientCounters {
   // never sent, a message type a server does not send mid-session).
   std::uint64_t datagrams_unexpected = 0;
   std::uint64_t refused = 0;  // ICMP port unreachable reported by the socket (server gone)
+  // With a key: datagrams without a MAC, whose MAC does not verify, or replayed (a counter seen
+  // before or too old): dropped, never answered.
+  std::uint64_t datagrams_unauthenticated = 0;
 };
 
 class Client {
@@ -99,18 +114,30 @@ class Client {
   Client(const Client&) = delete;
   Client& operator=(const Client&) = delete;
 
+  // Authenticate the next sessions with this pre-shared key (the server's --key-file). Not while
+  // connected (throws ClientError kInvalid).
+  void set_key(const protocol::Key& key);
+  void clear_key();
+  [[nodiscard]] bool authenticating() const noexcept { return auth_ != nullptr; }
+
   // Resolves host (name or address), opens a UDP socket connected to it (the kernel then drops
   // datagrams from any other source), sends `hello` and waits for the Welcome. The Hello is
   // re-sent every `resend_interval` until `timeout`, so one lost datagram does not fail the
   // handshake (a server replaces a peer's session when it says hello again, so a Welcome to a
   // re-sent Hello arriving later is adopted as the live session). Throws ClientError: kBadAddress, kSocket, kRefused,
   // kTimeout, kRejected (with the server's code and message), kInvalid. A Client already connected says Bye first.
+  // With a key every Hello sent (re-sends too) carries a fresh nonce in place of hello.credentials;
+  // the first Welcome that verifies is the session (the server confirms it on the first pose and
+  // drops the others), and a timeout after answers that did not verify throws kUnauthenticated.
   protocol::Welcome connect(const std::string& host, std::uint16_t port, const protocol::Hello& hello,
                             std::chrono::nanoseconds timeout,
                             std::chrono::nanoseconds resend_interval = std::chrono::milliseconds(500));
 
   // Fills pose.session_id and pose.sequence (previous + 1, the first is 1) and, when it is 0,
-  // pose.client_timestamp_ns (now), then sends it. The caller owns the poses and buttons.
+  // pose.client_timestamp_ns (now), then sends it. The caller owns the poses and buttons. A frame
+  // whose pose is not finite (lost tracking) is removed from pose.poses and counted
+  // (ClientCounters::frames_dropped): the server holds that frame and ramps its force to zero
+  // while the others keep working. With no finite frame left the sample is kInvalid.
   SendResult send_pose(protocol::PoseSample& pose) noexcept;
 
   // The next ForceSample of this session newer than every one accepted so far, waiting at most
@@ -147,7 +174,15 @@ class Client {
   // Reads at most one datagram until deadline_ns and files it; never allocates.
   Received receive_one(std::uint64_t deadline_ns) noexcept;
   SendResult send_bytes(std::span<const std::uint8_t> bytes) noexcept;
+  // A session message: sealed with the client -> server key and the next counter when authenticating.
+  SendResult send_message(const protocol::EncodeResult& encoded) noexcept;
+  // With a key: the trailer of a received datagram checked; false (counted) when not authentic.
+  // `body` is then the message's bytes.
+  bool authenticate(std::span<const std::uint8_t> datagram, std::span<const std::uint8_t>& body) noexcept;
   void close_socket() noexcept;
+
+  // What answered the Hello without verifying (with a key), to explain a timeout.
+  enum class Unverified : std::uint8_t { kNothing, kPlainWelcome, kPlainError, kBadMac };
 
   protocol::Encoder encoder_;
   protocol::ReceiveBuffer rx_;
@@ -165,6 +200,15 @@ class Client {
   std::uint64_t session_id_ = protocol::kNoSession;
   std::uint64_t next_sequence_ = 1;
   ClientCounters counters_;
+  std::unique_ptr<protocol::AuthKeys> auth_;
+  std::unique_ptr<protocol::Sealer> sealer_;
+  static constexpr std::size_t kHelloNonces = 8;  // re-sent Hellos whose answers are still believed
+  std::array<protocol::Nonce, kHelloNonces> hello_nonces_{};
+  protocol::SessionKeys session_keys_;
+  protocol::SequenceWindow counters_in_;  // server -> client trailer counters seen
+  std::uint64_t counter_out_ = 0;
+  Unverified unverified_ = Unverified::kNothing;
+  protocol::Error unverified_error_;
   std::string server_address_;
   std::uint16_t local_port_ = 0;
   int fd_ = -1;

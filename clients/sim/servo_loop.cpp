@@ -105,9 +105,25 @@ ServoResult run_servo_loop(client::Client& client, ServoDevice& device, const Se
   const std::uint64_t first_sequence = client.last_sequence_sent() + 1;
 
   protocol::PoseSample pose;
+  protocol::ForceSample previous;  // the last reply applied (sequence 0: none yet)
+  const auto track_force_rate = [&](const protocol::ForceSample& now) {
+    if (previous.sequence != 0 && now.sequence == previous.sequence + 1 &&
+        now.server_receive_ns > previous.server_receive_ns) {
+      const double dt_s = std::max(1e-4, 1e-9 * static_cast<double>(now.server_receive_ns - previous.server_receive_ns));
+      for (const protocol::FrameWrench& w : now.wrenches.span())
+        for (const protocol::FrameWrench& p : previous.wrenches.span()) {
+          if (p.frame != w.frame) continue;
+          const double dx = w.wrench.force_n.x - p.wrench.force_n.x, dy = w.wrench.force_n.y - p.wrench.force_n.y,
+                       dz = w.wrench.force_n.z - p.wrench.force_n.z;
+          r.force_rate_max_n_per_s = std::max(r.force_rate_max_n_per_s, std::sqrt(dx * dx + dy * dy + dz * dz) / dt_s);
+        }
+    }
+    previous = now;
+  };
   const auto apply = [&](const client::ForceReply& reply) {
     const std::uint64_t index = reply.sample.sequence - first_sequence;
     if (index >= deadline_of.size()) return;  // answers a pose sent before this loop
+    track_force_rate(reply.sample);
     ++r.replies;
     r.rtt_us.push_back(static_cast<double>(reply.rtt_ns()) * 1e-3);
     if (reply.received_ns > deadline_of[index]) ++r.late;

@@ -60,6 +60,10 @@ struct ServoResult {
   double force_rms_n = 0.0;
   double passivity_energy_j = 0.0;
   double penetration_max_m = 0.0;
+  // The fastest change of any frame's force between replies to consecutive poses, |f_k - f_k-1| over
+  // the server's time between the two poses' arrivals (server_receive_ns; at least 0.1 ms, the
+  // server's shortest slew interval): at most the Welcome's max_force_rate_n_per_s.
+  double force_rate_max_n_per_s = 0.0;
   double elapsed_s = 0.0;  // first tick to the end of the last period
   double rate_hz_achieved = 0.0;
   client::ClientCounters counters;

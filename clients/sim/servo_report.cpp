@@ -16,6 +16,7 @@ nlohmann::json to_json(const ServoResult& r) {
           {"force_n", {{"max", r.force_max_n}, {"rms", r.force_rms_n}}},
           {"passivity_energy_j", r.passivity_energy_j},
           {"penetration_mm_max", 1e3 * r.penetration_max_m},
+          {"force_rate_max_n_per_s", r.force_rate_max_n_per_s},
           {"rate_hz_achieved", r.rate_hz_achieved},
           {"elapsed_s", r.elapsed_s},
           {"ticks", r.ticks},
@@ -32,7 +33,8 @@ nlohmann::json to_json(const ServoResult& r) {
            {{"forces_stale_dropped", c.forces_stale},
             {"datagrams_rejected", c.datagrams_rejected},
             {"datagrams_unexpected", c.datagrams_unexpected},
-            {"refused", c.refused}}}};
+            {"refused", c.refused},
+            {"datagrams_unauthenticated", c.datagrams_unauthenticated}}}};
 }
 
 nlohmann::json glove_figures_to_json(const GloveSimulation& sim) {

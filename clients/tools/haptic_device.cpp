@@ -24,6 +24,7 @@
 #include "clients/sim/servo_loop.hpp"
 #include "clients/sim/servo_report.hpp"
 #include "clients/sim/trajectory.hpp"
+#include "protocol/key_file.hpp"
 
 namespace {
 
@@ -147,6 +148,7 @@ int main(int argc, char** argv) {
   std::string client_name = "haptic-device";
   std::string frame_name = "stylus";
   double handshake_timeout_s = 2.0;
+  std::string key_path;
   sim::DeviceParams params;  // the stylus's tip, or the glove's palm
   const sim::DeviceParams palm_defaults = sim::GloveParams{}.palm;
 
@@ -182,6 +184,8 @@ int main(int argc, char** argv) {
   auto* frame_name_option = app.add_option("--frame-name", frame_name,
                                            "stylus: name of the tracked frame in the Hello (1..31 printable bytes)")
                                 ->capture_default_str();
+  app.add_option("--key-file", key_path,
+                 "the server's pre-shared key file (hapticd --key-file): authenticate the session");
   app.add_option("--handshake-timeout", handshake_timeout_s, "seconds to wait for the Welcome")
       ->check(CLI::Range(0.01, 60.0))
       ->capture_default_str();
@@ -258,6 +262,14 @@ int main(int argc, char** argv) {
   }
 
   client::Client client;
+  if (!key_path.empty()) {
+    try {
+      client.set_key(protocol::load_key_file(key_path));
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "haptic-device: --key-file %s\n", e.what());
+      return 2;
+    }
+  }
   protocol::Welcome welcome;
   try {
     welcome = client.connect(server.host, server.port, hello,
@@ -352,6 +364,7 @@ int main(int argc, char** argv) {
     doc["rate_hz"] = welcome.rate_hz;
     doc["duration_s"] = duration_s;
     doc["session_id"] = welcome.session_id;
+    doc["authenticated"] = client.authenticating();
     doc["welcome"] = {{"force_limit_n", welcome.force_limit_n},
                       {"torque_limit_nm", welcome.torque_limit_nm},
                       {"max_force_rate_n_per_s", welcome.max_force_rate_n_per_s}};

@@ -13,9 +13,13 @@
 #include <string>
 #include <vector>
 
+#include <optional>
+
+#include "protocol/auth.hpp"
 #include "protocol/codec.hpp"
 #include "protocol/sequence_window.hpp"
 #include "server/haptic/loop_stats.hpp"
+#include "server/haptic/source_rate_limiter.hpp"
 #include "server/haptic/triple_buffer.hpp"
 #include "server/haptic/device_link.hpp"
 #include "server/haptic/virtual_coupling.hpp"
@@ -53,21 +57,55 @@ struct ServerOptions {
   double ramp_s = 0.1;            // ...over this time (and back up when poses resume)
   double session_timeout_s = 5.0; // then the session is dropped
   bool realtime = true;           // try SCHED_FIFO for the haptic thread (not with busy_poll)
+  // The pre-shared key: every session is authenticated and every datagram carries a MAC
+  // (protocol/auth.hpp). Without one the server binds only to loopback unless insecure_bind.
+  std::optional<protocol::Key> key;
+  bool insecure_bind = false;
+  // With a key, a session stays pending (drives nothing, replaces nothing) until its client's
+  // first authenticated datagram; a pending session silent this long is dropped.
+  double pending_timeout_s = 2.0;
+  // Visual-loop watchdog: a hand's model is overdue from the later of its arrival and the end of the
+  // step it describes (HapticModel::t_end_ns). Overdue longer than model_stale_after_s, its
+  // influence (F0, K, D) fades smoothly over model_fade_s to the safe model, where the proxy feels
+  // only its device (the replies are flagged stale); when models flow again it comes back over the
+  // same time, so neither way has a force jump.
+  double model_stale_after_s = 0.1;
+  double model_fade_s = 0.1;
+  // Per-source limit (a token bucket per address and port, before anything is decoded): datagrams
+  // a second (0: 4x haptic_rate_hz, the rate every session is granted) and the burst allowed.
+  double source_rate_hz = 0;
+  double source_burst = 200;
 };
 
 struct ServerStats {
   std::uint64_t packets_in = 0, packets_out = 0, packets_dropped = 0;
   std::uint64_t rejected[protocol::kRejectReasonCount]{};
   std::uint64_t unknown_session = 0, wrong_peer = 0, duplicates = 0, stale = 0, gaps = 0;
+  std::uint64_t frames_lost = 0;  // tracked frames left out of pose samples (lost tracking), summed
   std::uint64_t clamps = 0, resets = 0, resyncs = 0, overruns = 0, ticks = 0, replies = 0;
   std::uint64_t sessions_opened = 0, sessions_closed = 0, sessions_timed_out = 0, send_errors = 0;
+  // Sessions replaced by the same peer's newer one; pending sessions never confirmed (a key only).
+  std::uint64_t sessions_replaced = 0, pending_expired = 0;
+  // Datagrams over their source's allowance (also in rejected[kRateLimited]); sources that displaced
+  // another from the rate limiter's table.
+  std::uint64_t rate_limited = 0, rate_sources_evicted = 0;
+  // Visual-loop watchdog, per hand: models that went overdue (stale_models), ticks at which a hand's
+  // model was faded at all (stale_model_ticks), and the longest time a model was overdue, s.
+  std::uint64_t stale_models = 0, stale_model_ticks = 0;
+  double model_overdue_max_s = 0;
   MicrosecondHistogram tick_compute_us, tick_jitter_us, reply_compute_us;
   double elapsed_s = 0;
+  double cpu_s = 0;  // the haptic thread's CPU time over the run (user and system)
+  int receive_buffer_bytes = 0;  // the socket's, as the kernel granted it
   bool realtime = false;
 };
 
 class HapticServer {
  public:
+  // Throws std::runtime_error when options.bind is not an IP address, or is not loopback while there
+  // is no key and no insecure_bind. The constructor checks it too; hapticd calls it before loading
+  // the scene.
+  static void check_bind(const ServerOptions& options);
   // Binds the socket (throws std::runtime_error with the address on failure).
   HapticServer(std::vector<DeviceLink> links, const ServerOptions& options, TripleBuffer<HapticSnapshot>& snapshots,
                TripleBuffer<ProxyTargets>& targets);
@@ -83,16 +121,31 @@ class HapticServer {
 
   // Readable after run() returned.
   const ServerStats& stats() const { return *stats_; }
+  // Memory, all of it allocated by the constructor (nothing after): one session slot, and the
+  // whole server (kMaxSessions slots, buffers, codec, rate limiter), bytes.
+  static std::size_t session_bytes();
+  std::size_t memory_bytes() const;
   // The visual loop's achieved rate and step time, for the Stats message (set by the visual thread).
   std::atomic<double> visual_rate_hz{0}, visual_step_ms{0};
 
  private:
   struct Session;
   void tick(std::uint64_t now_ns);
+  // The visual-loop watchdog, at each tick: how far each hand's model has faded, and its weight.
+  void watch_models(std::uint64_t now_ns);
+  double model_weight(int hand) const;
   void handle(std::size_t bytes, std::uint64_t now_ns);
-  void on_hello(const protocol::Hello& hello);
+  void handle_authenticated(std::span<const std::uint8_t> datagram, std::uint64_t now_ns);
+  void dispatch(std::uint64_t now_ns);
+  void reject(protocol::RejectReason reason);
+  void on_hello(const protocol::Hello& hello, const protocol::Nonce* client_nonce);
   void on_pose(const protocol::PoseSample& pose, std::uint64_t now_ns);
-  void send(const protocol::EncodeResult& encoded);
+  void confirm(Session& s);
+  void close(Session& s);
+  // Sends to the peer of the datagram being handled: plain without a key; with one, a session's
+  // reply sealed with its server -> client key, or a handshake reply sealed with the reply key of
+  // the Hello being answered (handshake_key_, or plain when that Hello was not authentic).
+  void send(const protocol::EncodeResult& encoded, Session* session = nullptr);
   void send_error(protocol::ErrorCode code, const char* message);
   Session* find_session(std::uint64_t id);
   void fill_stats(protocol::Stats& out) const;
@@ -108,9 +161,30 @@ class HapticServer {
   std::unique_ptr<protocol::ReceiveBuffer> rx_;
   std::unique_ptr<protocol::Message> message_;
   std::unique_ptr<protocol::Message> reply_;
+  // Datagrams are read kRxBatch per system call, at most kRxRounds calls before the tick deadline is checked.
+  static constexpr int kRxBatch = 32, kRxRounds = 8;
+  // While a source is over its allowance, the loop drains the socket this often instead of waking
+  // for every datagram (a bound on what a flood adds to the others' round trips), ns.
+  static constexpr std::uint64_t kFloodCoalesce_ns = 50'000;
+  // The socket's receive buffer asked for (the kernel counts its own overhead in it), bytes.
+  static constexpr int kReceiveBufferBytes = 4 << 20;
+  struct RxBatch;
+  std::unique_ptr<RxBatch> rx_batch_;
   protocol::Encoder encoder_;
+  std::unique_ptr<protocol::AuthKeys> auth_;  // null without a key
+  std::unique_ptr<protocol::Sealer> sealer_;
+  std::unique_ptr<protocol::NonceCache> hello_nonces_;
+  const protocol::Key* handshake_key_ = nullptr;  // the reply key of the Hello being answered
+  protocol::Key handshake_key_storage_{};
+  std::uint64_t handshake_session_ = 0;
   std::uint64_t next_session_id_ = 0;
   std::uint32_t hand_resyncs_[kMaxHands]{};
+  std::unique_ptr<SourceRateLimiter> limiter_;
+  // Visual-loop watchdog: when the newest snapshot arrived, and per hand how far its model has faded
+  // (0 fresh .. 1 safe model; its weight is 1 - smoothstep) and whether it is overdue.
+  std::uint64_t snapshot_arrival_ns_ = 0, last_watch_ns_ = 0;
+  double model_fade_[kMaxHands]{};
+  bool model_overdue_[kMaxHands]{};
   HapticModel no_model_;  // handles = 0: the proxy feels only its device
   std::uint64_t start_ns_ = 0;
 };

@@ -54,11 +54,20 @@ void ProxyHand::configure(int handles, const double* mass_kg, const Eigen::Matri
                           const CouplingGains& gains, const DeviceLimits& limits, const DeviceMap& map) {
   handles_ = std::clamp(handles, 0, kMaxHapticHandles);
   gains_ = gains;
+  safe_k_n_m_ = kSafeStiffness * gains_.k_n_m;
+  safe_k_nm_rad_ = kSafeStiffness * gains_.k_nm_rad;
   limits_ = limits;
   map_ = map;
   for (int j = 0; j < handles_; ++j) {
     mass_[j] = mass_kg[j];
     inertia_B_[j] = inertia_B[j];
+    // Critical damping of the proxy on coupling and safe spring together (2 sqrt(k m), the
+    // rotation with the inertia's trace), and at least b_c k_safe / k_c (the device's port passive).
+    const auto damping = [](double k_c, double b_c, double k_s, double inertia) {
+      return std::max(2.0 * std::sqrt((k_c + k_s) * inertia) - b_c, k_c > 0 ? b_c * k_s / k_c : 0.0);
+    };
+    safe_b_ns_m_[j] = damping(gains_.k_n_m, gains_.b_ns_m, safe_k_n_m_, mass_[j]);
+    safe_b_nms_rad_[j] = damping(gains_.k_nm_rad, gains_.b_nms_rad, safe_k_nm_rad_, inertia_B_[j].trace());
   }
   const int n = 6 * handles_;
   A_.resize(n, n);
@@ -109,9 +118,11 @@ bool ProxyHand::commit_sample(double t_s, double resync_gap_s) {
   return resync_now;
 }
 
-void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_s) {
+void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_s, double model_weight) {
   if (handles_ == 0 || !have_device_) return;
-  const bool use_model = model.handles == handles_;
+  const double weight = std::clamp(model_weight, 0.0, 1.0);
+  const bool use_model = model.handles == handles_ && weight > 0;
+  const double safe = 1.0 - weight;  // the safe model's share
   // seed 004 section 3: implicit Euler of the proxies under F* and the coupling, F*
   // taken at the pose extrapolated to the model's step end, x + tau v' (tau >= h):
   //   [M - h D - h tau K + h B_c + h^2 K_c] v' = M v + h [F0 + K (x - x0) - D v0 + K_c (x_dev - x) + B_c v_dev].
@@ -133,19 +144,29 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
     b_.segment<3>(6 * j + 3) =
         I_W * w_[j] + dt * (gains_.k_nm_rad * rotation_difference(device_[j].q_W, proxy_[j].q_W) +
                             gains_.b_nms_rad * w_dev_[j]);
+    if (safe > 0) {
+      // The safe model, implicit like the coupling: spring and damper toward the device.
+      const double k = safe * safe_k_n_m_, b = safe * safe_b_ns_m_[j];
+      const double k_rot = safe * safe_k_nm_rad_, b_rot = safe * safe_b_nms_rad_[j];
+      A_.block<3, 3>(6 * j, 6 * j).diagonal().array() += dt * b + dt * dt * k;
+      A_.block<3, 3>(6 * j + 3, 6 * j + 3).diagonal().array() += dt * b_rot + dt * dt * k_rot;
+      b_.segment<3>(6 * j) += dt * (k * (device_[j].p_W - proxy_[j].p_W) + b * v_dev_[j]);
+      b_.segment<3>(6 * j + 3) += dt * (k_rot * rotation_difference(device_[j].q_W, proxy_[j].q_W) + b_rot * w_dev_[j]);
+    }
     if (use_model) {
       x_rel_.segment<3>(6 * j) = proxy_[j].p_W - model.x0[j].p_W - late * model.v0[j];
       x_rel_.segment<3>(6 * j + 3) = rotation_difference(proxy_[j].q_W, model.x0[j].q_W) - late * model.w0[j];
     }
   }
   if (use_model) {
-    A_.noalias() -= dt * model.D;
-    A_.noalias() -= (dt * tau) * model.K;
-    b_.noalias() += dt * model.F0;
-    b_.noalias() += dt * (model.K * x_rel_);
+    const double h = weight * dt;
+    A_.noalias() -= h * model.D;
+    A_.noalias() -= (h * tau) * model.K;
+    b_.noalias() += h * model.F0;
+    b_.noalias() += h * (model.K * x_rel_);
     for (int j = 0; j < handles_; ++j) {
-      b_.segment<6>(6 * j).noalias() -= dt * model.D.middleCols<3>(6 * j) * model.v0[j];
-      b_.segment<6>(6 * j).noalias() -= dt * model.D.middleCols<3>(6 * j + 3) * model.w0[j];
+      b_.segment<6>(6 * j).noalias() -= h * model.D.middleCols<3>(6 * j) * model.v0[j];
+      b_.segment<6>(6 * j).noalias() -= h * model.D.middleCols<3>(6 * j + 3) * model.w0[j];
     }
   }
   bool ok = A_.allFinite() && b_.allFinite();

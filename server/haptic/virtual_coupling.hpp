@@ -80,6 +80,11 @@ constexpr double kMaxPassivityDamping_ns_m = 5.0;
 // Its rotational damping is the translational one times this (a lever of 2 cm, a phalanx's), m^2.
 constexpr double kPassivityRotationWeight_m2 = 4e-4;
 
+// The safe model's spring between proxy and device, in coupling stiffnesses (ProxyHand::integrate):
+// stiff next to a contact model of a few coupling stiffnesses, so that a model fading out hands the
+// proxy over to the device gradually rather than all in its last moments.
+constexpr double kSafeStiffness = 4.0;
+
 struct ReplyWrench {
   Eigen::Vector3d f_D = Eigen::Vector3d::Zero(), tau_D = Eigen::Vector3d::Zero();  // on the device, device frame
   bool clamped = false;
@@ -112,8 +117,15 @@ class ProxyHand {
   // pose, a moving hand's momentum would push the proxy along (an active force).
   // Negative: the model's step ended that long ago; its anchor moves on with
   // the handle's velocity.
+  // `model_weight` in [0, 1] blends the model with the safe model (the haptic loop fades a stale
+  // model so): the model's influence (F0, K, D) is scaled by it, and the safe model's by
+  // 1 - weight. The safe model holds the proxy on its device: a spring (kSafeStiffness times the
+  // coupling's) and a damper on their relative pose and velocity that make the proxy's motion about
+  // the device critically damped. The device does not feel them (it feels the coupling alone; with
+  // k_c b_safe >= b_c k_safe its port stays passive), so a proxy released from a stiff model
+  // settles onto the device without ringing on the coupling spring.
   // A non-finite model or state resets the proxies onto the device (counted).
-  void integrate(const HapticModel& model, double dt_s, double lookahead_s = 0);
+  void integrate(const HapticModel& model, double dt_s, double lookahead_s = 0, double model_weight = 1);
 
   // The wrench for handle j now: coupling force reversed, in device space,
   // about the tracked frame's origin, scaled by `output_scale` (session ramp),
@@ -152,6 +164,9 @@ class ProxyHand {
   DeviceMap map_;
   double mass_[kMaxHapticHandles]{};
   Eigen::Matrix3d inertia_B_[kMaxHapticHandles];
+  // The safe model per handle (integrate()): spring and damper between proxy and device.
+  double safe_k_n_m_ = 0, safe_k_nm_rad_ = 0;
+  double safe_b_ns_m_[kMaxHapticHandles]{}, safe_b_nms_rad_[kMaxHapticHandles]{};
   HapticPose proxy_[kMaxHapticHandles], device_[kMaxHapticHandles], pending_[kMaxHapticHandles];
   Eigen::Vector3d v_[kMaxHapticHandles], w_[kMaxHapticHandles];
   Eigen::Vector3d v_dev_[kMaxHapticHandles], w_dev_[kMaxHapticHandles];  // filtered device velocity

@@ -253,6 +253,8 @@ RigidWorld::RigidWorld(const SceneDesc& scene) : dt_(scene.dt_s) {
     }
     joints_.push_back(joint);
   }
+  // The scene's poses: the first good state of every body.
+  for (int i = 0; i < num_objects(); ++i) last_good_.push_back(state(i));
 }
 
 RigidWorld::~RigidWorld() {
@@ -464,11 +466,34 @@ void RigidWorld::collide(dGeomID a, dGeomID b) {
   }
 }
 
+bool RigidWorld::within_bounds(const RigidBodyState& s) const {
+  const bool finite = s.p_WO.allFinite() && s.q_WO.coeffs().allFinite() && s.v_WO.allFinite() && s.w_W.allFinite();
+  return finite && s.p_WO.norm() <= bounds_.max_distance_m && s.v_WO.norm() <= bounds_.max_speed_m_s &&
+         s.w_W.norm() <= bounds_.max_angular_speed_rad_s && std::abs(s.q_WO.norm() - 1.0) < 1e-3;
+}
+
+void RigidWorld::check_bodies() {
+  for (size_t i = 0; i < objects_.size(); ++i) {
+    if (!objects_[i].body) continue;
+    const int k = static_cast<int>(i);
+    const RigidBodyState s = state(k);
+    if (within_bounds(s)) {
+      last_good_[i] = s;
+      continue;
+    }
+    RigidBodyState rest = last_good_[i];
+    rest.v_WO.setZero(), rest.w_W.setZero();
+    set_state(k, rest);
+    ++resets_;
+  }
+}
+
 void RigidWorld::step(double dt) {
   if (world_ == nullptr) return;
   ensure_ode_for_this_thread();
   contacts_last_step_ = 0;
   ++steps_;
+  check_bodies();  // states set from outside since the last step
   dSpaceCollide(space_, this, &RigidWorld::near_callback);
   int bodies = 0;
   for (const Object& o : objects_) bodies += o.body != nullptr;
@@ -478,6 +503,7 @@ void RigidWorld::step(double dt) {
     dWorldQuickStep(world_, dt);
   }
   dJointGroupEmpty(contacts_);
+  check_bodies();  // divergence in the step
 }
 
 }  // namespace hapticd

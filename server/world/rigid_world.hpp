@@ -26,6 +26,15 @@ struct RigidBodyState {
   Eigen::Vector3d w_W = Eigen::Vector3d::Zero();   // angular velocity, rad/s
 };
 
+// Beyond these bounds, or with any non-finite value, a rigid body has diverged
+// (DESIGN.md section 5): RigidWorld::step resets it. With its mass and inertia
+// fixed, the speeds bound its kinetic energy too (m v^2 / 2 + I_max w^2 / 2).
+struct BodyBounds {
+  double max_speed_m_s = 50.0;              // of the centre of mass; as a hand's (HandConfig::max_speed_m_s)
+  double max_angular_speed_rad_s = 1000.0;  // a 1 cm ball rolling at 10 m/s
+  double max_distance_m = 1000.0;           // of the centre of mass from the world origin
+};
+
 class RigidWorld {
  public:
   // ODE's exact big-matrix step up to this many bodies, its iterative QuickStep beyond.
@@ -40,8 +49,16 @@ class RigidWorld {
 
   // Whether a dynamics world exists (the scene has a rigid body).
   bool has_dynamics() const { return world_ != nullptr; }
-  // Collide, then integrate one step of dt seconds (ODE); nothing without dynamics.
+  // Stages: check (a body set to a state beyond its bounds since the last step
+  // goes back to its last good pose), collide, integrate one step of dt seconds
+  // (ODE), check (a body the step carried beyond its bounds goes back to its pose
+  // at the start of the step). A reset body is at rest and counted (resets());
+  // nothing non-finite leaves a step. Nothing without dynamics.
   void step(double dt);
+  void set_bounds(const BodyBounds& bounds) { bounds_ = bounds; }
+  const BodyBounds& bounds() const { return bounds_; }
+  // Rigid bodies reset by step() so far.
+  long resets() const { return resets_; }
 
   int num_objects() const { return static_cast<int>(objects_.size()); }
   // Index of the object called `name`, -1 if the world does not hold it.
@@ -109,6 +126,9 @@ class RigidWorld {
   };
   static void near_callback(void* data, dGeomID a, dGeomID b);
   void collide(dGeomID a, dGeomID b);
+  bool within_bounds(const RigidBodyState& s) const;
+  // Resets every body beyond its bounds to its last good pose, at rest; then remembers every pose as good.
+  void check_bodies();
 
   dWorldID world_ = nullptr;
   dSpaceID space_ = nullptr;
@@ -127,6 +147,9 @@ class RigidWorld {
   };
   std::vector<Memory> remembered_;  // per object, for supports_of
   long steps_ = 0;
+  BodyBounds bounds_;
+  std::vector<RigidBodyState> last_good_;  // per object: its state at the end of the last check
+  long resets_ = 0;
 };
 
 // Penetration of point p_W into a primitive ODE geom (plane, sphere, box,

@@ -60,7 +60,10 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
       options_(options) {
   bool has_geometry = false;
   for (const ObjectDesc& o : scene.objects) has_geometry = has_geometry || o.kind != BodyKind::deformable;
-  if (has_geometry) rigid_ = std::make_unique<RigidWorld>(scene);
+  if (has_geometry) {
+    rigid_ = std::make_unique<RigidWorld>(scene);
+    rigid_->set_bounds(options.body_bounds);
+  }
   for (const HandDesc& d : scene.hands) {
     if (d.model != HandModelKind::fem)
       throw std::runtime_error("hands." + d.name + ": only the fem hand model is built so far");
@@ -761,6 +764,7 @@ void World::publish() {
   snapshot_.resets = 0;
   for (int h = 0; h < num_hands(); ++h) snapshot_.handles[h] = hands_[h]->state.handles;
   for (const SoftBody& b : soft_) snapshot_.resets += b.state->resets;
+  snapshot_.body_resets = rigid_ ? rigid_->resets() : 0;
   snapshot_.deformables.resize(deformables_.size());
   for (int d = 0; d < num_deformables(); ++d) {
     const DeformableObject& o = *deformables_[d];

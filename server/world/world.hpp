@@ -55,6 +55,8 @@ struct WorldOptions {
   // The cell's other points stay in reserve and become rows of a step that
   // would carry them deeper than kReserveDepth_m (false: a baseline for tests).
   bool contact_reserves = true;
+  // A rigid body beyond these (or non-finite) has diverged: the rigid stage resets it (RigidWorld::step).
+  BodyBounds body_bounds;
 };
 
 struct WorldHand {
@@ -120,7 +122,8 @@ struct WorldSnapshot {
   // the start of the step (before the first step: those found for it, no force).
   std::vector<ContactRecord> contacts;
   double max_penetration_m = 0;
-  long resets = 0;
+  long resets = 0;       // of hands and deformable objects (HandState::resets), summed
+  long body_resets = 0;  // of rigid bodies that diverged (RigidWorld::resets)
   WorldTimings timings;
 };
 

@@ -281,5 +281,32 @@ TEST(ClientSession, InvalidPoseIsNotSentAndSpendsNoSequence) {
   EXPECT_EQ(server.count(MessageType::kPoseSample), 1u);
 }
 
+// A glove frame whose tracking failed (NaN) is left out of the sample; the others are sent.
+TEST(ClientSession, NonFiniteFramesAreLeftOutOfTheSample) {
+  FakeServer server(answer_everything);
+  Client client;
+  client.connect("127.0.0.1", server.port(), test::stylus_hello(), 2s);
+  protocol::PoseSample pose = test::stylus_pose();
+  protocol::FramePose second = pose.poses[0], third = pose.poses[0];
+  second.frame = static_cast<std::uint16_t>(pose.poses[0].frame + 1);
+  second.orientation.x = std::numeric_limits<float>::quiet_NaN();
+  third.frame = static_cast<std::uint16_t>(pose.poses[0].frame + 2);
+  third.position_m.y = 0.25f;
+  pose.poses.push_back(second);
+  pose.poses.push_back(third);
+  EXPECT_EQ(client.send_pose(pose), SendResult::kSent);
+  EXPECT_EQ(client.counters().frames_dropped, 1u);
+  ASSERT_TRUE(client.poll_force(1s).has_value());
+  const std::vector<protocol::Message> got = server.received();
+  const protocol::Message* sample = nullptr;
+  for (const protocol::Message& m : got)
+    if (m.type == MessageType::kPoseSample) sample = &m;
+  ASSERT_NE(sample, nullptr);
+  ASSERT_EQ(sample->pose_sample.poses.size(), 2u);
+  EXPECT_EQ(sample->pose_sample.poses[0].frame, pose.poses[0].frame);
+  EXPECT_EQ(sample->pose_sample.poses[1].frame, third.frame);
+  EXPECT_EQ(sample->pose_sample.poses[1].position_m.y, 0.25f);
+}
+
 }  // namespace
 }  // namespace hapticd::client

@@ -141,6 +141,7 @@ TEST(HapticDeviceEndToEnd, BadFlagsAreRefusedWithTheReason) {
       {{"--server", "127.0.0.1:7000", "--trajectory", bad_csv}, bad_csv + ":3: expected 4 comma-separated numbers"},
       {{"--server", "127.0.0.1:7000", "--report", "/nonexistent/dir/r.json"}, "--report: cannot write"},
       {{"--trajectory", "press"}, "--server is required"},
+      {{"--server", "127.0.0.1:7000", "--key-file", "/nonexistent/key"}, "--key-file /nonexistent/key: cannot open"},
   };
   testing_util::expect_refused(HAPTICD_DEVICE_BIN, cases);
   std::filesystem::remove(bad_csv);

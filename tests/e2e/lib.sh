@@ -1,9 +1,9 @@
-# Shared by the end-to-end scripts: start_hapticd BIN SCENE SECONDS WORKDIR starts
-# hapticd on a free loopback port for SECONDS + 20 s, writing its stats to
+# Shared by the end-to-end scripts: start_hapticd BIN SCENE SECONDS WORKDIR [HAPTICD_ARGS...]
+# starts hapticd on a free loopback port for SECONDS + 20 s, writing its stats to
 # WORKDIR/server.json, and sets server_pid and port (exits 1 if it never listens).
 start_hapticd() {
   local bin=$1 scene=$2 seconds=$3 work=$4
-  "$bin/hapticd" --scene "$scene" --port 0 --duration $((seconds + 20)) --stats "$work/server.json" \
+  "$bin/hapticd" --scene "$scene" --port 0 --duration $((seconds + 20)) --stats "$work/server.json" "${@:5}" \
     > "$work/server.out" 2> "$work/server.err" &
   server_pid=$!
   port=""

@@ -162,5 +162,90 @@ TEST(RigidWorld, HingeLimitStopsAFallingLid) {
   EXPECT_NEAR(world.state(0).p_WO.norm(), 0.1, 1e-3);  // its centre stays on the hinge circle
 }
 
+// A 10 cm box resting on a floor plane.
+SceneDesc box_on_floor() {
+  SceneDesc scene;
+  ObjectDesc floor;
+  floor.name = "floor";
+  floor.kind = BodyKind::static_body;
+  floor.shape.type = ShapeType::plane;
+  ObjectDesc box;
+  box.name = "box";
+  box.shape.type = ShapeType::box;
+  box.shape.size = {0.1, 0.1, 0.1};
+  box.mass_kg = 0.5;
+  box.pose.p_W = {0, 0, 0.05};
+  scene.objects = {floor, box};
+  return scene;
+}
+
+bool finite(const RigidBodyState& s) {
+  return s.p_WO.allFinite() && s.q_WO.coeffs().allFinite() && s.v_WO.allFinite() && s.w_W.allFinite();
+}
+
+TEST(RigidWorld, ABodySetToANonFiniteOrAbsurdVelocityIsResetAtRestAndCounted) {
+  const SceneDesc scene = box_on_floor();
+  RigidWorld world(scene);
+  const int box = world.find("box");
+  for (int k = 0; k < 30; ++k) world.step(scene.dt_s);
+  const RigidBodyState settled = world.state(box);
+  EXPECT_EQ(world.resets(), 0);
+  // Each: non-finite linear, absurd linear (2x the bound), absurd angular (2x), non-finite angular.
+  const Eigen::Vector3d v_bad[] = {{NAN, 0, 0}, {0, 100, 0}, {0, 0, 0}, {0, 0, 0}};
+  const Eigen::Vector3d w_bad[] = {{0, 0, 0}, {0, 0, 0}, {2000, 0, 0}, {0, INFINITY, 0}};
+  for (int i = 0; i < 4; ++i) {
+    RigidBodyState s = world.state(box);
+    s.v_WO = v_bad[i];
+    s.w_W = w_bad[i];
+    world.set_state(box, s);
+    world.step(scene.dt_s);
+    const RigidBodyState after = world.state(box);
+    EXPECT_EQ(world.resets(), i + 1);
+    ASSERT_TRUE(finite(after)) << i;
+    // Back where it rested, at rest (one step of gravity and contact since: well under 1 mm, 0.2 m/s).
+    EXPECT_LT((after.p_WO - settled.p_WO).norm(), 1e-3) << i;
+    EXPECT_LT(after.v_WO.norm(), 0.2) << i;
+    EXPECT_LT(after.w_W.norm(), 1.0) << i;
+  }
+}
+
+TEST(RigidWorld, ABodyTheStepCarriesBeyondItsBoundsGoesBackToItsStartOfStepPose) {
+  // Absurd gravity: one 1/60 s step takes the ball to 1667 m/s, 33 times the speed bound.
+  SceneDesc scene;
+  scene.gravity_m_s2 = {0, 0, -1e5};
+  ObjectDesc ball;
+  ball.name = "ball";
+  ball.shape.type = ShapeType::sphere;
+  ball.shape.radius = 0.05;
+  ball.mass_kg = 0.1;
+  ball.pose.p_W = {0, 0, 1};
+  scene.objects = {ball};
+  RigidWorld world(scene);
+  for (int k = 0; k < 10; ++k) {
+    world.step(scene.dt_s);
+    ASSERT_TRUE(finite(world.state(0)));
+    EXPECT_EQ(world.state(0).p_WO, Eigen::Vector3d(0, 0, 1)) << k;
+    EXPECT_EQ(world.state(0).v_WO, Eigen::Vector3d::Zero()) << k;
+  }
+  EXPECT_EQ(world.resets(), 10);
+}
+
+TEST(RigidWorld, FastButBoundedBodiesAreNotReset) {
+  // 40 m/s and 800 rad/s, under the bounds (50 m/s, 1000 rad/s): free flight goes on.
+  SceneDesc scene;
+  ObjectDesc ball;
+  ball.name = "ball";
+  ball.shape.type = ShapeType::sphere;
+  ball.shape.radius = 0.05;
+  ball.mass_kg = 0.1;
+  ball.linear_velocity = {40, 0, 0};
+  ball.angular_velocity = {0, 800, 0};
+  scene.objects = {ball};
+  RigidWorld world(scene);
+  for (int k = 0; k < 30; ++k) world.step(scene.dt_s);
+  EXPECT_EQ(world.resets(), 0);
+  EXPECT_NEAR(world.state(0).p_WO.x(), 40 * 30 * scene.dt_s, 1e-9);
+}
+
 }  // namespace
 }  // namespace hapticd

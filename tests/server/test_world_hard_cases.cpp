@@ -4,6 +4,8 @@
 // once the push stops.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+
 #include "server/world/world.hpp"
 #include "world_test_util.hpp"
 
@@ -163,6 +165,38 @@ TEST_P(WorldHardCases, PushingObjectsAThousandTimesLighterAndHeavierThanTheHand)
       EXPECT_LT(moved.norm(), 0.005) << "the 300 kg box barely moves";
     }
   }
+}
+
+TEST_P(WorldHardCases, ADivergedBodyUnderTheHandIsResetCountedAndNeverReachesTheSnapshotOrTheModel) {
+  World world(slab_scene(0.1, 0.3), options());
+  WorldHand& hand = world.hand(0);
+  RigidWorld& rigid = *world.rigid();
+  const int box = rigid.find("box");
+  const HandleState start = hand.state.handles[0];
+  const auto model_finite = [&world] {
+    const HandleLinearization& m = world.snapshot().linear_models[0];
+    return m.K.allFinite() && m.D.allFinite() && m.F0.allFinite();
+  };
+  for (int k = 0; k < 90; ++k) {  // the hand pushes the box along +y from step ~40 on
+    // Mid-push: a NaN velocity, then 200 m/s (4x the bound), set on the box between two steps.
+    if (k == 50 || k == 70) {
+      const auto& contacts = world.snapshot().contacts;
+      ASSERT_TRUE(std::any_of(contacts.begin(), contacts.end(), [&](const ContactRecord& c) {
+        return c.hand == 0 && c.object == box;
+      })) << "the hand touches the box at step " << k;
+      RigidBodyState b = rigid.state(box);
+      b.v_WO = k == 50 ? Eigen::Vector3d(NAN, 0, 0) : Eigen::Vector3d(0, 200, 0);
+      rigid.set_state(box, b);
+    }
+    set_target(hand.state, 0, testing_util::push_along_y(start, k, world.dt()));
+    world.step();
+    ASSERT_TRUE(finite(world)) << "step " << k;
+    ASSERT_TRUE(model_finite()) << "step " << k;
+    for (const ContactRecord& c : world.snapshot().contacts) ASSERT_TRUE(c.f_W.allFinite()) << "step " << k;
+    EXPECT_EQ(world.snapshot().body_resets, k < 50 ? 0 : k < 70 ? 1 : 2) << "step " << k;
+  }
+  EXPECT_EQ(world.snapshot().resets, 0);  // the hand itself never diverged
+  EXPECT_LT(rigid.state(box).v_WO.norm(), 1.0);
 }
 
 INSTANTIATE_TEST_SUITE_P(Contact, WorldHardCases, testing::Values(ContactModel::penalty, ContactModel::constraint),

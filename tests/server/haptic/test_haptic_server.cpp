@@ -12,141 +12,15 @@
 #include <cstring>
 #include <thread>
 
-#include "allocation_counter.hpp"
-#include "protocol/clock.hpp"
-#include "server/haptic/haptic_server.hpp"
+#include "haptic_server_test_util.hpp"
 
 namespace hapticd {
 namespace {
 
-namespace asio = boost::asio;
 using protocol::Message;
 using protocol::MessageType;
-
-// A wall z <= 0 in world space (see test_virtual_coupling.cpp), 3000 N/m.
-HapticSnapshot wall_snapshot() {
-  HapticSnapshot s;
-  s.hands = 1;
-  HapticModel& m = s.model[0];
-  m.handles = 1;
-  m.F0 = HapticVector::Zero(6);
-  m.K = HapticMatrix::Zero(6, 6);
-  m.D = HapticMatrix::Zero(6, 6);
-  m.K(2, 2) = -3000.0;
-  m.v0[0].setZero();
-  m.w0[0].setZero();
-  m.in_contact = true;
-  return s;
-}
-
-DeviceLink stylus_link() {
-  DeviceLink l;
-  l.name = "stylus";
-  l.mass_kg[0] = 0.05;
-  l.inertia_B[0] = 1e-5 * Eigen::Matrix3d::Identity();
-  l.gains = coupling_gains_for(1000.0, 1.0, 1e-3);
-  return l;
-}
-
-// The server on its own thread, and (unless `visual` is false) a stand-in for
-// the visual loop that republishes the wall, acknowledging the hand's re-syncs
-// (the wall does not move with the hand, so its model stays valid).
-struct RunningServer {
-  explicit RunningServer(const ServerOptions& options = {}, bool visual = true)
-      : snapshots(wall_snapshot()), server({stylus_link()}, options, snapshots, targets) {
-    thread = std::thread([this] {
-      testing_util::count_allocations_on_this_thread(true);
-      server.run(stop);
-      allocations = testing_util::allocations_on_this_thread();
-    });
-    if (visual)
-      visual_thread = std::thread([this] {
-        while (!stop) {
-          targets.update();
-          snapshots.back() = wall_snapshot();
-          snapshots.back().model[0].resyncs = targets.front().resyncs[0];
-          snapshots.publish();
-          std::this_thread::sleep_for(std::chrono::milliseconds(5));
-        }
-      });
-  }
-  ~RunningServer() { halt(); }
-  void halt() {
-    stop = true;
-    if (thread.joinable()) thread.join();
-    if (visual_thread.joinable()) visual_thread.join();
-  }
-  TripleBuffer<HapticSnapshot> snapshots;
-  TripleBuffer<ProxyTargets> targets;
-  HapticServer server;
-  std::atomic<bool> stop{false};
-  std::atomic<long> allocations{-1};
-  std::thread thread, visual_thread;
-};
-
-// A device's end of the wire, with the project's codec.
-struct TestClient {
-  explicit TestClient(std::uint16_t port) : server(asio::ip::make_address("127.0.0.1"), port) {
-    socket.open(asio::ip::udp::v4());
-  }
-  void send_bytes(const void* data, std::size_t n) { socket.send_to(asio::buffer(data, n), server); }
-  template <typename T>
-  void send(const T& m) {
-    const auto r = encoder.encode(m);
-    ASSERT_TRUE(r.ok());
-    send_bytes(r.bytes.data(), r.bytes.size());
-  }
-  // The next datagram within `timeout_ms`, decoded; type kNone on timeout.
-  Message receive(int timeout_ms = 200) {
-    Message m;
-    pollfd p{socket.native_handle(), POLLIN, 0};
-    if (poll(&p, 1, timeout_ms) <= 0) return m;
-    const std::size_t n = socket.receive(asio::buffer(rx.bytes));
-    const auto r = protocol::decode({rx.bytes.data(), n}, m);
-    EXPECT_TRUE(r.ok()) << to_string(r.reason);
-    return m;
-  }
-  std::uint64_t hello() {
-    protocol::Hello h;
-    h.client_name.assign("test");
-    h.device_kind = protocol::DeviceKind::kStylus;
-    protocol::TrackedFrame f;
-    f.id = 7;
-    f.name.assign("tip");
-    h.frames.push_back(f);
-    send(h);
-    const Message m = receive(1000);
-    EXPECT_EQ(m.type, MessageType::kWelcome);
-    session = m.welcome.session_id;
-    return session;
-  }
-  protocol::PoseSample pose_at(double z, std::uint64_t seq) const {
-    protocol::PoseSample p;
-    p.session_id = session;
-    p.sequence = seq;
-    p.client_timestamp_ns = protocol::now_ns();
-    protocol::FramePose f;
-    f.frame = 7;
-    f.position_m = {0.0f, 0.0f, static_cast<float>(z)};
-    p.poses.push_back(f);
-    return p;
-  }
-  // Sends a pose and returns the force reply's z force (NaN without a reply).
-  double press(double z, std::uint64_t seq) {
-    send(pose_at(z, seq));
-    const Message m = receive();
-    if (m.type != MessageType::kForceSample || m.force_sample.sequence != seq) return NAN;
-    last = m.force_sample;
-    return m.force_sample.wrenches[0].wrench.force_n.z;
-  }
-  asio::io_context io;
-  asio::ip::udp::socket socket{io};
-  asio::ip::udp::endpoint server;
-  protocol::Encoder encoder;
-  alignas(8) protocol::ReceiveBuffer rx;
-  std::uint64_t session = 0;
-  protocol::ForceSample last;
-};
+using test::RunningServer;
+using test::TestClient;
 
 TEST(HapticServer, AnswersEveryPoseWithTheEchoedSequenceAndTheWallForce) {
   RunningServer s;

@@ -259,5 +259,74 @@ TEST(VirtualCoupling, StreamResumedAfterATwoSecondGapResyncsWithoutAForceJump) {
   EXPECT_NEAR(settled.f_D.z(), std::min(8.0, 1000.0 * 3000.0 / 4000.0 * 0.032), 1e-3);
 }
 
+// The safe model (integrate's model_weight < 1, what the haptic loop fades a stale model to):
+// the proxy held on its device by a spring and critical damping the device does not feel.
+TEST(VirtualCoupling, TheSafeModelReleasesAPressedProxyOntoItsDeviceWithoutRinging) {
+  const HapticModel wall = wall_model(3000.0);
+  const Eigen::Vector3d p_D(0, 0, -0.004);
+  for (const bool safe : {false, true}) {
+    ProxyHand p = make_proxy();
+    double t = 0;
+    const ReplyWrench pressed = hold(p, wall, p_D, 0.5, t);
+    ASSERT_NEAR(pressed.f_D.z(), 3.0, 1e-3);
+    // The model is gone at once: free space (weight 1, no stiffness), or the safe model (weight 0).
+    HapticModel free_space = wall;
+    free_space.K.setZero();
+    double lowest = 0, settled_at = 0;
+    for (int k = 0; k < 300; ++k) {
+      t += kPeriod;
+      p.set_device_pose(0, p_D, Eigen::Quaterniond::Identity());
+      p.commit_sample(t, 0.05);
+      const double f = p.reply(0, 1.0, kPeriod).f_D.z();
+      lowest = std::min(lowest, f);
+      if (std::abs(f) > 0.02 * pressed.f_D.z()) settled_at = (k + 1) * kPeriod;
+      if (safe) {
+        p.integrate(wall, kPeriod, 0, 0.0);
+      } else {
+        p.integrate(free_space, kPeriod);
+      }
+    }
+    std::printf("%s: lowest force %.3f N, within 2 %% of zero from %.0f ms\n",
+                safe ? "released onto the safe model" : "released into free space", lowest, 1e3 * settled_at);
+    if (safe) {
+      EXPECT_GT(lowest, -1e-3);  // no overshoot (critically damped)
+      // 2 % within 25 ms: the slew limit takes 3 ms off 3 N, then critical damping at
+      // sqrt(5 k_c / m) = 316 rad/s falls to 2 % ((1 + x) e^-x = 0.02) in 5.8 / 316 s = 18 ms.
+      EXPECT_LT(settled_at, 0.025);
+    } else {
+      EXPECT_LT(lowest, -0.5);  // the plain coupling rings: what the safe model is for
+    }
+  }
+}
+
+TEST(VirtualCoupling, TheSafeModelIsPassiveAtEveryBlend) {
+  // The device swept along a closed path (a 2 mm sinusoid in z, within the device's force and rate
+  // limits) at 1..50 Hz against the wall blended with the safe model: over whole cycles the device
+  // does non-negative work on the rendering (ProxyHand's passivity observer: the work of the reply
+  // held over each period).
+  const HapticModel wall = wall_model(3000.0, 2.0);
+  for (const double weight : {0.0, 0.5, 1.0}) {
+    for (const double hz : {1.0, 5.0, 20.0, 50.0}) {
+      ProxyHand p = make_proxy();
+      double t = 0;
+      hold(p, wall, Eigen::Vector3d(0, 0, 0), 0.2, t);
+      const double e0 = p.energy_in(0);
+      const int cycles = 4, n = static_cast<int>(std::lround(cycles / hz / kPeriod));
+      for (int k = 1; k <= n; ++k) {
+        t += kPeriod;
+        const double z = -0.002 * std::sin(2 * std::numbers::pi * hz * k * kPeriod);
+        p.set_device_pose(0, Eigen::Vector3d(0, 0, z), Eigen::Quaterniond::Identity());
+        p.commit_sample(t, 0.05);
+        p.reply(0, 1.0, kPeriod);
+        p.integrate(wall, kPeriod, 0, weight);
+      }
+      std::printf("weight %.1f, %4.0f Hz: the device did %+.3e J on the rendering\n", weight, hz,
+                  p.energy_in(0) - e0);
+      EXPECT_GE(p.energy_in(0) - e0, 0.0) << "weight " << weight << ", " << hz << " Hz";
+      EXPECT_EQ(p.clamps(), 0);
+    }
+  }
+}
+
 }  // namespace
 }  // namespace hapticd
