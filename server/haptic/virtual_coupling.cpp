@@ -164,9 +164,11 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
     A_.noalias() -= (h * tau) * model.K;
     b_.noalias() += h * model.F0;
     b_.noalias() += h * (model.K * x_rel_);
+    // - h D v0: D couples the handles, so handle j's anchor velocity acts through its columns of D on
+    // all 6m rows, not only on handle j's.
     for (int j = 0; j < handles_; ++j) {
-      b_.segment<6>(6 * j).noalias() -= h * model.D.middleCols<3>(6 * j) * model.v0[j];
-      b_.segment<6>(6 * j).noalias() -= h * model.D.middleCols<3>(6 * j + 3) * model.w0[j];
+      b_.noalias() -= h * model.D.middleCols<3>(6 * j) * model.v0[j];
+      b_.noalias() -= h * model.D.middleCols<3>(6 * j + 3) * model.w0[j];
     }
   }
   bool ok = A_.allFinite() && b_.allFinite();

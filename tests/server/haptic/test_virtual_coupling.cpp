@@ -242,6 +242,57 @@ TEST(VirtualCoupling, NonFiniteModelZeroesTheForceAndResetsTheProxy) {
   EXPECT_TRUE((p.proxy(0).p_W - p.device(0).p_W).norm() < 1e-12);
 }
 
+// A model's damping acts on each handle's anchor velocity through D's columns of that handle, on
+// every row: three uncoupled handles under the same block-diagonal model (a damper whose anchor
+// moves at v0 and w0) move exactly as one handle alone does. (The -h D v0 term once took only the
+// first 6 rows of each product, wrong for every handle past the first and past the end of the
+// workspace for the last; the ASan + UBSan build caught the Eigen size assertion.)
+TEST(VirtualCoupling, EveryHandleOfAMultiHandleModelFeelsItsOwnAnchorVelocity) {
+  constexpr int kHandles = 3;
+  const double mass[kHandles] = {0.05, 0.05, 0.05};
+  const Eigen::Matrix3d inertia[kHandles] = {Eigen::Matrix3d::Identity() * 4.5e-6, Eigen::Matrix3d::Identity() * 4.5e-6,
+                                             Eigen::Matrix3d::Identity() * 4.5e-6};
+  const CouplingGains gains = coupling_gains_for(1000.0, 1.0, kPeriod);
+  ProxyHand one, many;
+  one.configure(1, mass, inertia, gains, {}, {});
+  many.configure(kHandles, mass, inertia, gains, {}, {});
+  auto model_of = [](int handles) {
+    HapticModel m;
+    m.handles = handles;
+    m.F0 = HapticVector::Zero(6 * handles);
+    m.K = HapticMatrix::Zero(6 * handles, 6 * handles);
+    m.D = HapticMatrix::Zero(6 * handles, 6 * handles);
+    for (int j = 0; j < handles; ++j) {
+      m.D.block<3, 3>(6 * j, 6 * j) = -5.0 * Eigen::Matrix3d::Identity();            // N s/m
+      m.D.block<3, 3>(6 * j + 3, 6 * j + 3) = -0.01 * Eigen::Matrix3d::Identity();  // N m s/rad
+      m.v0[j] = Eigen::Vector3d(0.1, -0.2, 0.3);                                     // m/s
+      m.w0[j] = Eigen::Vector3d(1.0, 0.5, -2.0);                                     // rad/s
+    }
+    return m;
+  };
+  const HapticModel m1 = model_of(1), mn = model_of(kHandles);
+  double t = 0;
+  for (int k = 0; k < 200; ++k) {
+    t += kPeriod;
+    one.set_device_pose(0, Eigen::Vector3d::Zero(), Eigen::Quaterniond::Identity());
+    one.commit_sample(t, 0.05);
+    for (int j = 0; j < kHandles; ++j) many.set_device_pose(j, Eigen::Vector3d::Zero(), Eigen::Quaterniond::Identity());
+    many.commit_sample(t, 0.05);
+    one.integrate(m1, kPeriod);
+    many.integrate(mn, kPeriod);
+  }
+  ASSERT_EQ(many.resets(), 0);
+  // The damper drags the proxy off its device (~5 N s/m x 0.37 m/s over 1000 N/m: ~2 mm), so the
+  // comparison means something.
+  ASSERT_GT(one.proxy(0).p_W.norm(), 1e-3);
+  for (int j = 0; j < kHandles; ++j) {
+    // 1e-12 m/s: the same arithmetic up to the LU of a larger block-diagonal system.
+    EXPECT_LT((many.proxy_velocity(j) - one.proxy_velocity(0)).norm(), 1e-12) << "handle " << j;
+    EXPECT_LT((many.proxy_angular_velocity(j) - one.proxy_angular_velocity(0)).norm(), 1e-12) << "handle " << j;
+    EXPECT_LT((many.proxy(j).p_W - one.proxy(0).p_W).norm(), 1e-12) << "handle " << j;
+  }
+}
+
 TEST(VirtualCoupling, StreamResumedAfterATwoSecondGapResyncsWithoutAForceJump) {
   ProxyHand p = make_proxy();
   const HapticModel wall = wall_model(3000.0);
