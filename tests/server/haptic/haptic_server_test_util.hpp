@@ -50,8 +50,11 @@ inline DeviceLink stylus_link() {
 // the visual loop that republishes the wall, acknowledging the hand's re-syncs
 // (the wall does not move with the hand, so its model stays valid).
 struct RunningServer {
-  explicit RunningServer(const ServerOptions& options = {}, bool visual = true)
-      : snapshots(wall_snapshot()), server({stylus_link()}, options, snapshots, targets) {
+  // `world`: the snapshot the stand-in visual loop publishes (a stylus on the wall by default),
+  // for the device `link`.
+  explicit RunningServer(const ServerOptions& options = {}, bool visual = true,
+                         HapticSnapshot (*world)() = wall_snapshot, const DeviceLink& link = stylus_link())
+      : world(world), snapshots(world()), server({link}, options, snapshots, targets) {
     thread = std::thread([this] {
       testing_util::count_allocations_on_this_thread(true);
       server.run(stop);
@@ -61,7 +64,7 @@ struct RunningServer {
       visual_thread = std::thread([this] {
         while (!stop) {
           targets.update();
-          snapshots.back() = wall_snapshot();
+          snapshots.back() = this->world();
           snapshots.back().model[0].resyncs = targets.front().resyncs[0];
           snapshots.publish();
           std::this_thread::sleep_for(std::chrono::milliseconds(5));
@@ -74,6 +77,7 @@ struct RunningServer {
     if (thread.joinable()) thread.join();
     if (visual_thread.joinable()) visual_thread.join();
   }
+  HapticSnapshot (*world)();
   TripleBuffer<HapticSnapshot> snapshots;
   TripleBuffer<ProxyTargets> targets;
   HapticServer server;

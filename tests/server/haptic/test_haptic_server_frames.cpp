@@ -5,7 +5,6 @@
 #include <gtest/gtest.h>
 
 #include <array>
-#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <thread>
@@ -53,32 +52,6 @@ DeviceLink glove_link() {
   return l;
 }
 
-struct GloveServer {
-  GloveServer() : snapshots(glove_wall()), server({glove_link()}, ServerOptions{}, snapshots, targets) {
-    thread = std::thread([this] { server.run(stop); });
-    visual = std::thread([this] {
-      while (!stop) {
-        targets.update();
-        snapshots.back() = glove_wall();
-        snapshots.back().model[0].resyncs = targets.front().resyncs[0];
-        snapshots.publish();
-        std::this_thread::sleep_for(std::chrono::milliseconds(5));
-      }
-    });
-  }
-  ~GloveServer() { halt(); }
-  void halt() {
-    stop = true;
-    if (thread.joinable()) thread.join();
-    if (visual.joinable()) visual.join();
-  }
-  TripleBuffer<HapticSnapshot> snapshots;
-  TripleBuffer<ProxyTargets> targets;
-  HapticServer server;
-  std::atomic<bool> stop{false};
-  std::thread thread, visual;
-};
-
 struct GloveClient : TestClient {
   using TestClient::TestClient;
   void hello_glove() {
@@ -122,7 +95,7 @@ struct GloveClient : TestClient {
 };
 
 TEST(HapticServerFrames, ALostFrameRampsToZeroWhileTheOthersKeepRendering) {
-  GloveServer s;
+  test::RunningServer s(ServerOptions{}, true, glove_wall, glove_link());
   GloveClient c(s.server.port());
   c.hello_glove();
   std::uint64_t seq = 0;
