@@ -4,7 +4,7 @@ BUILD ?= build
 JOBS ?= $(shell nproc)
 CMAKE_FLAGS ?= -DCMAKE_BUILD_TYPE=Release
 
-.PHONY: all deps configure build demo test bench clean
+.PHONY: all deps configure build demo test bench asan asan-ci tsan fuzz clean
 
 all: build
 
@@ -30,5 +30,34 @@ bench: build
 	scripts/bench-world $(BUILD)
 	scripts/bench-latency $(BUILD)
 
+# Sanitizers and fuzzing (README, "Sanitizers and fuzzing"); presets in CMakePresets.json, build
+# trees build-asan, build-tsan, build-fuzz. `asan` and `tsan` run every suite but the tests labelled
+# timing or bench (tests/CMakeLists.txt).
+asan: deps
+	cmake --preset asan
+	cmake --build --preset asan -j $(JOBS)
+	ctest --preset asan -j $(JOBS)
+
+# What CI runs under ASan + UBSan: the suites that face the network and run threads (protocol,
+# clients, haptic: the server, its loops and the hand and world under them) and the end-to-end runs.
+# The numerical suites (hand_models, server, offline: ~45 min instrumented on 2 cores) run in `asan`.
+ASAN_CI_SUITES ?= protocol|clients|haptic|e2e
+asan-ci: deps
+	cmake --preset asan
+	cmake --build --preset asan -j $(JOBS) --target protocol_tests client_tests haptic_tests
+	ctest --preset asan -j $(JOBS) -L '^($(ASAN_CI_SUITES))$$'
+
+tsan: deps
+	cmake --preset tsan
+	cmake --build --preset tsan -j $(JOBS)
+	ctest --preset tsan -j $(JOBS)
+
+# Every libFuzzer target for FUZZ_SECONDS from its seed corpus (tests/fuzz), JOBS at a time.
+FUZZ_SECONDS ?= 60
+fuzz: deps
+	cmake --preset fuzz
+	cmake --build --preset fuzz -j $(JOBS)
+	tests/fuzz/run-fuzzers build-fuzz $(FUZZ_SECONDS)
+
 clean:
-	rm -rf $(BUILD)
+	rm -rf $(BUILD) build-asan build-tsan build-fuzz

@@ -236,6 +236,10 @@ RejectReason read(const wire::Stats& w, Stats& m) noexcept {
   m.packets_dropped = w.packets_dropped();
   m.rejected_by_reason.fill(0);
   if (const auto* rejected = w.rejected_by_reason(); rejected != nullptr) {
+    // The Verifier (2.0.8) checks a vector's length field for alignment, not its 8-byte elements:
+    // a builder always aligns them, so a misaligned one is forged (and Get() would be UB on it).
+    if (reinterpret_cast<std::uintptr_t>(rejected->Data()) % alignof(std::uint64_t) != 0)
+      return RejectReason::kVerifyFailed;
     if (rejected->size() > kMaxStatsReasons) return RejectReason::kBadCount;
     // A newer peer may count reasons this build does not know: those are dropped.
     const std::size_t n = std::min<std::size_t>(rejected->size(), kRejectReasonCount);
