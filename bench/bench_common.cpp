@@ -60,4 +60,19 @@ void write_json(const std::string& path, const nlohmann::json& doc) {
   if (!out) throw std::runtime_error("failed writing " + path);
 }
 
+std::filesystem::path own_directory() { return std::filesystem::read_symlink("/proc/self/exe").parent_path(); }
+
+protocol::Hello stylus_hello(const std::string& client_name, unsigned rate_hz) {
+  protocol::Hello h;
+  h.client_name.assign(client_name);
+  h.device_kind = protocol::DeviceKind::kStylus;
+  protocol::TrackedFrame f;
+  f.id = 0;
+  f.dof = 6;
+  f.name = "stylus";
+  h.frames.push_back(f);
+  h.requested_rate_hz = rate_hz;
+  return h;
+}
+
 }  // namespace hapticd::bench

@@ -1,8 +1,11 @@
 #pragma once
 // What every haptic-bench suite prints and stores: the machine, percentiles.
+#include <filesystem>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
+
+#include "protocol/messages.hpp"
 
 namespace hapticd::bench {
 
@@ -21,5 +24,11 @@ double median(const std::vector<double>& values);
 
 // Writes `doc` to `path` (pretty-printed); throws std::runtime_error on failure.
 void write_json(const std::string& path, const nlohmann::json& doc);
+
+// The directory of the running executable (haptic-bench finds hapticd and haptic-echo there).
+std::filesystem::path own_directory();
+
+// The Hello of a simulated stylus: one 6-DoF frame, id 0, named "stylus".
+protocol::Hello stylus_hello(const std::string& client_name, unsigned rate_hz);
 
 }  // namespace hapticd::bench

@@ -6,6 +6,7 @@
 #include "hand_bench.hpp"
 #include "latency_bench.hpp"
 #include "multirate_bench.hpp"
+#include "soak_bench.hpp"
 #include "world_bench.hpp"
 
 int main(int argc, char** argv) {
@@ -15,6 +16,7 @@ int main(int argc, char** argv) {
   hapticd::bench::add_world_suite(app);
   hapticd::bench::add_latency_suite(app);
   hapticd::bench::add_multirate_suite(app);
+  hapticd::bench::add_soak_suite(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -63,22 +63,8 @@ struct Phase {
   [[nodiscard]] double loss_fraction() const { return sent ? static_cast<double>(lost) / sent : 0.0; }
 };
 
-std::filesystem::path own_directory() { return std::filesystem::read_symlink("/proc/self/exe").parent_path(); }
-
 bool is_glove(const LatencyBenchArgs& a, std::size_t i) { return i < a.mix.size() && a.mix[i] == "glove"; }
 
-protocol::Hello device_hello(int index, unsigned rate_hz) {
-  protocol::Hello h;
-  h.client_name.assign("haptic-bench-latency-" + std::to_string(index));
-  h.device_kind = protocol::DeviceKind::kStylus;
-  protocol::TrackedFrame f;
-  f.id = 0;
-  f.dof = 6;
-  f.name = "stylus";
-  h.frames.push_back(f);
-  h.requested_rate_hz = rate_hz;
-  return h;
-}
 
 
 // Starts `binary` with `args`, reads the port it prints, runs the devices, stops it.
@@ -111,7 +97,7 @@ Phase run_phase(const std::string& name, const std::string& binary, const std::v
         const protocol::Welcome w = client.connect(
             address.host, address.port,
             is_glove(a, i) ? sim::glove_hello(sim::kGloveFramesAll, client_name, a.rate_hz)
-                           : device_hello(static_cast<int>(i), a.rate_hz),
+                           : stylus_hello(client_name, a.rate_hz),
             2s);
         ok = w.rate_hz == a.rate_hz;
         if (!ok) phase.device_errors[i] = "server granted " + std::to_string(w.rate_hz) + " Hz";
