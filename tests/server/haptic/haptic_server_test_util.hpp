@@ -53,8 +53,8 @@ struct RunningServer {
   // `world`: the snapshot the stand-in visual loop publishes (a stylus on the wall by default),
   // for the device `link`.
   explicit RunningServer(const ServerOptions& options = {}, bool visual = true,
-                         HapticSnapshot (*world)() = wall_snapshot, const DeviceLink& link = stylus_link())
-      : world(world), snapshots(world()), server({link}, options, snapshots, targets) {
+                         HapticSnapshot (*world_fn)() = wall_snapshot, const DeviceLink& link = stylus_link())
+      : world(world_fn), snapshots(world_fn()), server({link}, options, snapshots, targets) {
     thread = std::thread([this] {
       testing_util::count_allocations_on_this_thread(true);
       server.run(stop);

@@ -1,9 +1,14 @@
-// The haptic loop's visual-loop watchdog on loopback (issue 7 item 3): when the visual loop stops
+// The haptic loop's watchdogs on loopback (issue 7 item 3). A stalled haptic thread is counted as
+// an overrun and resumes on a fresh deadline without a force jump. When the visual loop stops
 // publishing, the model's influence fades to the safe model (the proxy feels only its device)
 // within the configured time, replies are flagged stale, and when models flow again the force
 // comes back without a jump. The test is the visual loop here: it publishes the wall model itself
 // (RunningServer without its stand-in) and stops when it wants a stall.
 #include <gtest/gtest.h>
+#include <pthread.h>
+
+#include <csignal>
+#include <ctime>
 
 #include <algorithm>
 #include <chrono>
@@ -164,6 +169,54 @@ TEST(HapticServerWatchdog, AModelServesUntilTheEndOfItsStepBeforeItCanBeOverdue)
               1e3 * safe);
   EXPECT_GE(held, 0.2 + o.model_stale_after_s);
   EXPECT_LE(safe, 0.2 + o.model_stale_after_s + o.model_fade_s + 0.010);  // the margin as above
+}
+
+// The haptic thread stalls, from outside: a signal whose handler sleeps on that thread, as a page
+// fault, a preempting task or a stopped VM would hold it.
+constexpr long kStall_ns = 20'000'000;
+extern "C" void stall_this_thread(int) {
+  const timespec ts{0, kStall_ns};
+  nanosleep(&ts, nullptr);  // async-signal-safe
+}
+
+TEST(HapticServerWatchdog, AStalledHapticLoopIsCountedAsAnOverrunAndResumesWithoutAForceJump) {
+  struct sigaction action{};
+  struct sigaction previous{};
+  action.sa_handler = stall_this_thread;
+  sigemptyset(&action.sa_mask);
+  ASSERT_EQ(sigaction(SIGUSR1, &action, &previous), 0);
+  RunningServer s(ServerOptions{}, false);
+  TestClient c(s.server.port());
+  ASSERT_NE(c.hello(), 0u);
+  std::uint64_t seq = 0;
+  press_for(c, seq, 0.2, protocol::now_ns(), [&](int k) {
+    if (k % 5 == 0) publish_wall(s);
+  });
+  ASSERT_NEAR(c.last.wrenches[0].wrench.force_n.z, kPressed_n, 0.05 * kPressed_n);
+  // Three stalls of 20 ms, 100 ms apart, while the device keeps pressing (its poses wait in the
+  // socket and are answered when the thread resumes).
+  constexpr int kStalls = 3;
+  const std::vector<Sample> run = press_for(c, seq, 0.4, protocol::now_ns(), [&](int k) {
+    if (k % 5 == 0) publish_wall(s);
+    if (k % 100 == 50) pthread_kill(s.thread.native_handle(), SIGUSR1);
+  });
+  s.halt();
+  ASSERT_EQ(sigaction(SIGUSR1, &previous, nullptr), 0);
+  const ServerStats& st = s.server.stats();
+  double worst = 0;
+  for (const Sample& x : run) worst = std::max(worst, std::abs(x.f_n - kPressed_n));
+  const double periods = st.elapsed_s * 1000.0;  // the server's 1 kHz periods while it ran
+  std::printf("3 stalls of 20 ms: %llu overruns counted, %llu ticks in %.0f periods (the missed ones are not "
+              "run in a burst), force within %.3f N of the press\n",
+              static_cast<unsigned long long>(st.overruns), static_cast<unsigned long long>(st.ticks), periods,
+              worst);
+  // Each stall is counted (a loaded machine may add more), and the loop re-anchors its deadline
+  // instead of running the 19 missed ticks at once after each stall.
+  EXPECT_GE(st.overruns, static_cast<std::uint64_t>(kStalls));
+  EXPECT_LE(static_cast<double>(st.ticks), periods - kStalls * 15.0);
+  // The held press is rendered through the stalls: no jump, nothing stale (the model is 5 ms old).
+  EXPECT_LT(worst, 0.05 * kPressed_n);
+  EXPECT_EQ(s.allocations.load(), 0);
 }
 
 }  // namespace
