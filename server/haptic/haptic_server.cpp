@@ -269,6 +269,7 @@ void HapticServer::tick(std::uint64_t now) {
   const HapticSnapshot& snap = snapshots_.front();
   const double dt = 1.0 / options_.haptic_rate_hz;
   ProxyTargets& out = targets_.back();
+  out.t_ns = now + static_cast<std::uint64_t>(1e9 * dt);  // each proxy is integrated over [now, now + dt]
   for (bool& d : out.driven) d = false;
   for (int h = 0; h < kMaxHands; ++h) out.resyncs[h] = hand_resyncs_[h];
   for (int i = 0; i < kMaxSessions; ++i) {

@@ -45,6 +45,9 @@ struct ProxyTargets {
   std::uint32_t resyncs[kMaxHands]{};
   HapticPose pose[kMaxHands][kMaxHapticHandles];
   Eigen::Vector3d v_W[kMaxHands][kMaxHapticHandles], w_W[kMaxHands][kMaxHapticHandles];
+  // The time the poses are of (CLOCK_MONOTONIC, ns): the end of the haptic tick that integrated
+  // them, up to one period after the visual loop reads them.
+  std::uint64_t t_ns = 0;
 };
 
 struct ServerOptions {

@@ -42,6 +42,13 @@ void fill_haptic_model(World& world, int h, HandleLinearization& lin, HapticMode
   out.handles = m;
 }
 
+HandleTarget proxy_target(const ProxyTargets& targets, int h, int j, std::uint64_t until_ns) {
+  const double ahead = std::clamp(1e-9 * (static_cast<double>(until_ns) - static_cast<double>(targets.t_ns)), -0.1, 0.1);
+  const HapticPose& p = targets.pose[h][j];
+  const Eigen::Vector3d &v = targets.v_W[h][j], &w = targets.w_W[h][j];
+  return {p.p_W + ahead * v, rotate_by(p.q_W, ahead * w), v, w};
+}
+
 VisualLoop::VisualLoop(World& world, double rate_hz, TripleBuffer<HapticSnapshot>& snapshots,
                        TripleBuffer<ProxyTargets>& targets, HapticServer* report_to)
     : world_(world), rate_hz_(rate_hz), snapshots_(snapshots), targets_(targets), report_to_(report_to) {}
@@ -57,7 +64,8 @@ void VisualLoop::run(const std::atomic<bool>& stop) {
   while (!stop.load(std::memory_order_relaxed)) {
     const std::uint64_t t0 = protocol::now_ns();
     // The world simulates up to the moment it will publish: the proxies are
-    // extrapolated by the expected latency, and the step spans the time to that
+    // extrapolated from the time they are of (the end of the haptic tick that
+    // wrote them, up to a period ahead of now) to then, and the step spans the time to that
     // publication. The model it then publishes starts at its own publication, so
     // the haptic loop gets it on time; a world behind the clock would replay the
     // proxies' motion faster than it happened and a late model would lag the
@@ -72,11 +80,8 @@ void VisualLoop::run(const std::atomic<bool>& stop) {
         resyncs_seen_[h] = targets.resyncs[h];
         place_hand(*hand.model, hand.state, targets.pose[h][0].p_W, targets.pose[h][0].q_W, 0);
       }
-      for (int j = 0; j < std::min(hand.model->num_handles(), kMaxHapticHandles); ++j) {
-        const HapticPose& p = targets.pose[h][j];
-        const Eigen::Vector3d &v = targets.v_W[h][j], &w = targets.w_W[h][j];
-        set_target(hand.state, j, {p.p_W + latency_s * v, rotate_by(p.q_W, latency_s * w), v, w});
-      }
+      for (int j = 0; j < std::min(hand.model->num_handles(), kMaxHapticHandles); ++j)
+        set_target(hand.state, j, proxy_target(targets, h, j, publish));
     }
     world_.step(dt);
     world_time_s += dt;

@@ -37,6 +37,11 @@ void fill_haptic_model(World& world, int h, HandleLinearization& lin, HapticMode
 // Only its contact flags (in_contact, handle_in_contact) from the world's last contacts.
 void fill_contact_flags(const World& world, int h, HapticModel& out);
 
+// Handle j of hand h's target for a world that simulates up to `until_ns`: the proxy extrapolated
+// at its velocity from the time it is of (targets.t_ns) to then, by at most 0.1 s either way (a
+// stalled haptic thread leaves old proxies).
+HandleTarget proxy_target(const ProxyTargets& targets, int h, int j, std::uint64_t until_ns);
+
 class VisualLoop {
  public:
   VisualLoop(World& world, double rate_hz, TripleBuffer<HapticSnapshot>& snapshots, TripleBuffer<ProxyTargets>& targets,

@@ -69,6 +69,7 @@ OfflineLoops::OfflineLoops(SceneDesc scene, const OfflineOptions& options) : opt
                             ? kProxyDrive
                             : DriveParams{gains.k_n_m, gains.b_ns_m, gains.k_nm_rad, gains.b_nms_rad};
   world_options.linearize = false;
+  world_options.contact = options_.contact;
   // CHOLMOD's OpenMP regions: one thread, as the visual thread runs it.
   single_threaded_cholmod();
   world_ = std::make_unique<World>(scene, world_options);

@@ -12,6 +12,7 @@
 #include <Eigen/Geometry>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <vector>
 
 #include "clients/sim/device_model.hpp"
@@ -59,13 +60,15 @@ struct OfflineOptions {
   double settle_s = 0;
   // The proxies a visual step reads were integrated to the end of their tick
   // (t + T), and the world and the model's step end are timed from there. True:
-  // timed from the tick's start instead, as hapticd's VisualLoop times them when
-  // it reads them right after a tick (ProxyTargets carries no time; the bias is
-  // up to one period, by the phase of the two threads). Measured with that bias:
+  // timed from the tick's start instead, as hapticd's VisualLoop timed them
+  // before ProxyTargets carried their time (t_ns; the bias was up to one
+  // period, by the phase of the two threads). Measured with that bias:
   // a free-space sweep at 60 Hz puts energy into the device (+0.03 J of 0.41 J
   // exchanged, against -0.23 J at 1 kHz and with exact timing), and at 240 Hz
   // the loops go unstable.
   bool targets_one_tick_stale = false;
+  // The hands' contact model (WorldOptions::contact; unset: the scene's). Penalty by default, as hapticd.
+  std::optional<ContactModel> contact = ContactModel::penalty;
 };
 
 // A device's frames in device space, per tick.

@@ -90,7 +90,7 @@ TEST(LoopsOffline, DeviceSweptThroughFreeSpaceFeelsTheHandsInertiaAndPutsInAlmos
   EXPECT_LT(r.max_force_n, 3.0);  // ...and nothing more
   // Measured at this revision: net -0.23 J of 0.42 J exchanged (passive; the
   // world stepped at every tick gives -0.22 J of 0.49 J). With the proxies taken
-  // one period stale, as hapticd's visual loop can read them
+  // one period stale, as hapticd's visual loop read them before ProxyTargets::t_ns
   // (OfflineOptions::targets_one_tick_stale), the loops gain +6.8 %: the shortfall
   // this test was written against (5.6 % then). A regression beyond 10 % fails here.
   EXPECT_LT(r.energy_j, 0.10 * r.gross_energy_j);
