@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <array>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <functional>
@@ -149,11 +150,26 @@ Phase run_phase(const std::string& name, const std::string& binary, const std::v
   return phase;
 }
 
+// Round trips binned on a log scale (10 bins a decade from 10 us to 100 ms; the last bin takes
+// everything above), for the report's histograms.
+nlohmann::json rtt_histogram(const std::vector<double>& rtt_us) {
+  constexpr int kPerDecade = 10, kBins = 4 * kPerDecade;
+  std::vector<double> edges(kBins + 1);
+  for (int i = 0; i <= kBins; ++i) edges[static_cast<std::size_t>(i)] = 10.0 * std::pow(10.0, static_cast<double>(i) / kPerDecade);
+  std::vector<std::uint64_t> counts(kBins, 0);
+  for (double r : rtt_us) {
+    const double bin = std::floor(kPerDecade * std::log10(std::max(r, 10.0) / 10.0));
+    ++counts[static_cast<std::size_t>(std::clamp(bin, 0.0, static_cast<double>(kBins - 1)))];
+  }
+  return {{"edges_us", edges}, {"counts", counts}};
+}
+
 nlohmann::json to_json(const Phase& p) {
   if (!p.ran()) return {{"error", p.error}};
   nlohmann::json per_device = nlohmann::json::array();
   for (const sim::ServoResult& r : p.devices) per_device.push_back(sim::to_json(r));
   return {{"rtt_us", sim::to_json(sim::summarize_rtt(p.rtt_us))},
+          {"rtt_histogram", rtt_histogram(p.rtt_us)},
           {"late_fraction", p.late_fraction()},
           {"loss_fraction", p.loss_fraction()},
           {"samples_sent", p.sent},

