@@ -25,12 +25,11 @@ demo: build
 test: build
 	ctest --test-dir $(BUILD) --output-on-failure -j $(JOBS)
 
+# Every benchmark suite (~10 min), bench/results/report.md with plots, the README's performance block.
 bench: build
-	scripts/bench-hand $(BUILD)
-	scripts/bench-world $(BUILD)
-	scripts/bench-latency $(BUILD)
+	scripts/bench-all $(BUILD)
 
-# Sanitizers and fuzzing (README, "Sanitizers and fuzzing"); presets in CMakePresets.json, build
+# Sanitizers and fuzzing (README, "Security and safety"; tests/fuzz/README.md); presets in CMakePresets.json, build
 # trees build-asan, build-tsan, build-fuzz. `asan` and `tsan` run every suite but the tests labelled
 # timing or bench (tests/CMakeLists.txt).
 asan: deps

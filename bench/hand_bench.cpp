@@ -1,13 +1,13 @@
 #include "hand_bench.hpp"
 
+#include <algorithm>
 #include <cstdio>
 #include <memory>
 #include <string>
 #include <vector>
 
 #include "bench_common.hpp"
-#include "hand_models/coupled_solver.hpp"
-#include "hand_models/press_scenario.hpp"
+#include "hand_press_run.hpp"
 
 namespace hapticd::bench {
 namespace {
@@ -26,87 +26,50 @@ struct HandBenchArgs {
   std::string json;
 };
 
-double relative_error(const Eigen::VectorXd& h, const Eigen::VectorXd& t, const Eigen::VectorXd& h_ref,
-                      const Eigen::VectorXd& t_ref) {
-  return std::sqrt((h - h_ref).squaredNorm() + (t - t_ref).squaredNorm()) /
-         std::sqrt(h_ref.squaredNorm() + t_ref.squaredNorm());
-}
-
 void run_hand_bench(const HandBenchArgs& a) {
-  PressScenarioOptions options;
-  options.target_tets = a.tets;
-  options.handles = a.handles;
-  PressScenario scene = make_press_scenario(options);
-  const HandModel& model = *scene.model;
-  SolverOptions solver_options;
-  solver_options.cg_tolerance = a.cg_tolerance;
-  solver_options.lagged_tolerance = a.lagged_tolerance;
-  solver_options.ordering = parse_ordering(a.ordering);
-  solver_options.supernodal = !a.simplicial;
-  const SolverKind kind = parse_solver_kind(a.solver);
-  auto solver = make_solver(kind, solver_options);
-  auto reference = make_solver(SolverKind::monolithic);
+  HandPressOptions o;
+  o.tets = a.tets;
+  o.handles = a.handles;
+  o.solver = parse_solver_kind(a.solver);
+  o.solver_options.cg_tolerance = a.cg_tolerance;
+  o.solver_options.lagged_tolerance = a.lagged_tolerance;
+  o.solver_options.ordering = parse_ordering(a.ordering);
+  o.solver_options.supernodal = !a.simplicial;
+  o.steps = a.steps;
+  o.warmup = a.warmup;
+  o.error_every = a.error_every;
   const Machine machine = describe_machine();
-  std::fprintf(stderr, "hand: %d tets, %d nodes, %d handle(s) (%zu coupled nodes in the first), solver %s, %d steps\n",
-               model.fem().num_tets(), model.num_nodes(), model.num_handles(), model.handles()[0].nodes.size(),
-               a.solver.c_str(), a.steps);
-
-  std::vector<double> total, assembly, factor, schur, solve, errors;
-  std::vector<double> iterations;
-  int factorizations = 0;
-  int contacts_max = 0;
-  const double dt = model.config().dt_s;
-  for (int k = 0; k < a.warmup + a.steps; ++k) {
-    scene.drive((k + 1) * dt);
-    step(model, scene.state, *solver);
-    if (k < a.warmup) continue;
-    const StepTimings& t = scene.state.timings;
-    total.push_back(t.total_ms);
-    assembly.push_back(t.assembly_ms);
-    factor.push_back(t.factor_ms);
-    schur.push_back(t.schur_ms);
-    solve.push_back(t.solve_ms);
-    iterations.push_back(static_cast<double>(t.iterations));
-    factorizations += t.factor_ms > 0 && kind != SolverKind::schur_cg;
-    contacts_max = std::max(contacts_max, scene.state.floor_contacts);
-    const int i = k - a.warmup;
-    if (kind != SolverKind::monolithic && a.error_every > 0 && i % a.error_every == 0) {
-      // Same system, solved by the reference: the solver's own error this step.
-      Eigen::VectorXd v_h, v_t;
-      SolveReport r;
-      if (reference->solve(scene.state.system, v_h, v_t, r))
-        errors.push_back(relative_error(scene.state.v_h_next, scene.state.v_t_next, v_h, v_t));
-    }
-    if (i > 0 && i % 50 == 0) std::fprintf(stderr, "  step %d/%d, median %.2f ms\n", i, a.steps, median(total));
-  }
+  const HandPressRun run = run_hand_press(o);
+  const std::vector<double>& errors = run.errors;
+  const std::vector<double>& total = run.total;
   const double max_error = errors.empty() ? 0.0 : *std::max_element(errors.begin(), errors.end());
   nlohmann::json doc = {
       {"suite", "hand"},
-      {"tets", model.fem().num_tets()},
-      {"nodes", model.num_nodes()},
-      {"dofs", 3 * model.num_nodes() + 6 * model.num_handles()},
-      {"handles", model.num_handles()},
-      {"coupled_nodes_first_handle", model.handles()[0].nodes.size()},
+      {"tets", run.tets},
+      {"nodes", run.nodes},
+      {"dofs", 3 * run.nodes + 6 * run.handles},
+      {"handles", run.handles},
+      {"coupled_nodes_first_handle", run.coupled_nodes_first_handle},
       {"solver", a.solver},
       {"ordering", a.ordering},
       {"supernodal", !a.simplicial},
       {"cg_tolerance", a.cg_tolerance},
-      {"dt_s", dt},
+      {"dt_s", run.dt_s},
       {"steps", a.steps},
       {"step_ms_median", median(total)},
       {"step_ms_p99", percentile(total, 99)},
-      {"assembly_ms", median(assembly)},
-      {"factor_ms", median(factor)},
-      {"schur_ms", median(schur)},
-      {"solve_ms", median(solve)},
+      {"assembly_ms", median(run.assembly)},
+      {"factor_ms", median(run.factor)},
+      {"schur_ms", median(run.schur)},
+      {"solve_ms", median(run.solve)},
       {"rel_error_vs_monolithic", max_error},
       {"rel_error_median", errors.empty() ? 0.0 : median(errors)},
       {"error_samples", errors.size()},
-      {"iterations_median", median(iterations)},
-      {"iterations_max", percentile(iterations, 100)},
-      {"factorizations", factorizations},
-      {"resets_total", scene.state.resets},
-      {"floor_contacts_max", contacts_max},
+      {"iterations_median", median(run.iterations)},
+      {"iterations_max", percentile(run.iterations, 100)},
+      {"factorizations", run.factorizations},
+      {"resets_total", run.resets},
+      {"floor_contacts_max", run.floor_contacts_max},
       {"threads", 1},
       {"cpu", machine.cpu},
       {"machine", to_json(machine)},
@@ -114,8 +77,8 @@ void run_hand_bench(const HandBenchArgs& a) {
   std::printf("%-6s %-10s %6s %7s %4s %9s %9s %9s %9s %9s %9s %10s\n", "suite", "solver", "tets", "nodes", "hdl",
               "step_med", "step_p99", "assembly", "factor", "schur", "solve", "rel_err");
   std::printf("%-6s %-10s %6d %7d %4d %9.3f %9.3f %9.3f %9.3f %9.3f %9.3f %10.2e\n", "hand", a.solver.c_str(),
-              model.fem().num_tets(), model.num_nodes(), model.num_handles(), median(total), percentile(total, 99),
-              median(assembly), median(factor), median(schur), median(solve), max_error);
+              run.tets, run.nodes, run.handles, median(total), percentile(total, 99),
+              median(run.assembly), median(run.factor), median(run.schur), median(run.solve), max_error);
   std::printf("machine: %s, %d cores, BLAS %s, revision %s (times in ms, one thread)\n", machine.cpu.c_str(),
               machine.cores, machine.blas.c_str(), machine.git_revision.c_str());
   if (!a.json.empty()) write_json(a.json, doc);

@@ -3,10 +3,14 @@
 #include <cstdio>
 #include <exception>
 
+#include "contact_bench.hpp"
 #include "hand_bench.hpp"
+#include "haptic_rate_bench.hpp"
 #include "latency_bench.hpp"
 #include "multirate_bench.hpp"
+#include "resolution_bench.hpp"
 #include "soak_bench.hpp"
+#include "solvers_bench.hpp"
 #include "world_bench.hpp"
 
 int main(int argc, char** argv) {
@@ -17,6 +21,10 @@ int main(int argc, char** argv) {
   hapticd::bench::add_latency_suite(app);
   hapticd::bench::add_multirate_suite(app);
   hapticd::bench::add_soak_suite(app);
+  hapticd::bench::add_contact_suite(app);
+  hapticd::bench::add_haptic_rate_suite(app);
+  hapticd::bench::add_solvers_suite(app);
+  hapticd::bench::add_resolution_suite(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -1,0 +1,92 @@
+#include "wall_press.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <numbers>
+#include <stdexcept>
+
+#include "server/world/scene_loader.hpp"
+#include "server/world/world.hpp"
+
+namespace hapticd::bench {
+namespace {
+
+// 0 -> 1 over [0, 1] with zero slope at both ends.
+double half_cosine(double s) { return 0.5 - 0.5 * std::cos(std::numbers::pi * std::clamp(s, 0.0, 1.0)); }
+
+}  // namespace
+
+Eigen::Vector3d PressProfile::offset(double t_s) const {
+  const double down = half_cosine((t_s - settle_s) / ramp_s);
+  const double up = half_cosine((t_s - settle_s - ramp_s - hold_s) / ramp_s);
+  return {0, 0, -depth_m * (down - up)};
+}
+
+PressProfile default_press() { return {}; }
+PressProfile tiny_press() { return {0.05, 0.3, 0.1, 0.05, 0.01}; }
+
+SceneDesc wall_scene(const std::string& path, int hand_tets, double gap_m) {
+  SceneDesc scene = load_scene(path);
+  if (scene.hands.empty() || scene.devices.empty())
+    throw std::runtime_error(path + ": the press needs a hand and a device");
+  if (hand_tets > 0)
+    for (HandDesc& h : scene.hands) h.resolution_tets = hand_tets;
+  scene.objects.clear();
+  scene.joints.clear();
+  double lowest = std::numeric_limits<double>::infinity();
+  {
+    // The hand as the world builds it at its pose (nothing else in the scene yet).
+    const World probe(scene, WorldOptions{});
+    const Eigen::VectorXd& x = probe.hand(0).state.x;
+    for (Eigen::Index i = 2; i < x.size(); i += 3) lowest = std::min(lowest, x(i));
+  }
+  ObjectDesc wall;
+  wall.name = "wall";
+  wall.kind = BodyKind::static_body;
+  wall.shape.type = ShapeType::box;
+  wall.shape.size = {0.3, 0.3, 0.04};
+  wall.pose.p_W = scene.hands[0].pose.p_W;
+  wall.pose.p_W.z() = lowest - gap_m - 0.5 * wall.shape.size.z();
+  if (const MaterialDesc* wood = scene.find_material("wood")) wall.material = *wood;
+  scene.objects.push_back(wall);
+  return scene;
+}
+
+SimulatedStylus press_stylus(const OfflineLoops& loops, const PressProfile& press, const sim::DeviceParams& params) {
+  Eigen::Vector3d start_D;
+  Eigen::Quaterniond q_D;
+  loops.frame_pose_at_handle(0, start_D, q_D);
+  return SimulatedStylus(
+      start_D, [press](double t) { return press.offset(t); }, loops.options().haptic_period_s, params);
+}
+
+PressRun run_press(OfflineLoops& loops, OfflineDevice& device, long ticks, const PressProfile& press) {
+  if (device.frames() != loops.link().handles) throw std::invalid_argument("press: device frames != hand handles");
+  PressRun run;
+  OfflineTrace& trace = run.trace;
+  trace.poses.resize(static_cast<std::size_t>(ticks));
+  trace.replies.resize(static_cast<std::size_t>(ticks));
+  const int every = loops.options().visual_every_ticks;
+  double sum2 = 0;
+  long pressed_steps = 0;
+  for (long k = 0; k < ticks; ++k) {
+    const long tick = loops.ticks();
+    DeviceFrames& pose = trace.poses[static_cast<std::size_t>(k)];
+    DeviceReply& reply = trace.replies[static_cast<std::size_t>(k)];
+    device.advance(tick, loops.time_s(), pose);
+    loops.tick(pose, reply);
+    device.receive(reply);
+    if (tick % every != 0) continue;  // no visual step at this tick
+    const double depth = std::max(0.0, loops.world().snapshot().max_penetration_m);
+    run.penetration_max_m = std::max(run.penetration_max_m, depth);
+    const double t_end = loops.time_s() + (every - 1) * loops.options().haptic_period_s;
+    if (t_end >= press.pressed_from_s() && t_end <= press.pressed_to_s()) sum2 += depth * depth, ++pressed_steps;
+  }
+  run.penetration_rms_m = pressed_steps ? std::sqrt(sum2 / static_cast<double>(pressed_steps)) : 0.0;
+  trace.timings = loops.timings();
+  trace.resets = loops.resets();
+  return run;
+}
+
+}  // namespace hapticd::bench
