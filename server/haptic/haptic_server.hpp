@@ -118,6 +118,9 @@ class HapticServer {
 
   std::uint16_t port() const;
   std::string address() const;
+  // The device links and the haptic period, for the visual loop's prepare_tick_solver.
+  const std::vector<DeviceLink>& links() const { return links_; }
+  double haptic_period_s() const { return 1.0 / options_.haptic_rate_hz; }
 
   // The haptic thread's body: returns when `stop` becomes true (sessions are sent nothing more).
   void run(const std::atomic<bool>& stop);

@@ -1,5 +1,6 @@
 #include "server/haptic/virtual_coupling.hpp"
 
+#include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
 
@@ -12,6 +13,11 @@ namespace {
 constexpr double kMaxProxySpeed_m_s = 20.0;
 // Device velocity: first-order low-pass of the pose differences (about 150 Hz at 1 kHz).
 constexpr double kVelocityFilter = 0.6;
+
+// The prepared solve's refinement: until the residual is this small against the right-hand side, at
+// most this many corrections (then the dense LU).
+constexpr double kRefineTolerance = 1e-12;
+constexpr int kMaxRefinements = 3;
 
 // Limits |v| to `limit`; true if it had to.
 bool clamp_norm(Eigen::Vector3d& v, double limit) {
@@ -40,6 +46,44 @@ HapticPose DeviceMap::to_world(int j, const Eigen::Vector3d& p_D, const Eigen::Q
 
 HapticPose DeviceMap::to_world(const Eigen::Vector3d& p_D, const Eigen::Quaterniond& q_D) const {
   return {offset_W + scale * (R_WD * p_D), (R_WD * q_D).normalized()};
+}
+
+bool prepare_tick_solver(HapticModel& model, int handles, const double* mass_kg, const Eigen::Matrix3d* inertia_B,
+                         const CouplingGains& gains, double dt) {
+  TickSolver& s = model.solver;
+  s.prepared = false;
+  const int m = model.handles, n = 6 * m;
+  if (m < kMinPreparedHandles || m != handles || m > kMaxHapticHandles || !(dt > 0) || model.K.rows() != n ||
+      model.K.cols() != n || model.D.rows() != n || model.D.cols() != n || !model.K.allFinite() ||
+      !model.D.allFinite())
+    return false;
+  // B = P_ref - h D, P_ref as ProxyHand::integrate builds P with each proxy at its handle's x0.
+  HapticMatrix B = -dt * model.D;
+  for (int j = 0; j < m; ++j) {
+    const Eigen::Matrix3d R = model.x0[j].q_W.toRotationMatrix();
+    s.P_rot_ref[j] = R * inertia_B[j] * R.transpose();
+    s.P_rot_ref[j].diagonal().array() += dt * gains.b_nms_rad + dt * dt * gains.k_nm_rad;
+    B.block<3, 3>(6 * j, 6 * j).diagonal().array() += mass_kg[j] + dt * gains.b_ns_m + dt * dt * gains.k_n_m;
+    B.block<3, 3>(6 * j + 3, 6 * j + 3) += s.P_rot_ref[j];
+    s.mass_kg[j] = mass_kg[j];
+    s.inertia_B[j] = inertia_B[j];
+  }
+  const Eigen::PartialPivLU<HapticMatrix> lu(B);
+  // E = B^-1 C = U H U^T, C = h K.
+  const HapticMatrix E = lu.solve(dt * model.K);
+  const Eigen::HessenbergDecomposition<HapticMatrix> hessenberg(E);
+  s.U = hessenberg.matrixQ();
+  const HapticMatrix H = hessenberg.matrixH();
+  for (int i = 0; i < n; ++i) {
+    double* row = s.hessenberg_row(i, n);
+    for (int j = std::max(i - 1, 0); j < n; ++j) row[j] = H(i, j);
+  }
+  s.G.noalias() = s.U.transpose() * lu.inverse();
+  if (!s.G.allFinite() || !s.U.allFinite() || !H.allFinite()) return false;
+  s.dt_s = dt;
+  s.gains = gains;
+  s.prepared = true;
+  return true;
 }
 
 CouplingGains coupling_gains_for(double device_stiffness_n_m, double scale, double period_s) {
@@ -71,9 +115,15 @@ void ProxyHand::configure(int handles, const double* mass_kg, const Eigen::Matri
   }
   const int n = 6 * handles_;
   A_.resize(n, n);
+  W_.resize(n, n);
   b_.resize(n);
   x_rel_.resize(n);
   v_next_.resize(n);
+  v0_.resize(n);
+  r_.resize(n);
+  c_.resize(n);
+  dv_.resize(n);
+
   lu_ = Eigen::PartialPivLU<HapticMatrix>(n);
   have_device_ = false;
   for (int j = 0; j < kMaxHapticHandles; ++j) {
@@ -131,14 +181,13 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
   // the step it simulated) has its anchor carried along by the handle's
   // velocity for the time since: the flesh kept moving meanwhile.
   const double late = std::max(0.0, -lookahead_s);
-  A_.setZero();
   b_.setZero();
   for (int j = 0; j < handles_; ++j) {
     const Eigen::Matrix3d R = proxy_[j].q_W.toRotationMatrix();
     const Eigen::Matrix3d I_W = R * inertia_B_[j] * R.transpose();
-    A_.block<3, 3>(6 * j, 6 * j).diagonal().array() += mass_[j] + dt * gains_.b_ns_m + dt * dt * gains_.k_n_m;
-    A_.block<3, 3>(6 * j + 3, 6 * j + 3) += I_W;
-    A_.block<3, 3>(6 * j + 3, 6 * j + 3).diagonal().array() += dt * gains_.b_nms_rad + dt * dt * gains_.k_nm_rad;
+    a_lin_[j] = mass_[j] + dt * gains_.b_ns_m + dt * dt * gains_.k_n_m;
+    a_rot_[j] = I_W;
+    a_rot_[j].diagonal().array() += dt * gains_.b_nms_rad + dt * dt * gains_.k_nm_rad;
     b_.segment<3>(6 * j) = mass_[j] * v_[j] + dt * (gains_.k_n_m * (device_[j].p_W - proxy_[j].p_W) +
                                                      gains_.b_ns_m * v_dev_[j]);
     b_.segment<3>(6 * j + 3) =
@@ -148,33 +197,59 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
       // The safe model, implicit like the coupling: spring and damper toward the device.
       const double k = safe * safe_k_n_m_, b = safe * safe_b_ns_m_[j];
       const double k_rot = safe * safe_k_nm_rad_, b_rot = safe * safe_b_nms_rad_[j];
-      A_.block<3, 3>(6 * j, 6 * j).diagonal().array() += dt * b + dt * dt * k;
-      A_.block<3, 3>(6 * j + 3, 6 * j + 3).diagonal().array() += dt * b_rot + dt * dt * k_rot;
+      a_lin_[j] += dt * b + dt * dt * k;
+      a_rot_[j].diagonal().array() += dt * b_rot + dt * dt * k_rot;
       b_.segment<3>(6 * j) += dt * (k * (device_[j].p_W - proxy_[j].p_W) + b * v_dev_[j]);
       b_.segment<3>(6 * j + 3) += dt * (k_rot * rotation_difference(device_[j].q_W, proxy_[j].q_W) + b_rot * w_dev_[j]);
     }
     if (use_model) {
       x_rel_.segment<3>(6 * j) = proxy_[j].p_W - model.x0[j].p_W - late * model.v0[j];
       x_rel_.segment<3>(6 * j + 3) = rotation_difference(proxy_[j].q_W, model.x0[j].q_W) - late * model.w0[j];
+      v0_.segment<3>(6 * j) = model.v0[j];
+      v0_.segment<3>(6 * j + 3) = model.w0[j];
     }
   }
+  const double h = weight * dt;
   if (use_model) {
-    const double h = weight * dt;
-    A_.noalias() -= h * model.D;
-    A_.noalias() -= (h * tau) * model.K;
     b_.noalias() += h * model.F0;
     b_.noalias() += h * (model.K * x_rel_);
     // - h D v0: D couples the handles, so handle j's anchor velocity acts through its columns of D on
     // all 6m rows, not only on handle j's.
-    for (int j = 0; j < handles_; ++j) {
-      b_.noalias() -= h * model.D.middleCols<3>(6 * j) * model.v0[j];
-      b_.noalias() -= h * model.D.middleCols<3>(6 * j + 3) * model.w0[j];
+    b_.noalias() -= h * (model.D * v0_);
+  }
+  bool ok = b_.allFinite();
+  for (int j = 0; ok && j < handles_; ++j) ok = std::isfinite(a_lin_[j]) && a_rot_[j].allFinite();
+  bool solved = false;
+  if (ok && handles_ >= kMinPreparedHandles) {
+    if (!use_model) {
+      // No model: A is block diagonal, each handle's blocks solved alone.
+      for (int j = 0; j < handles_; ++j) {
+        v_next_.segment<3>(6 * j) = b_.segment<3>(6 * j) / a_lin_[j];
+        v_next_.segment<3>(6 * j + 3) = a_rot_[j].ldlt().solve(Eigen::Vector3d(b_.segment<3>(6 * j + 3)));
+      }
+      solved = true;
+    } else {
+      solved = weight == 1.0 && solver_matches(model.solver, dt) && solve_prepared(model, h, tau);
+      if (!solved) ++solver_fallbacks_;
     }
   }
-  bool ok = A_.allFinite() && b_.allFinite();
+  if (ok && !solved) {
+    A_.setZero();
+    for (int j = 0; j < handles_; ++j) {
+      A_.block<3, 3>(6 * j, 6 * j).diagonal().setConstant(a_lin_[j]);
+      A_.block<3, 3>(6 * j + 3, 6 * j + 3) = a_rot_[j];
+    }
+    if (use_model) {
+      A_.noalias() -= h * model.D;
+      A_.noalias() -= (h * tau) * model.K;
+    }
+    ok = A_.allFinite();
+    if (ok) {
+      lu_.compute(A_);
+      v_next_.noalias() = lu_.solve(b_);
+    }
+  }
   if (ok) {
-    lu_.compute(A_);
-    v_next_.noalias() = lu_.solve(b_);
     ok = v_next_.allFinite();
     for (int j = 0; ok && j < handles_; ++j) ok = v_next_.segment<3>(6 * j).norm() < kMaxProxySpeed_m_s;
   }
@@ -189,6 +264,116 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
     w_[j] = v_next_.segment<3>(6 * j + 3);
     proxy_[j].p_W += dt * v_[j];
     proxy_[j].q_W = rotate_by(proxy_[j].q_W, dt * w_[j]);
+  }
+}
+
+bool ProxyHand::solver_matches(const TickSolver& s, double dt) const {
+  if (!s.prepared || s.dt_s != dt || s.gains.k_n_m != gains_.k_n_m || s.gains.b_ns_m != gains_.b_ns_m ||
+      s.gains.k_nm_rad != gains_.k_nm_rad || s.gains.b_nms_rad != gains_.b_nms_rad)
+    return false;
+  for (int j = 0; j < handles_; ++j)
+    if (s.mass_kg[j] != mass_[j] || s.inertia_B[j] != inertia_B_[j]) return false;
+  return true;
+}
+
+void ProxyHand::apply_prepared(const TickSolver& s, double tau, const HapticVector& rhs) {
+  const int n = 6 * handles_;
+  // c = U^T B^-1 rhs; (I - tau H) y = c; v = U y.
+  c_.noalias() = s.G * rhs;
+  // Gaussian elimination with partial pivoting on the Hessenberg matrix I - tau H, O(n^2): below
+  // each pivot only the next row is nonzero, so the pivot is either the row carried down from the
+  // previous steps (held in row k of W_) or that next row, formed from H as it is needed; W_ ends
+  // up holding the triangular factor, and c_ is transformed alongside.
+  const Eigen::Index ld = W_.outerStride();
+  double* W = W_.data();
+  double* c = c_.data();
+  const double* h_first = s.hessenberg_row(0, n);
+  for (int j = 0; j < n; ++j) W[j] = -tau * h_first[j];
+  W[0] += 1.0;
+  for (int k = 0; k + 1 < n; ++k) {
+    double* __restrict carried = W + k * ld;
+    double* __restrict below = W + (k + 1) * ld;
+    const double* __restrict h_next = s.hessenberg_row(k + 1, n);
+    const double pivot = carried[k], next = -tau * h_next[k];
+    if (std::abs(next) > std::abs(carried[k])) {
+      // The next row is the pivot row; the carried row, eliminated by it, moves down.
+      const double l = pivot / next;
+      carried[k] = next;
+      for (int j = k + 1; j < n; ++j) {
+        const double w = -tau * h_next[j], a = carried[j];
+        carried[j] = w;
+        below[j] = a - l * w;
+      }
+      carried[k + 1] += 1.0;
+      below[k + 1] -= l;
+      const double c_carried = c[k];
+      c[k] = c[k + 1];
+      c[k + 1] = c_carried - l * c[k];
+    } else {
+      const double l = next / pivot;
+      for (int j = k + 1; j < n; ++j) below[j] = -tau * h_next[j] - l * carried[j];
+      below[k + 1] += 1.0;
+      c[k + 1] -= l * c[k];
+    }
+  }
+  // Back substitution by rows; four partial sums keep the dot products off one addition chain.
+  for (int i = n - 1; i >= 0; --i) {
+    const double* u = W + i * ld;
+    double s0 = 0, s1 = 0, s2 = 0, s3 = 0;
+    int j = i + 1;
+    for (; j + 3 < n; j += 4) {
+      s0 += u[j] * c[j];
+      s1 += u[j + 1] * c[j + 1];
+      s2 += u[j + 2] * c[j + 2];
+      s3 += u[j + 3] * c[j + 3];
+    }
+    for (; j < n; ++j) s0 += u[j] * c[j];
+    c[i] = (c[i] - ((s0 + s1) + (s2 + s3))) / u[i];
+  }
+  dv_.noalias() = s.U * c_;
+}
+
+bool ProxyHand::solve_prepared(const HapticModel& model, double h, double tau) {
+  const TickSolver& s = model.solver;
+  const double b2 = b_.squaredNorm(), limit2 = kRefineTolerance * kRefineTolerance * b2;
+  apply_prepared(s, tau, b_);
+  v_next_ = dv_;
+  // Refinement against the exact matrix A = A_ref(tau) + dP, dP = P - P_ref the proxies' inertia
+  // at their own orientations less the reference's (rotational blocks only). While the
+  // corrections solve A_ref exactly, the residual after one is r - A dv = -dP dv: O(m) instead of
+  // the two dense products of b - A v, which is evaluated once these estimates are below a tenth
+  // of the tolerance and decides.
+  int corrections = 0;
+  bool estimate = true;
+  for (;;) {
+    if (estimate) {
+      for (int j = 0; j < handles_; ++j) {
+        r_.segment<3>(6 * j).setZero();
+        r_.segment<3>(6 * j + 3).noalias() = (s.P_rot_ref[j] - a_rot_[j]) * dv_.segment<3>(6 * j + 3);
+      }
+      const double e2 = r_.squaredNorm();
+      if (std::isfinite(e2) && e2 > 0.01 * limit2 && corrections < kMaxRefinements) {
+        apply_prepared(s, tau, r_);
+        v_next_ += dv_;
+        ++corrections;
+        continue;
+      }
+      estimate = false;
+    }
+    r_.noalias() = h * (model.D * v_next_);
+    r_.noalias() += (h * tau) * (model.K * v_next_);
+    r_ += b_;
+    for (int j = 0; j < handles_; ++j) {
+      r_.segment<3>(6 * j) -= a_lin_[j] * v_next_.segment<3>(6 * j);
+      r_.segment<3>(6 * j + 3) -= a_rot_[j] * v_next_.segment<3>(6 * j + 3);
+    }
+    const double r2 = r_.squaredNorm();
+    if (!std::isfinite(r2)) return false;
+    if (r2 <= limit2) return true;
+    if (corrections == kMaxRefinements) return false;
+    apply_prepared(s, tau, r_);
+    v_next_ += dv_;
+    ++corrections;
   }
 }
 

@@ -16,10 +16,43 @@ constexpr int kMaxHapticHandles = 16;
 constexpr int kMaxHapticDofs = 6 * kMaxHapticHandles;
 using HapticVector = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, kMaxHapticDofs, 1>;
 using HapticMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kMaxHapticDofs, kMaxHapticDofs>;
+using HapticRowMatrix =
+    Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor, kMaxHapticDofs, kMaxHapticDofs>;
+
+// Virtual coupling and proxy parameters, in world units (the device's are mapped in).
+struct CouplingGains {
+  double k_n_m = 250.0, b_ns_m = 0.4;     // translational
+  double k_nm_rad = 1.0, b_nms_rad = 0.01;  // rotational
+};
 
 struct HapticPose {
   Eigen::Vector3d p_W = Eigen::Vector3d::Zero();
   Eigen::Quaterniond q_W = Eigen::Quaterniond::Identity();
+};
+
+// A hand's haptic step matrix at full model weight, A(tau) = B - tau C with B = P_ref - h D and
+// C = h K (ProxyHand::integrate; P_ref: mass, coupling and the inertia at the model's handle
+// orientations x0), prepared once per model by prepare_tick_solver so the 1 kHz tick solves in
+// O(n^2): B^-1 C = U H U^T (H upper Hessenberg, U orthogonal), hence A(tau) = B U (I - tau H) U^T
+// for every lookahead tau (the shifted-Hessenberg method of Laub, "Efficient multivariable
+// frequency response computations", IEEE TAC 26(2), 1981, with the shift as the tick's lookahead).
+struct TickSolver {
+  bool prepared = false;
+  // What it was prepared for: a session whose haptic period, gains or handles differ uses the LU.
+  double dt_s = 0;
+  CouplingGains gains;
+  double mass_kg[kMaxHapticHandles]{};
+  Eigen::Matrix3d inertia_B[kMaxHapticHandles];
+  Eigen::Matrix3d P_rot_ref[kMaxHapticHandles];  // P_ref's rotational blocks: inertia, world, and coupling
+  HapticMatrix G;  // U^T B^-1
+  HapticMatrix U;  // orthogonal
+  // H upper Hessenberg, packed by rows from its subdiagonal (hessenberg_row(i)[j], j >= i - 1).
+  static constexpr int kPackedSize = kMaxHapticDofs * (kMaxHapticDofs + 3) / 2 - 1;
+  double H[kPackedSize]{};
+  // Where row i starts in H for an n x n matrix; hessenberg_row(i, n)[j] is H(i, j).
+  static constexpr int row_offset(int i, int n) { return i == 0 ? 0 : n + (i - 1) * (n + 1) - (i - 1) * i / 2; }
+  double* hessenberg_row(int i, int n) { return H + row_offset(i, n) - (i > 0 ? i - 1 : 0); }
+  const double* hessenberg_row(int i, int n) const { return H + row_offset(i, n) - (i > 0 ? i - 1 : 0); }
 };
 
 // One hand's handle-space model as the visual loop publishes it.
@@ -38,13 +71,20 @@ struct HapticModel {
   // The hand's re-sync count the visual loop had applied (ProxyTargets::resyncs):
   // a model from before a re-sync describes the hand where it no longer is.
   std::uint32_t resyncs = 0;
+  // Filled by prepare_tick_solver (the visual thread); whoever changes F0, K, D or x0 clears
+  // solver.prepared or prepares again (the tick checks its answer against the exact matrix anyway).
+  TickSolver solver;
 };
 
-// Virtual coupling and proxy parameters, in world units (the device's are mapped in).
-struct CouplingGains {
-  double k_n_m = 250.0, b_ns_m = 0.4;     // translational
-  double k_nm_rad = 1.0, b_nms_rad = 0.01;  // rotational
-};
+// Gloves and larger: below, the dense LU of the 6m system is as cheap as the prepared solve.
+constexpr int kMinPreparedHandles = 4;
+
+// Prepares model.solver for proxies of these handle masses, inertias (body frame) and gains
+// stepped at `haptic_dt_s` (ProxyHand::configure's arguments and integrate's dt): an LU of B, a
+// Hessenberg decomposition of B^-1 C, O(n^3) on the visual thread. Clears it and returns false
+// when the model has fewer than kMinPreparedHandles handles, other than `handles`, or is not finite.
+bool prepare_tick_solver(HapticModel& model, int handles, const double* mass_kg, const Eigen::Matrix3d* inertia_B,
+                         const CouplingGains& gains, double haptic_dt_s);
 
 struct DeviceLimits {
   double max_force_n = 8.0, max_torque_nm = 0.5, max_force_rate_n_s = 1000.0;
@@ -150,6 +190,10 @@ class ProxyHand {
   const HapticPose& device(int j) const { return device_[j]; }
   long resets() const { return resets_; }
   long clamps() const { return clamps_; }
+  // Ticks of a model on kMinPreparedHandles or more handles that the dense LU solved: the model had
+  // no prepared solver or one for other parameters, it was fading (weight < 1), or the prepared
+  // solve did not reach 1e-12 of the right-hand side in three refinements.
+  long solver_fallbacks() const { return solver_fallbacks_; }
   // Replies the passivity controller added damping to.
   long passivity_actions() const { return passivity_actions_; }
   // The passivity observer's energy of frame j: the work its device has done on the rendering, J.
@@ -175,10 +219,20 @@ class ProxyHand {
   Eigen::Vector3d last_f_D_[kMaxHapticHandles], last_tau_D_[kMaxHapticHandles];
   double energy_in_[kMaxHapticHandles]{};
   bool passivity_control_ = false;  // passivity observer: work the device has done on the rendering, J
-  long resets_ = 0, clamps_ = 0, passivity_actions_ = 0;
-  // Workspace of the implicit step, sized once.
+  long resets_ = 0, clamps_ = 0, passivity_actions_ = 0, solver_fallbacks_ = 0;
+  // The prepared solve of A(tau) v = b (TickSolver), refined against the exact matrix; false
+  // when it does not converge (v_next_ is then to be recomputed).
+  bool solve_prepared(const HapticModel& model, double h, double tau);
+  // y = A_ref(tau)^-1 rhs through the prepared factors (TickSolver), into dv_.
+  void apply_prepared(const TickSolver& s, double tau, const HapticVector& rhs);
+  bool solver_matches(const TickSolver& s, double dt) const;
+  // Workspace of the implicit step, sized once. The block diagonal part of A per handle:
+  // translational (a multiple of the identity) and rotational.
+  double a_lin_[kMaxHapticHandles]{};
+  Eigen::Matrix3d a_rot_[kMaxHapticHandles];
   HapticMatrix A_;
-  HapticVector b_, x_rel_, v_next_;
+  HapticVector b_, x_rel_, v_next_, v0_, r_, c_, dv_;
+  HapticRowMatrix W_;  // the triangular factor of I - tau H (TickSolver)
   Eigen::PartialPivLU<HapticMatrix> lu_;
 };
 

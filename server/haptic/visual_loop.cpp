@@ -26,6 +26,7 @@ void fill_contact_flags(const World& world, int h, HapticModel& out) {
 
 void fill_haptic_model(World& world, int h, HandleLinearization& lin, HapticModel& out) {
   out.handles = 0;
+  out.solver.prepared = false;
   WorldHand& hand = world.hand(h);
   fill_contact_flags(world, h, out);
   if (!linearize_next_step(*hand.model, hand.state, *hand.solver, lin)) return;
@@ -40,6 +41,14 @@ void fill_haptic_model(World& world, int h, HandleLinearization& lin, HapticMode
     out.w0[j] = lin.x0[j].w_WH;
   }
   out.handles = m;
+}
+
+bool prepare_for_links(const std::vector<DeviceLink>& links, int h, double haptic_dt_s, HapticModel& model) {
+  model.solver.prepared = false;
+  for (const DeviceLink& link : links)
+    if (link.hand == h && link.handles == model.handles)
+      return prepare_tick_solver(model, link.handles, link.mass_kg, link.inertia_B, link.gains, haptic_dt_s);
+  return false;
 }
 
 HandleTarget proxy_target(const ProxyTargets& targets, int h, int j, std::uint64_t until_ns) {
@@ -96,11 +105,17 @@ void VisualLoop::run(const std::atomic<bool>& stop) {
     if (kLatencyMargin * latency_s > period) ++stats_.late_steps;
     HapticSnapshot& out = snapshots_.back();
     out.hands = std::min(world_.num_hands(), kMaxHands);
+    std::uint64_t prepare_ns = 0;
     for (int h = 0; h < out.hands; ++h) {
       world_.hand(h).state.dt_s = dt;
       fill_haptic_model(world_, h, scratch_, out.model[h]);
       out.model[h].t_end_ns = publish + static_cast<std::uint64_t>(1e9 * dt);
       out.model[h].resyncs = resyncs_seen_[h];
+      if (report_to_ && out.model[h].handles >= kMinPreparedHandles) {
+        const std::uint64_t p0 = protocol::now_ns();
+        prepare_for_links(report_to_->links(), h, report_to_->haptic_period_s(), out.model[h]);
+        prepare_ns += protocol::now_ns() - p0;
+      }
     }
     const std::uint64_t t1 = protocol::now_ns();
     // The next iteration's latency: the slower of this one and a decaying memory of the last.
@@ -110,6 +125,7 @@ void VisualLoop::run(const std::atomic<bool>& stop) {
     stats_.step_us.add(1e-3 * static_cast<double>(t1 - t0));
     stats_.world_us.add(1e-3 * static_cast<double>(t_world - t0));
     stats_.model_us.add(1e-3 * static_cast<double>(t1 - t_world));
+    stats_.prepare_us.add(1e-3 * static_cast<double>(prepare_ns));
     stats_.resets = world_.snapshot().resets;
     stats_.body_resets = world_.snapshot().body_resets;
     stats_.elapsed_s = 1e-9 * static_cast<double>(t1 - start);

@@ -27,6 +27,7 @@ struct VisualStats {
   MicrosecondHistogram step_us;   // the whole iteration: world step and model
   MicrosecondHistogram world_us;  // of which the world step
   MicrosecondHistogram model_us;  // of which the next step's handle-space model
+  MicrosecondHistogram prepare_us;  // of which the haptic tick's prepared solver (prepare_tick_solver), all hands
   double elapsed_s = 0;
 };
 
@@ -34,6 +35,9 @@ struct VisualStats {
 // the step about to be taken from the world's current state; `lin` is scratch),
 // in_contact from the hand's contacts; out.handles = 0 when it cannot.
 void fill_haptic_model(World& world, int h, HandleLinearization& lin, HapticModel& out);
+// Prepares `model`'s tick solver (prepare_tick_solver) for the first of `links` that drives hand h
+// with as many handles, at the haptic period `haptic_dt_s`; false when none does.
+bool prepare_for_links(const std::vector<DeviceLink>& links, int h, double haptic_dt_s, HapticModel& model);
 // Only its contact flags (in_contact, handle_in_contact) from the world's last contacts.
 void fill_contact_flags(const World& world, int h, HapticModel& out);
 

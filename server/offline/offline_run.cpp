@@ -215,6 +215,9 @@ void OfflineLoops::visual_step(double t) {
   // The coming step has the same length; its model is built for it and published `latency` later.
   for (int h = 0; h < world_->num_hands(); ++h) world_->hand(h).state.dt_s = dt;
   build_model(next_);
+  // As VisualLoop::run: the haptic tick's solver of the model, prepared here (a glove's).
+  if (!coupled && next_.handles >= kMinPreparedHandles)
+    prepare_tick_solver(next_, link_.handles, link_.mass_kg, link_.inertia_B, link_.gains, T);
   next_.resyncs = resyncs_seen_;
   next_t_end_s_ = t_read + latency + dt;
   pending_ = true;
@@ -228,6 +231,7 @@ void OfflineLoops::build_model(HapticModel& out) {
     return;
   }
   out.handles = 0;
+  out.solver.prepared = false;
   fill_contact_flags(*world_, link_.hand, out);
   const HandState& s = world_->hand(link_.hand).state;
   const int m = link_.handles;

@@ -5,7 +5,10 @@
 
 #include <cmath>
 #include <numbers>
+#include <random>
 
+#include "allocation_counter.hpp"
+#include "hand_models/rigid_handle.hpp"
 #include "server/haptic/virtual_coupling.hpp"
 #include "server/haptic/visual_loop.hpp"
 #include "server/world/scene_loader.hpp"
@@ -377,6 +380,200 @@ TEST(VirtualCoupling, TheSafeModelIsPassiveAtEveryBlend) {
       EXPECT_EQ(p.clamps(), 0);
     }
   }
+}
+
+// --- The prepared tick solver (prepare_tick_solver) against the dense LU ---------------------------
+
+// A glove's 16 handles: phalanx-like masses and anisotropic inertias, a device of 300 N/m at 1 kHz,
+// and a random model shaped as the flesh's: K = -(S S^T) - a skew part of a tenth (contact friction
+// makes it unsymmetric), D = -(T T^T) / 1000, so that h tau K is several times the proxies' mass.
+struct GloveModelCase {
+  static constexpr int kHandles = 16;
+  double mass[kHandles];
+  Eigen::Matrix3d inertia[kHandles];
+  CouplingGains gains = coupling_gains_for(300.0, 1.0, kPeriod);
+  HapticModel model;
+  explicit GloveModelCase(unsigned seed) {
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    const int n = 6 * kHandles;
+    for (int j = 0; j < kHandles; ++j) {
+      mass[j] = 2.5e-3 * (1.5 + u(rng));
+      const Eigen::Quaterniond q = Eigen::Quaterniond::UnitRandom();
+      const Eigen::Vector3d principal(1.1e-7 * (1.2 + u(rng)), 2.2e-7 * (1.2 + u(rng)), 2.2e-7 * (1.2 + u(rng)));
+      inertia[j] = q * principal.asDiagonal() * q.conjugate().toRotationMatrix();
+      inertia[j] = 0.5 * (inertia[j] + inertia[j].transpose()).eval();
+    }
+    HapticMatrix S(n, n), T(n, n), Q(n, n);
+    for (int r = 0; r < n; ++r)
+      for (int c = 0; c < n; ++c) S(r, c) = u(rng), T(r, c) = u(rng), Q(r, c) = u(rng);
+    // Rotational rows and columns a lever of ~2 cm below the translational ones (N m/rad vs N/m).
+    HapticVector scale(n);
+    for (int i = 0; i < n; ++i) scale(i) = i % 6 < 3 ? 1.0 : 0.02;
+    S = scale.asDiagonal() * S;
+    T = scale.asDiagonal() * T;
+    model.handles = kHandles;
+    model.K = -(40.0 * S * S.transpose()) - 4.0 * scale.asDiagonal() * (Q - Q.transpose()) * scale.asDiagonal();
+    model.D = -(0.04 * T * T.transpose());
+    model.F0 = HapticVector::Zero(n);
+    for (int i = 0; i < n; ++i) model.F0(i) = 0.2 * scale(i) * u(rng);
+    for (int j = 0; j < kHandles; ++j) {
+      model.x0[j] = {Eigen::Vector3d(0.02 * j, 0.01 * u(rng), 0), Eigen::Quaterniond::UnitRandom()};
+      model.v0[j].setZero();
+      model.w0[j].setZero();
+    }
+  }
+  ProxyHand proxy() const {
+    ProxyHand p;
+    p.configure(kHandles, mass, inertia, gains, {100.0, 100.0, 1e9}, {});
+    return p;
+  }
+  bool prepare(HapticModel& m) const { return prepare_tick_solver(m, kHandles, mass, inertia, gains, kPeriod); }
+};
+
+// Handle j's device at time t: each handle 2 mm about its anchor's start and turning about an axis
+// of its own by up to `turn_rad` at 5 rad/s, so the proxies' orientations leave the model's reference.
+void drive(ProxyHand& p, const HapticPose* start, double t, double turn_rad = 0.3) {
+  for (int j = 0; j < GloveModelCase::kHandles; ++j) {
+    const Eigen::Vector3d axis = Eigen::Vector3d(1.0, 0.3 * j, -0.2 * j).normalized();
+    p.set_device_pose(j, start[j].p_W + 0.002 * Eigen::Vector3d(std::sin(9 * t + j), std::cos(7 * t), std::sin(5 * t)),
+                      Eigen::Quaterniond(Eigen::AngleAxisd(turn_rad * std::sin(5 * t), axis)) * start[j].q_W);
+  }
+  p.commit_sample(t, 0.05);
+}
+
+// The visual loop's next model: anchored where the reference proxies will be at its step's end.
+void follow(HapticModel& m, const ProxyHand& p, double step_s) {
+  for (int j = 0; j < GloveModelCase::kHandles; ++j) {
+    m.x0[j] = {p.proxy(j).p_W + step_s * p.proxy_velocity(j),
+               rotate_by(p.proxy(j).q_W, step_s * p.proxy_angular_velocity(j))};
+    m.v0[j] = p.proxy_velocity(j);
+    m.w0[j] = p.proxy_angular_velocity(j);
+  }
+}
+
+// Largest difference of the two proxies' states over their largest magnitude, per quantity:
+// velocities against the largest velocity, poses against the largest distance and angle from `start`.
+double state_difference(const ProxyHand& a, const ProxyHand& b, const HapticPose* start) {
+  double dp = 0, dq = 0, dv = 0, dw = 0, v = 0, w = 0, p = 0, q = 0;
+  for (int j = 0; j < GloveModelCase::kHandles; ++j) {
+    p = std::max(p, (b.proxy(j).p_W - start[j].p_W).norm());
+    q = std::max(q, b.proxy(j).q_W.angularDistance(start[j].q_W));
+    dp = std::max(dp, (a.proxy(j).p_W - b.proxy(j).p_W).norm());
+    dq = std::max(dq, a.proxy(j).q_W.angularDistance(b.proxy(j).q_W));
+    dv = std::max(dv, (a.proxy_velocity(j) - b.proxy_velocity(j)).norm());
+    dw = std::max(dw, (a.proxy_angular_velocity(j) - b.proxy_angular_velocity(j)).norm());
+    v = std::max(v, b.proxy_velocity(j).norm());
+    w = std::max(w, b.proxy_angular_velocity(j).norm());
+  }
+  return std::max({dv / v, dw / w, dp / p, dq / q});
+}
+
+// 400 ticks of a glove under a model refreshed every 16 ticks (as the visual loop at 60 Hz), the
+// lookahead running down from 16 ms each time: the prepared solve and the dense LU of the same
+// systems agree to 1e-10 (both solve to ~1e-13 of the right-hand side; the difference grows only
+// through the proxies' dynamics), and the prepared run never fell back.
+TEST(VirtualCoupling, PreparedTickSolverMatchesTheDenseLuOnAGloveModel) {
+  const GloveModelCase c(7);
+  ProxyHand prepared = c.proxy(), plain = c.proxy();
+  HapticModel with = c.model, without = c.model;
+  HapticPose start[GloveModelCase::kHandles];
+  for (int j = 0; j < GloveModelCase::kHandles; ++j) start[j] = c.model.x0[j];
+  double worst = 0, t = 0;
+  for (int k = 0; k < 400; ++k) {
+    t += kPeriod;
+    drive(prepared, start, t);
+    drive(plain, start, t);
+    if (k % 16 == 0) {
+      if (k > 0) follow(without, plain, 0.016);
+      with = without;
+      ASSERT_TRUE(c.prepare(with));
+      ASSERT_FALSE(without.solver.prepared);
+    }
+    const double lookahead = 0.016 - kPeriod * (k % 16);
+    prepared.integrate(with, kPeriod, lookahead);
+    plain.integrate(without, kPeriod, lookahead);
+    worst = std::max(worst, state_difference(prepared, plain, start));
+  }
+  std::printf("largest relative difference of the proxies' states: %.2e\n", worst);
+  ASSERT_EQ(prepared.resets(), 0);
+  EXPECT_EQ(prepared.solver_fallbacks(), 0);
+  EXPECT_EQ(plain.solver_fallbacks(), 400);  // no prepared solver: every tick on the LU
+  EXPECT_LT(worst, 1e-10);
+  // The proxies did move and turn: the comparison means something.
+  EXPECT_GT(plain.proxy_angular_velocity(3).norm(), 0.1);
+  EXPECT_GT(plain.proxy_velocity(3).norm(), 1e-3);
+}
+
+// A fading model (weight < 1) and a model prepared for another device's gains take the dense LU:
+// counted, and the same answer as the unprepared model's, bit for bit.
+TEST(VirtualCoupling, PreparedTickSolverFallsBackOnAFadeOrOtherGains) {
+  const GloveModelCase c(11);
+  HapticModel with = c.model, other = c.model;
+  ASSERT_TRUE(c.prepare(with));
+  CouplingGains stiffer = c.gains;
+  stiffer.k_n_m *= 2;
+  ASSERT_TRUE(prepare_tick_solver(other, GloveModelCase::kHandles, c.mass, c.inertia, stiffer, kPeriod));
+  ProxyHand faded = c.proxy(), mismatched = c.proxy(), plain = c.proxy();
+  HapticPose start[GloveModelCase::kHandles];
+  for (int j = 0; j < GloveModelCase::kHandles; ++j) start[j] = c.model.x0[j];
+  double t = 0;
+  for (int k = 0; k < 50; ++k) {
+    t += kPeriod;
+    drive(faded, start, t);
+    drive(mismatched, start, t);
+    drive(plain, start, t);
+    const double weight = 1.0 - 0.01 * (k + 1);
+    faded.integrate(with, kPeriod, 0.01, weight);
+    mismatched.integrate(other, kPeriod, 0.01, weight);
+    plain.integrate(c.model, kPeriod, 0.01, weight);
+  }
+  EXPECT_EQ(faded.solver_fallbacks(), 50);
+  EXPECT_EQ(mismatched.solver_fallbacks(), 50);
+  EXPECT_EQ(state_difference(faded, plain, start), 0.0);
+  EXPECT_EQ(state_difference(mismatched, plain, start), 0.0);
+  // At full weight, the mismatched model falls back as well and still matches.
+  mismatched.integrate(other, kPeriod, 0.01);
+  plain.integrate(c.model, kPeriod, 0.01);
+  EXPECT_EQ(mismatched.solver_fallbacks(), 51);
+  EXPECT_EQ(state_difference(mismatched, plain, start), 0.0);
+}
+
+// The haptic thread's step does not touch the heap on the prepared path (nor does preparing a model
+// twice reuse anything the tick holds).
+TEST(VirtualCoupling, PreparedTickSolverDoesNotAllocate) {
+  const GloveModelCase c(3);
+  HapticModel with = c.model;
+  ASSERT_TRUE(c.prepare(with));
+  ProxyHand p = c.proxy();
+  HapticPose start[GloveModelCase::kHandles];
+  for (int j = 0; j < GloveModelCase::kHandles; ++j) start[j] = c.model.x0[j];
+  double t = 0;
+  const long allocations = testing_util::allocations_in([&] {
+    for (int k = 0; k < 100; ++k) {
+      t += kPeriod;
+      drive(p, start, t, 0.02);  // the model is not refreshed here: within ~0.02 rad of its anchor
+      p.integrate(with, kPeriod, 0.016 - kPeriod * (k % 16));
+    }
+  });
+  EXPECT_EQ(allocations, 0);
+  EXPECT_EQ(p.solver_fallbacks(), 0);
+  EXPECT_EQ(p.resets(), 0);
+}
+
+// Fewer handles than kMinPreparedHandles, a model of another size or a non-finite one: not prepared.
+TEST(VirtualCoupling, PrepareTickSolverRefusesWhatItCannotServe) {
+  const GloveModelCase c(5);
+  HapticModel m = c.model;
+  EXPECT_FALSE(prepare_tick_solver(m, 15, c.mass, c.inertia, c.gains, kPeriod));
+  EXPECT_FALSE(m.solver.prepared);
+  m.K(3, 4) = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_FALSE(c.prepare(m));
+  HapticModel stylus = wall_model(3000.0);
+  const double mass = 0.05;
+  const Eigen::Matrix3d inertia = 4.5e-6 * Eigen::Matrix3d::Identity();
+  EXPECT_FALSE(prepare_tick_solver(stylus, 1, &mass, &inertia, c.gains, kPeriod));
+  EXPECT_FALSE(stylus.solver.prepared);
 }
 
 }  // namespace
