@@ -9,6 +9,7 @@
 #include <boost/asio/ip/udp.hpp>
 #include <chrono>
 #include <cmath>
+#include <memory>
 #include <thread>
 
 #include "allocation_counter.hpp"
@@ -54,7 +55,10 @@ struct RunningServer {
   // for the device `link`.
   explicit RunningServer(const ServerOptions& options = {}, bool visual = true,
                          HapticSnapshot (*world_fn)() = wall_snapshot, const DeviceLink& link = stylus_link())
-      : world(world_fn), snapshots(world_fn()), server({link}, options, snapshots, targets) {
+      : world(world_fn),
+        snapshots_storage(std::make_unique<TripleBuffer<HapticSnapshot>>(world_fn())),
+        snapshots(*snapshots_storage),
+        server({link}, options, snapshots, targets) {
     thread = std::thread([this] {
       testing_util::count_allocations_on_this_thread(true);
       server.run(stop);
@@ -78,7 +82,10 @@ struct RunningServer {
     if (visual_thread.joinable()) visual_thread.join();
   }
   HapticSnapshot (*world)();
-  TripleBuffer<HapticSnapshot> snapshots;
+  // Three snapshots of four hands' models are 4 MB: on the heap, as hapticd keeps them, not on a
+  // test's stack (two servers in one test overflowed it under ASan).
+  std::unique_ptr<TripleBuffer<HapticSnapshot>> snapshots_storage;
+  TripleBuffer<HapticSnapshot>& snapshots;
   TripleBuffer<ProxyTargets> targets;
   HapticServer server;
   std::atomic<bool> stop{false};

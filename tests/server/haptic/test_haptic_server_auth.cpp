@@ -311,7 +311,8 @@ TEST(HapticServerAuth, ANewHelloReplacesItsPeersSessionOnlyOnceItsClientProvesTh
 }
 
 TEST(HapticServerAuth, WithoutAKeyOnlyLoopbackIsServedUnlessTheOperatorInsists) {
-  TripleBuffer<HapticSnapshot> snapshots;
+  auto snapshots_storage = std::make_unique<TripleBuffer<HapticSnapshot>>();  // 4 MB: off the stack
+  TripleBuffer<HapticSnapshot>& snapshots = *snapshots_storage;
   TripleBuffer<ProxyTargets> targets;
   const auto error_for = [&](const ServerOptions& o) -> std::string {
     try {
