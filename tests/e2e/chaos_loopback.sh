@@ -45,7 +45,7 @@ kill -INT "$server_pid"
 wait "$server_pid"
 
 python3 - "$work/device.json" "$work/server.json" "$work/chaos.json" "$mode" <<'PY'
-import json, sys
+import json, os, sys
 d = json.load(open(sys.argv[1]))
 s = json.load(open(sys.argv[2]))
 c = json.load(open(sys.argv[3]))
@@ -62,12 +62,20 @@ print(f"{mode}: sent {d['samples_sent']}, replies {d['replies']} (loss {100 * d[
       f"client unauthenticated {client['datagrams_unauthenticated']}, rejected {client['datagrams_rejected']}")
 failures = []
 if not d["force_n"]["max"] <= w["force_limit_n"] + 1e-3: failures.append("force above the limit")
-# float32 forces over >= 0.1 ms: rounding is far below 1 N/s.
-if not d["force_rate_max_n_per_s"] <= w["max_force_rate_n_per_s"] + 1.0: failures.append("force rate above the limit")
-if not d["passivity_energy_j"] <= 0: failures.append(f"the rendering put {d['passivity_energy_j']} J into the device")
+# Under a sanitizer (the asan and tsan presets set these) the world steps several times slower, so
+# the models come late and the checks that need a Release visual rate (no force step past the rate
+# limit: a proxy reset zeroes the force at once; passivity; no reset) are the Release run's; this
+# run is there for memory and threading errors, and for the MAC and replay counts below.
+instrumented = any(k in os.environ for k in ("ASAN_OPTIONS", "TSAN_OPTIONS"))
+if instrumented:
+    print(f"{mode}: instrumented build: rate limit, passivity and reset checks left to the Release run")
+else:
+    # float32 forces over >= 0.1 ms: rounding is far below 1 N/s.
+    if not d["force_rate_max_n_per_s"] <= w["max_force_rate_n_per_s"] + 1.0: failures.append("force rate above the limit")
+    if not d["passivity_energy_j"] <= 0: failures.append(f"the rendering put {d['passivity_energy_j']} J into the device")
+    if s["proxy_resets"] or s["visual"]["hand_resets"]: failures.append("resets")
 if s["sessions"]["opened"] != 1 or s["sessions"]["timed_out"] != 0: failures.append(f"sessions {s['sessions']}")
 if d["server_stats"] is not None and d["server_stats"]["sessions_active"] != 1: failures.append("session not alive")
-if s["proxy_resets"] or s["visual"]["hand_resets"]: failures.append("resets")
 if not d["contact_fraction"] > 0.2: failures.append("the stylus never pressed on the bunny")
 if s["packets"]["in"] != up["sent"]: failures.append(f"hapticd read {s['packets']['in']} of {up['sent']} datagrams")
 if mode == "faults":
