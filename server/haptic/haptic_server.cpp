@@ -225,6 +225,7 @@ void HapticServer::run(const std::atomic<bool>& stop) {
   for (int i = 0; i < kMaxSessions; ++i) {
     st.clamps += static_cast<std::uint64_t>(sessions_[i].proxy.clamps());
     st.resets += static_cast<std::uint64_t>(sessions_[i].proxy.resets());
+    st.solver_fallbacks += static_cast<std::uint64_t>(sessions_[i].proxy.solver_fallbacks());
   }
   st.rate_sources_evicted = limiter_->evictions();
 }
@@ -608,6 +609,7 @@ void HapticServer::confirm(Session& s) {
 void HapticServer::close(Session& s) {
   stats_->clamps += static_cast<std::uint64_t>(s.proxy.clamps());
   stats_->resets += static_cast<std::uint64_t>(s.proxy.resets());
+  stats_->solver_fallbacks += static_cast<std::uint64_t>(s.proxy.solver_fallbacks());
   s = Session{};
 }
 

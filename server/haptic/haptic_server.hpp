@@ -86,6 +86,8 @@ struct ServerStats {
   std::uint64_t unknown_session = 0, wrong_peer = 0, duplicates = 0, stale = 0, gaps = 0;
   std::uint64_t frames_lost = 0;  // tracked frames left out of pose samples (lost tracking), summed
   std::uint64_t clamps = 0, resets = 0, resyncs = 0, overruns = 0, ticks = 0, replies = 0;
+  // Ticks of a glove-sized model the dense LU solved instead of its prepared solver (ProxyHand::solver_fallbacks).
+  std::uint64_t solver_fallbacks = 0;
   std::uint64_t sessions_opened = 0, sessions_closed = 0, sessions_timed_out = 0, send_errors = 0;
   // Sessions replaced by the same peer's newer one; pending sessions never confirmed (a key only).
   std::uint64_t sessions_replaced = 0, pending_expired = 0;
