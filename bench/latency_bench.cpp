@@ -97,7 +97,8 @@ Phase run_phase(const std::string& name, const std::string& binary, const std::v
         const std::string client_name = "haptic-bench-latency-" + std::to_string(i);
         const protocol::Welcome w = client.connect(
             address.host, address.port,
-            is_glove(a, i) ? sim::glove_hello(sim::kGloveFramesAll, client_name, a.rate_hz)
+            is_glove(a, i) ? sim::glove_hello(sim::kGloveFramesAll, client_name, a.rate_hz,
+                                              i % 2 == 1 ? protocol::Hand::kLeft : protocol::Hand::kRight)
                            : stylus_hello(client_name, a.rate_hz),
             2s);
         ok = w.rate_hz == a.rate_hz;

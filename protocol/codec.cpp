@@ -142,6 +142,7 @@ RejectReason read(const wire::Hello& w, Hello& m) noexcept {
     if (!copy_string(f.name(), m.frames[i].name)) return RejectReason::kFieldTooLong;
   }
   m.requested_rate_hz = w.requested_rate_hz();
+  m.hand = static_cast<Hand>(w.hand());
   const auto* credentials = w.credentials();
   if (!m.credentials.assign(credentials != nullptr ? std::span(credentials->data(), credentials->size())
                                                    : std::span<const std::uint8_t>())) {
@@ -320,6 +321,7 @@ RejectReason read_message(const wire::Message& message, Message& out) noexcept {
 RejectReason validate(const Hello& m) noexcept {
   if (check_name(m.client_name.view()) != RejectReason::kNone) return RejectReason::kBadString;
   if (m.device_kind != DeviceKind::kStylus && m.device_kind != DeviceKind::kGlove) return RejectReason::kBadDeviceKind;
+  if (m.hand != Hand::kUnspecified && m.hand != Hand::kLeft && m.hand != Hand::kRight) return RejectReason::kBadDeviceKind;
   if (!frame_count_ok(m.frames)) return RejectReason::kBadCount;
   if (!ids_increasing(m.frames, [](const TrackedFrame& f) { return f.id; })) {
     return RejectReason::kFrameIdsNotIncreasing;
@@ -486,7 +488,7 @@ EncodeResult Encoder::encode(const Hello& m) noexcept {
   const auto credentials =
       m.credentials.empty() ? 0 : b.CreateVector(m.credentials.span().data(), m.credentials.size());
   const auto body = wire::CreateHello(b, name, static_cast<wire::DeviceKind>(m.device_kind), frames_vector,
-                                      m.requested_rate_hz, credentials);
+                                      m.requested_rate_hz, credentials, static_cast<wire::Hand>(m.hand));
   return impl_->finish(wire::Body::Hello, body.Union());
 }
 

@@ -40,6 +40,18 @@ std::string_view to_string(DeviceKind kind) noexcept {
   return "unknown";
 }
 
+std::string_view to_string(Hand hand) noexcept {
+  switch (hand) {
+    case Hand::kUnspecified:
+      return "unspecified";
+    case Hand::kLeft:
+      return "left";
+    case Hand::kRight:
+      return "right";
+  }
+  return "unknown";
+}
+
 std::string_view to_string(ErrorCode code) noexcept {
   switch (code) {
     case ErrorCode::kUnspecified:

@@ -33,6 +33,8 @@ enum class MessageType : std::uint8_t {
 };
 
 enum class DeviceKind : std::uint8_t { kUnspecified = 0, kStylus = 1, kGlove = 2 };
+// A glove's hand; unspecified: any hand (a stylus, or a client that does not say).
+enum class Hand : std::uint8_t { kUnspecified = 0, kLeft = 1, kRight = 2 };
 
 // Unknown codes from a newer peer are kept as their number, not rejected.
 enum class ErrorCode : std::uint16_t {
@@ -85,6 +87,7 @@ struct Hello {
   std::uint32_t requested_rate_hz = 1000;
   // Opaque to the codec; with authentication, the client's kNonceBytes nonce (auth.hpp).
   BoundedArray<std::uint8_t, kMaxCredentials> credentials;
+  Hand hand = Hand::kUnspecified;
   bool operator==(const Hello&) const = default;
 };
 
@@ -206,6 +209,7 @@ struct Message {
 
 std::string_view to_string(MessageType type) noexcept;
 std::string_view to_string(DeviceKind kind) noexcept;
+std::string_view to_string(Hand hand) noexcept;
 std::string_view to_string(ErrorCode code) noexcept;
 
 }  // namespace hapticd::protocol

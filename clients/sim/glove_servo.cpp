@@ -7,12 +7,13 @@
 
 namespace hapticd::sim {
 
-protocol::Hello glove_hello(int frames, std::string_view client_name, std::uint32_t rate_hz) {
+protocol::Hello glove_hello(int frames, std::string_view client_name, std::uint32_t rate_hz, protocol::Hand hand) {
   if (!valid_glove_frame_count(frames))
     throw std::invalid_argument("a glove tracks 16 or 6 frames, not " + std::to_string(frames));
   protocol::Hello hello;
   hello.device_kind = protocol::DeviceKind::kGlove;
   hello.requested_rate_hz = rate_hz;
+  hello.hand = hand;
   if (!hello.client_name.assign(client_name)) throw std::invalid_argument("client name longer than 64 bytes");
   for (int id = 0; id < frames; ++id) {
     protocol::TrackedFrame frame;

@@ -17,7 +17,8 @@ namespace hapticd::sim {
 // A glove's Hello: kind Glove, frames ids 0 .. frames-1 (16 or 6, glove_model.hpp), 6 DoF, named
 // glove_frame_name() ("palm", "thumb_proximal", ...). Throws std::invalid_argument for another
 // frame count or a client name the protocol refuses.
-protocol::Hello glove_hello(int frames, std::string_view client_name, std::uint32_t rate_hz);
+protocol::Hello glove_hello(int frames, std::string_view client_name, std::uint32_t rate_hz,
+                            protocol::Hand hand = protocol::Hand::kUnspecified);
 
 // One tick of a glove run, for --trace.
 struct GloveTraceRow {

@@ -220,7 +220,9 @@ int main(int argc, char** argv) {
       if (damping_option->count() == 0) params.arm_damping_n_s_per_m = palm_defaults.arm_damping_n_s_per_m;
       if (device_damping_option->count() == 0) params.device_damping_n_s_per_m = palm_defaults.device_damping_n_s_per_m;
       try {
-        hello = sim::glove_hello(frames, client_name, rate_hz);
+        // The Hello names the hand, so hapticd binds the glove to a device on a hand of that side.
+        hello = sim::glove_hello(frames, client_name, rate_hz,
+                                 hand == "left" ? protocol::Hand::kLeft : protocol::Hand::kRight);
       } catch (const std::invalid_argument& e) {
         throw CLI::ValidationError("--name", e.what());
       }

@@ -14,6 +14,7 @@ DeviceLink make_device_link(const World& world, const DeviceDesc& d, double hapt
   link.hand = world.find_hand(d.hand);
   if (link.hand < 0) throw std::runtime_error("devices." + d.name + ": no hand named " + d.hand);
   const WorldHand& hand = world.hand(link.hand);
+  link.left = hand.left;
   const HandModel& model = *hand.model;
   link.handles = model.num_handles();
   if (link.handles > kMaxHapticHandles)

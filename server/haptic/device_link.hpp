@@ -17,6 +17,7 @@ struct DeviceLink {
   std::string name;
   protocol::DeviceKind kind = protocol::DeviceKind::kStylus;
   int hand = 0;
+  bool left = false;  // the hand's side: a Hello naming a hand binds only to a link on a hand of that side
   int handles = 1;
   double mass_kg[kMaxHapticHandles]{};
   Eigen::Matrix3d inertia_B[kMaxHapticHandles];

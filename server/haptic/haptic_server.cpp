@@ -525,6 +525,8 @@ void HapticServer::on_hello(const protocol::Hello& hello, const protocol::Nonce*
   int best = -1, best_users = kMaxSessions + 1;
   for (size_t l = 0; l < links_.size(); ++l) {
     if (links_[l].kind != hello.device_kind || links_[l].handles != static_cast<int>(hello.frames.size())) continue;
+    // A glove that names its hand binds to a device on a hand of that side only.
+    if (hello.hand != protocol::Hand::kUnspecified && links_[l].left != (hello.hand == protocol::Hand::kLeft)) continue;
     int users = 0;
     for (int i = 0; i < kMaxSessions; ++i) {
       const Session& o = sessions_[i];
@@ -534,7 +536,10 @@ void HapticServer::on_hello(const protocol::Hello& hello, const protocol::Nonce*
   }
   if (best < 0) {
     send_error(protocol::ErrorCode::kUnsupportedDevice,
-               "the scene has no device of this kind with one handle per tracked frame");
+               hello.hand == protocol::Hand::kUnspecified ? "the scene has no device of this kind with one handle per tracked frame"
+               : hello.hand == protocol::Hand::kLeft
+                   ? "the scene has no device of this kind on a left hand with one handle per tracked frame"
+                   : "the scene has no device of this kind on a right hand with one handle per tracked frame");
     return;
   }
   // Without a key the same peer saying hello again replaces its session at once (in its slot).

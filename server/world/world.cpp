@@ -72,6 +72,7 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
     ProceduralHandOptions shape_options;
     shape_options.target_tets = d.resolution_tets;
     shape_options.left = d.side == HandSide::left;
+    h->left = shape_options.left;
     // A hand driven by more than its palm (a glove) needs fingers that move on their own.
     shape_options.separate_fingers = d.handles != HandleSet::palm;
     h->shape = make_procedural_hand(shape_options);

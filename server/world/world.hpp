@@ -61,6 +61,7 @@ struct WorldOptions {
 
 struct WorldHand {
   std::string name;
+  bool left = false;  // the scene's side: a left hand (the mirror image)
   ProceduralHand shape;  // mesh, skeleton and the skin used for contact
   std::unique_ptr<HandModel> model;
   std::vector<int> skin_handle;  // per skin vertex, the handle of its part (procedural_skin_handles)

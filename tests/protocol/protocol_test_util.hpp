@@ -70,6 +70,7 @@ inline Hello sample_hello(std::size_t frames = 20) {
   Hello m;
   m.client_name = "glove-left #7";
   m.device_kind = DeviceKind::kGlove;
+  m.hand = Hand::kLeft;
   for (std::size_t i = 0; i < frames; ++i) {
     TrackedFrame f;
     f.id = static_cast<std::uint16_t>(3 * i + 1);
@@ -262,7 +263,8 @@ struct RawFrame {
 
 inline AlignedBytes craft_hello(const std::string& client_name, wire::DeviceKind kind,
                                 const std::vector<RawFrame>& frames, std::uint32_t rate_hz,
-                                std::size_t credential_bytes = 0, std::uint16_t version = kProtocolVersion) {
+                                std::size_t credential_bytes = 0, std::uint16_t version = kProtocolVersion,
+                                wire::Hand hand = wire::Hand::Unspecified) {
   return craft(
       [&](flatbuffers::FlatBufferBuilder& b) {
         std::vector<flatbuffers::Offset<wire::TrackedFrame>> offsets;
@@ -275,7 +277,7 @@ inline AlignedBytes craft_hello(const std::string& client_name, wire::DeviceKind
         const std::vector<std::uint8_t> credentials(credential_bytes, 0xA5);
         const auto credentials_vector = credential_bytes > 0 ? b.CreateVector(credentials) : 0;
         return std::pair{wire::Body::Hello,
-                         wire::CreateHello(b, name, kind, frames_vector, rate_hz, credentials_vector).Union()};
+                         wire::CreateHello(b, name, kind, frames_vector, rate_hz, credentials_vector, hand).Union()};
       },
       version);
 }

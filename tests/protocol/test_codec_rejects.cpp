@@ -418,6 +418,25 @@ TEST(CodecRejects, UnspecifiedOrUnknownDeviceKind) {
   }
 }
 
+// The hand a glove names: absent (an older client) reads as unspecified; a value past Right is refused.
+TEST(CodecRejects, UnknownHand) {
+  for (const int hand : {0, 1, 2}) {
+    const auto bytes = test::craft_hello("glove", wire::DeviceKind::Glove, glove_frames(), 1000, 0, kProtocolVersion,
+                                         static_cast<wire::Hand>(hand));
+    const DecodeResult r = decode_bytes(bytes);
+    ASSERT_TRUE(r.ok()) << hand;
+  }
+  for (const int hand : {3, 255}) {
+    const auto bytes = test::craft_hello("glove", wire::DeviceKind::Glove, glove_frames(), 1000, 0, kProtocolVersion,
+                                         static_cast<wire::Hand>(hand));
+    EXPECT_EQ(decode_bytes(bytes).reason, RejectReason::kBadDeviceKind) << hand;
+  }
+  Hello hello = test::sample_hello();
+  hello.hand = static_cast<Hand>(3);
+  Encoder encoder;
+  EXPECT_EQ(encoder.encode(hello).reason, RejectReason::kBadDeviceKind);
+}
+
 TEST(CodecRejects, StringsAndBytesLongerThanTheirBounds) {
   const auto hello = [](std::size_t name, std::size_t frame_name, std::size_t credentials) {
     std::vector<RawFrame> frames = test::raw_frames(2);

@@ -39,6 +39,7 @@ TEST(CodecRoundTrip, HelloKeepsEveryField) {
   const Hello out = round_trip(in, MessageType::kHello).hello;
   EXPECT_EQ(out.client_name.view(), "glove-left #7");
   EXPECT_EQ(out.device_kind, DeviceKind::kGlove);
+  EXPECT_EQ(out.hand, Hand::kLeft);
   ASSERT_EQ(out.frames.size(), 20u);
   for (std::size_t i = 0; i < 20; ++i) {
     EXPECT_EQ(out.frames[i].id, 3 * i + 1);

@@ -1,12 +1,15 @@
 // A glove's frames on the wire: a pose sample that leaves a frame out (its
 // tracking failed: the client library drops a non-finite frame) holds that
 // frame and ramps its force to zero while the other frames keep rendering;
-// a first sample must carry every frame.
+// a first sample must carry every frame. A glove Hello that names its hand binds to a device on a
+// hand of that side.
 #include <gtest/gtest.h>
 
 #include <array>
+#include <atomic>
 #include <chrono>
 #include <cmath>
+#include <memory>
 #include <thread>
 
 #include "haptic_server_test_util.hpp"
@@ -55,9 +58,16 @@ DeviceLink glove_link() {
 struct GloveClient : TestClient {
   using TestClient::TestClient;
   void hello_glove() {
+    const Message m = say_hello(protocol::Hand::kUnspecified);
+    ASSERT_EQ(m.type, MessageType::kWelcome);
+    session = m.welcome.session_id;
+  }
+  // A glove Hello naming `hand`; the server's answer.
+  Message say_hello(protocol::Hand hand) {
     protocol::Hello h;
     h.client_name.assign("glove");
     h.device_kind = protocol::DeviceKind::kGlove;
+    h.hand = hand;
     for (int j = 0; j < kFrames; ++j) {
       protocol::TrackedFrame f;
       f.id = static_cast<std::uint16_t>(10 + j);
@@ -65,9 +75,7 @@ struct GloveClient : TestClient {
       h.frames.push_back(f);
     }
     send(h);
-    const Message m = receive(1000);
-    ASSERT_EQ(m.type, MessageType::kWelcome);
-    session = m.welcome.session_id;
+    return receive(1000);
   }
   // Every frame 4 mm into the wall, except `lost` (left out); the z forces of the reply per
   // frame (NaN: no reply, or the frame not in it).
@@ -121,6 +129,54 @@ TEST(HapticServerFrames, ALostFrameRampsToZeroWhileTheOthersKeepRendering) {
   s.halt();
   EXPECT_EQ(s.server.stats().frames_lost, 300u);
   EXPECT_EQ(s.server.stats().resets, 0u);
+}
+
+TEST(HapticServerFrames, AGloveThatNamesItsHandBindsToADeviceOnAHandOfThatSide) {
+  // The right glove's device is listed first: a left glove used to take it when it was free.
+  DeviceLink right = glove_link(), left = glove_link();
+  right.hand = 0, right.left = false;
+  left.hand = 1, left.left = true;
+  auto snapshots = std::make_unique<TripleBuffer<HapticSnapshot>>();
+  TripleBuffer<ProxyTargets> targets;
+  HapticServer server({right, left}, ServerOptions{}, *snapshots, targets);
+  std::atomic<bool> stop{false};
+  std::thread haptic([&] { server.run(stop); });
+  // Which hands the sessions drive once they have sent a pose, as the visual loop reads it.
+  auto driven_after_a_pose = [&](GloveClient& c, std::uint64_t seq) {
+    (void)c.press(-1, seq);
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));  // ticks publish the targets
+    targets.update();
+    return std::array<bool, 2>{targets.front().driven[0], targets.front().driven[1]};
+  };
+  GloveClient left_glove(server.port());
+  Message m = left_glove.say_hello(protocol::Hand::kLeft);
+  ASSERT_EQ(m.type, MessageType::kWelcome);
+  left_glove.session = m.welcome.session_id;
+  EXPECT_EQ(driven_after_a_pose(left_glove, 1), (std::array<bool, 2>{false, true}));
+  GloveClient right_glove(server.port());
+  m = right_glove.say_hello(protocol::Hand::kRight);
+  ASSERT_EQ(m.type, MessageType::kWelcome);
+  right_glove.session = m.welcome.session_id;
+  EXPECT_EQ(driven_after_a_pose(right_glove, 1), (std::array<bool, 2>{true, true}));
+  stop = true;
+  haptic.join();
+}
+
+TEST(HapticServerFrames, AGloveOfASideTheSceneDoesNotHaveIsRefusedWithTheReason) {
+  auto snapshots = std::make_unique<TripleBuffer<HapticSnapshot>>();
+  TripleBuffer<ProxyTargets> targets;
+  HapticServer server({glove_link()}, ServerOptions{}, *snapshots, targets);  // a right hand's
+  std::atomic<bool> stop{false};
+  std::thread haptic([&] { server.run(stop); });
+  GloveClient c(server.port());
+  const Message m = c.say_hello(protocol::Hand::kLeft);
+  ASSERT_EQ(m.type, MessageType::kError);
+  EXPECT_EQ(m.error.code, protocol::ErrorCode::kUnsupportedDevice);
+  EXPECT_NE(m.error.message.view().find("left hand"), std::string_view::npos) << m.error.message.view();
+  EXPECT_EQ(c.say_hello(protocol::Hand::kRight).type, MessageType::kWelcome);
+  EXPECT_EQ(c.say_hello(protocol::Hand::kUnspecified).type, MessageType::kWelcome) << "a glove that does not say";
+  stop = true;
+  haptic.join();
 }
 
 }  // namespace
