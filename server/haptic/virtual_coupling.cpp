@@ -17,7 +17,7 @@ constexpr double kVelocityFilter = 0.6;
 // The prepared solve's refinement: until the residual is this small against the right-hand side, at
 // most this many corrections (then the dense LU).
 constexpr double kRefineTolerance = 1e-12;
-constexpr int kMaxRefinements = 3;
+constexpr int kMaxRefinements = 6;
 
 // Limits |v| to `limit`; true if it had to.
 bool clamp_norm(Eigen::Vector3d& v, double limit) {
