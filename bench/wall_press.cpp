@@ -62,30 +62,18 @@ SimulatedStylus press_stylus(const OfflineLoops& loops, const PressProfile& pres
 }
 
 PressRun run_press(OfflineLoops& loops, OfflineDevice& device, long ticks, const PressProfile& press) {
-  if (device.frames() != loops.link().handles) throw std::invalid_argument("press: device frames != hand handles");
   PressRun run;
-  OfflineTrace& trace = run.trace;
-  trace.poses.resize(static_cast<std::size_t>(ticks));
-  trace.replies.resize(static_cast<std::size_t>(ticks));
   const int every = loops.options().visual_every_ticks;
   double sum2 = 0;
   long pressed_steps = 0;
-  for (long k = 0; k < ticks; ++k) {
-    const long tick = loops.ticks();
-    DeviceFrames& pose = trace.poses[static_cast<std::size_t>(k)];
-    DeviceReply& reply = trace.replies[static_cast<std::size_t>(k)];
-    device.advance(tick, loops.time_s(), pose);
-    loops.tick(pose, reply);
-    device.receive(reply);
-    if (tick % every != 0) continue;  // no visual step at this tick
+  run.trace = run_offline(loops, device, ticks, [&](long tick) {
+    if (tick % every != 0) return;  // no visual step at this tick
     const double depth = std::max(0.0, loops.world().snapshot().max_penetration_m);
     run.penetration_max_m = std::max(run.penetration_max_m, depth);
     const double t_end = loops.time_s() + (every - 1) * loops.options().haptic_period_s;
     if (t_end >= press.pressed_from_s() && t_end <= press.pressed_to_s()) sum2 += depth * depth, ++pressed_steps;
-  }
+  });
   run.penetration_rms_m = pressed_steps ? std::sqrt(sum2 / static_cast<double>(pressed_steps)) : 0.0;
-  trace.timings = loops.timings();
-  trace.resets = loops.resets();
   return run;
 }
 

@@ -308,6 +308,11 @@ void RecordedDevice::advance(long tick, double, DeviceFrames& out) {
 // --- Whole runs ----------------------------------------------------------------------------------
 
 OfflineTrace run_offline(OfflineLoops& loops, OfflineDevice& device, long ticks) {
+  return run_offline(loops, device, ticks, [](long) {});
+}
+
+OfflineTrace run_offline(OfflineLoops& loops, OfflineDevice& device, long ticks,
+                         const std::function<void(long tick)>& after_tick) {
   if (device.frames() != loops.link().handles)
     throw std::invalid_argument("offline run: the device has " + std::to_string(device.frames()) +
                                 " frames, its hand " + std::to_string(loops.link().handles) + " handles");
@@ -321,6 +326,7 @@ OfflineTrace run_offline(OfflineLoops& loops, OfflineDevice& device, long ticks)
     device.advance(tick, loops.time_s(), pose);
     loops.tick(pose, reply);
     device.receive(reply);
+    after_tick(tick);
   }
   trace.timings = loops.timings();
   trace.resets = loops.resets();

@@ -232,5 +232,9 @@ struct OfflineTrace {
 // Runs `loops` with `device` for `ticks` ticks (device advance, loops tick, device
 // receives) and records every tick. Deterministic: no clock reaches the simulation.
 OfflineTrace run_offline(OfflineLoops& loops, OfflineDevice& device, long ticks);
+// The same, calling `after_tick(tick)` after each tick (the loops' tick count before it), e.g. to
+// read the world after a visual step.
+OfflineTrace run_offline(OfflineLoops& loops, OfflineDevice& device, long ticks,
+                         const std::function<void(long tick)>& after_tick);
 
 }  // namespace hapticd
