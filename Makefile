@@ -37,12 +37,18 @@ asan: deps
 	cmake --build --preset asan -j $(JOBS)
 	ctest --preset asan -j $(JOBS)
 
+# Tests inside the gtest suites whose real-time bounds hold at Release speed only (RTT ratios,
+# passivity under faults, fade times, a relay keeping up with a burst): under ASan they missed by a
+# few percent. ctest -E regex; kept equal to the presets' "exclude name".
+SANITIZER_TIMING_TESTS = ^HapticServerChaos[.]|^HapticServerWatchdog[.]|^HapticServerBounds[.]AFlood|^ChaosRelay[.]EachReordered
+
 # What CI runs under ASan + UBSan: the suites that face the network and run threads (protocol,
 # clients, haptic: the server, its loops and the hand and world under them) and the end-to-end runs.
 # The numerical suites (hand_models, server, offline: ~45 min instrumented on 2 cores) run in `asan`.
 ASAN_CI_SUITES ?= protocol|clients|haptic|e2e
-# The offline loops in the haptic suite are numerics, not network or threads (~45 s each instrumented).
-ASAN_CI_EXCLUDE ?= ^LoopsOffline[.]
+# The offline loops in the haptic suite are numerics, not network or threads (~45 s each instrumented);
+# the real-time tests the presets leave out by name (CMakePresets.json) are left out here too.
+ASAN_CI_EXCLUDE ?= ^LoopsOffline[.]|$(SANITIZER_TIMING_TESTS)
 asan-ci: deps
 	cmake --preset asan
 	cmake --build --preset asan -j $(JOBS) --target protocol_tests client_tests haptic_tests
