@@ -84,9 +84,28 @@ struct Socket {
   std::uint16_t port = 0;
 };
 
+// What reached one end: datagrams, the damaged ones, duplicates, and how many came after a newer
+// one (inversions).
+struct Tally {
+  void record(const std::vector<std::uint8_t>& b) {
+    const long i = index_of(b.data(), b.size());
+    ++received;
+    if (i < 0) {
+      ++damaged;
+      return;
+    }
+    duplicates += !seen.insert(i).second;
+    inversions += i < newest;
+    newest = std::max(newest, i);
+  }
+  std::size_t received = 0, damaged = 0, duplicates = 0, inversions = 0;
+  long newest = -1;
+  std::set<long> seen;
+};
+
 // A server that answers every datagram with a fresh intact one of its own numbering, and tallies
-// what reached it.
-struct Responder {
+// what reached it (written by its thread, read after it stopped).
+struct Responder : Tally {
   Responder() {
     thread = std::thread([this] {
       std::uint32_t next = 0;
@@ -104,43 +123,11 @@ struct Responder {
     stop = true;
     thread.join();
   }
-  void record(const std::vector<std::uint8_t>& b) {
-    const long i = index_of(b.data(), b.size());
-    ++received;
-    if (i < 0) {
-      ++damaged;
-      return;
-    }
-    duplicates += !seen.insert(i).second;
-    inversions += i < newest;
-    newest = std::max(newest, i);
-  }
   Socket socket;
   std::atomic<bool> stop{false};
   std::thread thread;
-  // Written by the responder thread, read after it stopped.
-  std::size_t received = 0, damaged = 0, duplicates = 0, inversions = 0;
-  long newest = -1;
-  std::set<long> seen;
 };
 
-// The same tally on the client's side.
-struct Tally {
-  void record(const std::vector<std::uint8_t>& b) {
-    const long i = index_of(b.data(), b.size());
-    ++received;
-    if (i < 0) {
-      ++damaged;
-      return;
-    }
-    duplicates += !seen.insert(i).second;
-    inversions += i < newest;
-    newest = std::max(newest, i);
-  }
-  std::size_t received = 0, damaged = 0, duplicates = 0, inversions = 0;
-  long newest = -1;
-  std::set<long> seen;
-};
 
 // Sends `n` numbered datagrams through the relay, `gap_us` apart, collecting the answers until
 // `settle_ms` after the last.
