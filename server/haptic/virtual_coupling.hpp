@@ -30,8 +30,8 @@ struct HapticPose {
   Eigen::Quaterniond q_W = Eigen::Quaterniond::Identity();
 };
 
-// A hand's haptic step matrix at full model weight, A(tau) = B - tau C with B = P_ref - h D and
-// C = h K (ProxyHand::integrate; P_ref: mass, coupling and the inertia at the model's handle
+// A hand's haptic step matrix at full model weight, A(tau) = B - tau C with B = P - h D and
+// C = h K (ProxyHand::integrate; P: mass, coupling and the inertia at the model's handle
 // orientations x0), prepared once per model by prepare_tick_solver so the 1 kHz tick solves in
 // O(n^2): B^-1 C = U H U^T (H upper Hessenberg, U orthogonal), hence A(tau) = B U (I - tau H) U^T
 // for every lookahead tau (the shifted-Hessenberg method of Laub, "Efficient multivariable
@@ -43,7 +43,6 @@ struct TickSolver {
   CouplingGains gains;
   double mass_kg[kMaxHapticHandles]{};
   Eigen::Matrix3d inertia_B[kMaxHapticHandles];
-  Eigen::Matrix3d P_rot_ref[kMaxHapticHandles];  // P_ref's rotational blocks: inertia, world, and coupling
   HapticMatrix G;  // U^T B^-1
   HapticMatrix U;  // orthogonal
   // H upper Hessenberg, packed by rows from its subdiagonal (hessenberg_row(i)[j], j >= i - 1).
@@ -192,7 +191,7 @@ class ProxyHand {
   long clamps() const { return clamps_; }
   // Ticks of a model on kMinPreparedHandles or more handles that the dense LU solved: the model had
   // no prepared solver or one for other parameters, it was fading (weight < 1), or the prepared
-  // solve did not reach 1e-12 of the right-hand side in three refinements.
+  // solve did not reach 1e-12 of the right-hand side in six refinements.
   long solver_fallbacks() const { return solver_fallbacks_; }
   // Replies the passivity controller added damping to.
   long passivity_actions() const { return passivity_actions_; }
