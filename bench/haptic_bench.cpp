@@ -11,9 +11,12 @@
 #include "resolution_bench.hpp"
 #include "soak_bench.hpp"
 #include "solvers_bench.hpp"
+#include "server/world/heap.hpp"
 #include "world_bench.hpp"
 
 int main(int argc, char** argv) {
+  // As hapticd does: the benches measure the visual step the server runs.
+  if (!hapticd::keep_large_allocations_on_heap()) std::fprintf(stderr, "haptic-bench: heap settings refused\n");
   CLI::App app{"haptic-bench: hapticd benchmarks; every figure printed with its machine and baseline"};
   app.require_subcommand(1);
   hapticd::bench::add_hand_suite(app);

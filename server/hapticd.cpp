@@ -15,6 +15,7 @@
 #include "protocol/key_file.hpp"
 #include "server/haptic/haptic_server.hpp"
 #include "server/haptic/visual_loop.hpp"
+#include "server/world/heap.hpp"
 #include "server/world/scene_loader.hpp"
 #include "server/world/world.hpp"
 
@@ -115,6 +116,8 @@ int main(int argc, char** argv) {
     if (world.num_hands() > kMaxHands) throw std::runtime_error("hands: at most " + std::to_string(kMaxHands));
     std::vector<DeviceLink> links;
     for (const DeviceDesc& d : scene.devices) links.push_back(make_device_link(world, d, options.haptic_rate_hz));
+    if (!keep_large_allocations_on_heap())
+      say(Level::warn, "the C library refused the heap settings: the visual step's large blocks are mmapped anew");
     // Lock memory so a page fault never stalls the haptic thread (needs CAP_IPC_LOCK).
     if (mlockall(MCL_CURRENT | MCL_FUTURE) != 0)
       say(Level::warn, "memory not locked (mlockall not permitted): page faults may delay the haptic loop");
