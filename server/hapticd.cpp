@@ -183,6 +183,7 @@ int main(int argc, char** argv) {
           {"busy_poll", options.busy_poll},
           {"cpu_s", st.cpu_s},
           {"solver_fallbacks", st.solver_fallbacks},
+          {"solver_refinements", st.solver_refinements},
           {"model_watchdog",
            {{"stale_after_s", options.model_stale_after_s},
             {"fade_s", options.model_fade_s},

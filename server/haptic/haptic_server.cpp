@@ -226,6 +226,7 @@ void HapticServer::run(const std::atomic<bool>& stop) {
     st.clamps += static_cast<std::uint64_t>(sessions_[i].proxy.clamps());
     st.resets += static_cast<std::uint64_t>(sessions_[i].proxy.resets());
     st.solver_fallbacks += static_cast<std::uint64_t>(sessions_[i].proxy.solver_fallbacks());
+    st.solver_refinements += static_cast<std::uint64_t>(sessions_[i].proxy.solver_refinements());
   }
   st.rate_sources_evicted = limiter_->evictions();
 }
@@ -615,6 +616,7 @@ void HapticServer::close(Session& s) {
   stats_->clamps += static_cast<std::uint64_t>(s.proxy.clamps());
   stats_->resets += static_cast<std::uint64_t>(s.proxy.resets());
   stats_->solver_fallbacks += static_cast<std::uint64_t>(s.proxy.solver_fallbacks());
+  stats_->solver_refinements += static_cast<std::uint64_t>(s.proxy.solver_refinements());
   s = Session{};
 }
 

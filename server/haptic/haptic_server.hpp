@@ -88,6 +88,8 @@ struct ServerStats {
   std::uint64_t clamps = 0, resets = 0, resyncs = 0, overruns = 0, ticks = 0, replies = 0;
   // Ticks of a glove-sized model the dense LU solved instead of its prepared solver (ProxyHand::solver_fallbacks).
   std::uint64_t solver_fallbacks = 0;
+  // Ticks whose prepared answer the probes sent to the exact residual (ProxyHand::solver_refinements).
+  std::uint64_t solver_refinements = 0;
   std::uint64_t sessions_opened = 0, sessions_closed = 0, sessions_timed_out = 0, send_errors = 0;
   // Sessions replaced by the same peer's newer one; pending sessions never confirmed (a key only).
   std::uint64_t sessions_replaced = 0, pending_expired = 0;

@@ -3,6 +3,7 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
+#include <random>
 
 #include "hand_models/rigid_handle.hpp"
 
@@ -80,7 +81,23 @@ bool prepare_tick_solver(HapticModel& model, int handles, const double* mass_kg,
     for (int j = std::max(i - 1, 0); j < n; ++j) row[j] = H(i, j);
   }
   s.G.noalias() = s.U.transpose() * lu.inverse();
-  if (!s.G.allFinite() || !s.U.allFinite() || !H.allFinite()) return false;
+  HapticVector v0(n);
+  for (int j = 0; j < m; ++j) v0.segment<3>(6 * j) = model.v0[j], v0.segment<3>(6 * j + 3) = model.w0[j];
+  s.anchor_force.noalias() = model.F0 - model.D * v0;
+  // The probes: Gaussian directions (uniform on the sphere), from a fixed seed so that a run
+  // stays deterministic (the offline mode's bit-identical replays).
+  std::mt19937_64 rng(0x5eed);
+  std::normal_distribution<double> normal;
+  s.Z.resize(TickSolver::kProbes, n);
+  for (int i = 0; i < TickSolver::kProbes; ++i) {
+    for (int k = 0; k < n; ++k) s.Z(i, k) = normal(rng);
+    s.Z.row(i).normalize();
+  }
+  s.ZB.noalias() = s.Z * B;
+  s.ZC.noalias() = dt * (s.Z * model.K);
+  if (!s.G.allFinite() || !s.U.allFinite() || !H.allFinite() || !s.anchor_force.allFinite() || !s.ZB.allFinite() ||
+      !s.ZC.allFinite())
+    return false;
   s.dt_s = dt;
   s.gains = gains;
   s.prepared = true;
@@ -216,12 +233,19 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
     }
   }
   const double h = weight * dt;
+  // The prepared solver serves gloves at full weight with the parameters it was prepared for.
+  const bool prepared = use_model && handles_ >= kMinPreparedHandles && weight == 1.0 &&
+                        solver_matches(model.solver, dt);
   if (use_model) {
-    b_.noalias() += h * model.F0;
     b_.noalias() += h * (model.K * x_rel_);
-    // - h D v0: D couples the handles, so handle j's anchor velocity acts through its columns of D on
-    // all 6m rows, not only on handle j's.
-    b_.noalias() -= h * (model.D * v0_);
+    if (prepared) {
+      b_.noalias() += h * model.solver.anchor_force;
+    } else {
+      b_.noalias() += h * model.F0;
+      // - h D v0: D couples the handles, so handle j's anchor velocity acts through its columns of D
+      // on all 6m rows, not only on handle j's.
+      b_.noalias() -= h * (model.D * v0_);
+    }
   }
   bool ok = b_.allFinite();
   for (int j = 0; ok && j < handles_; ++j) ok = std::isfinite(a_lin_[j]) && a_rot_[j].allFinite();
@@ -235,7 +259,7 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
       }
       solved = true;
     } else {
-      solved = weight == 1.0 && solver_matches(model.solver, dt) && solve_prepared(model, h, tau);
+      solved = prepared && solve_prepared(model, h, tau);
       if (!solved) ++solver_fallbacks_;
     }
   }
@@ -341,12 +365,20 @@ void ProxyHand::apply_prepared(const TickSolver& s, double tau, const HapticVect
 
 bool ProxyHand::solve_prepared(const HapticModel& model, double h, double tau) {
   const TickSolver& s = model.solver;
-  const double limit2 = kRefineTolerance * kRefineTolerance * b_.squaredNorm();
+  const double b2 = b_.squaredNorm(), limit2 = kRefineTolerance * kRefineTolerance * b2;
   apply_prepared(s, tau, b_);
   v_next_ = dv_;
   // The factors are of the very matrix the tick solves (integrate takes the proxies' inertia at the
-  // model's anchors), so one application is exact but for rounding; the residual against the exact
-  // matrix, b - A v, decides, and a rounding-level miss is refined.
+  // model's anchors), so one application is exact but for rounding. The probes check it (TickSolver::Z);
+  // if one objects, the residual against the exact matrix, b - A v, decides, and a rounding-level
+  // miss is refined.
+  bool probes_pass = v_next_.allFinite();
+  for (int i = 0; probes_pass && i < TickSolver::kProbes; ++i) {
+    const double z_r = s.Z.row(i).dot(b_) - (s.ZB.row(i) - tau * s.ZC.row(i)).dot(v_next_);
+    probes_pass = std::abs(z_r) <= kRefineTolerance * std::sqrt(b2);
+  }
+  if (probes_pass) return true;
+  ++solver_refinements_;
   for (int corrections = 0;; ++corrections) {
     r_.noalias() = h * (model.D * v_next_);
     r_.noalias() += (h * tau) * (model.K * v_next_);

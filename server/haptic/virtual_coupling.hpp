@@ -45,6 +45,16 @@ struct TickSolver {
   Eigen::Matrix3d inertia_B[kMaxHapticHandles];
   HapticMatrix G;  // U^T B^-1
   HapticMatrix U;  // orthogonal
+  HapticVector anchor_force;  // F0 - D v0: the model's force at its anchor pose, the anchor's damping taken out
+  // The tick's check of its answer v (Freivalds' randomized verification): Z (b - A(tau) v) = 0
+  // for kProbes random unit rows z_i of Z, with Z B and Z C precomputed: O(n) per probe instead
+  // of the two dense products of the residual b - A v. Each probe asks |z . r| <= tol |b|; a random
+  // direction sees about |r| / sqrt(n) of a residual r, and less than a tenth of that with
+  // probability ~0.08, so all four pass a residual of 10 sqrt(n) tol |b| (~1e-10 |b| for a glove)
+  // with probability ~4e-5 and one of 100 sqrt(n) tol |b| with ~4e-13. A non-finite answer never
+  // passes; a probe that objects sends the tick to the exact residual.
+  static constexpr int kProbes = 4;
+  Eigen::Matrix<double, kProbes, Eigen::Dynamic, Eigen::RowMajor, kProbes, kMaxHapticDofs> Z, ZB, ZC;
   // H upper Hessenberg, packed by rows from its subdiagonal (hessenberg_row(i)[j], j >= i - 1).
   static constexpr int kPackedSize = kMaxHapticDofs * (kMaxHapticDofs + 3) / 2 - 1;
   double H[kPackedSize]{};
@@ -70,8 +80,9 @@ struct HapticModel {
   // The hand's re-sync count the visual loop had applied (ProxyTargets::resyncs):
   // a model from before a re-sync describes the hand where it no longer is.
   std::uint32_t resyncs = 0;
-  // Filled by prepare_tick_solver (the visual thread); whoever changes F0, K, D or x0 clears
-  // solver.prepared or prepares again (the tick checks its answer against the exact matrix anyway).
+  // Filled by prepare_tick_solver (the visual thread); whoever changes F0, K, D, x0, v0 or w0
+  // clears solver.prepared or prepares again: the tick takes the model's matrix and anchor force
+  // from the solver, and its probes check the answer against the matrix as prepared.
   TickSolver solver;
 };
 
@@ -193,6 +204,9 @@ class ProxyHand {
   // no prepared solver or one for other parameters, it was fading (weight < 1), or the prepared
   // solve did not reach 1e-12 of the right-hand side in six refinements.
   long solver_fallbacks() const { return solver_fallbacks_; }
+  // Ticks whose prepared answer a probe objected to (TickSolver::Z), checked then against the exact
+  // residual (and refined, or left to the dense LU).
+  long solver_refinements() const { return solver_refinements_; }
   // Replies the passivity controller added damping to.
   long passivity_actions() const { return passivity_actions_; }
   // The passivity observer's energy of frame j: the work its device has done on the rendering, J.
@@ -218,7 +232,7 @@ class ProxyHand {
   Eigen::Vector3d last_f_D_[kMaxHapticHandles], last_tau_D_[kMaxHapticHandles];
   double energy_in_[kMaxHapticHandles]{};
   bool passivity_control_ = false;  // passivity observer: work the device has done on the rendering, J
-  long resets_ = 0, clamps_ = 0, passivity_actions_ = 0, solver_fallbacks_ = 0;
+  long resets_ = 0, clamps_ = 0, passivity_actions_ = 0, solver_fallbacks_ = 0, solver_refinements_ = 0;
   // The prepared solve of A(tau) v = b (TickSolver), refined against the exact matrix; false
   // when it does not converge (v_next_ is then to be recomputed).
   bool solve_prepared(const HapticModel& model, double h, double tau);

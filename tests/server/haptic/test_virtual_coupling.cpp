@@ -498,6 +498,7 @@ TEST(VirtualCoupling, PreparedTickSolverMatchesTheDenseLuOnAGloveModel) {
   std::printf("largest relative difference of the proxies' states: %.2e\n", worst);
   ASSERT_EQ(prepared.resets(), 0);
   EXPECT_EQ(prepared.solver_fallbacks(), 0);
+  EXPECT_EQ(prepared.solver_refinements(), 0);  // the prepared factors solved every tick at once
   EXPECT_EQ(plain.solver_fallbacks(), 400);  // no prepared solver: every tick on the LU
   EXPECT_LT(worst, 1e-10);
   // The proxies did move and turn: the comparison means something.
@@ -559,6 +560,43 @@ TEST(VirtualCoupling, PreparedTickSolverDoesNotAllocate) {
   EXPECT_EQ(allocations, 0);
   EXPECT_EQ(p.solver_fallbacks(), 0);
   EXPECT_EQ(p.resets(), 0);
+}
+
+// Prepared factors that no longer solve their matrix: the tick's probes object (TickSolver::Z), and
+// the answer is still the dense LU's. Slightly off (one Hessenberg entry by 1e-6), the exact
+// residual refines it without a fallback; far off (by half), refinement cannot converge and the
+// dense LU answers. Unchecked, the first would leave errors of ~1e-6 and the second would diverge.
+TEST(VirtualCoupling, TheTickCatchesPreparedFactorsThatDoNotSolveTheirMatrix) {
+  const GloveModelCase c(13);
+  const int n = 6 * GloveModelCase::kHandles;
+  HapticPose start[GloveModelCase::kHandles];
+  for (int j = 0; j < GloveModelCase::kHandles; ++j) start[j] = c.model.x0[j];
+  for (const double corruption : {1e-6, 0.5}) {
+    HapticModel corrupted = c.model;
+    ASSERT_TRUE(c.prepare(corrupted));
+    corrupted.solver.hessenberg_row(5, n)[9] *= 1 + corruption;
+    corrupted.solver.hessenberg_row(6, n)[5] *= 1 + corruption;  // the subdiagonal too
+    ProxyHand checked = c.proxy(), plain = c.proxy();
+    double worst = 0, t = 0;
+    constexpr int kTicks = 50;
+    for (int k = 0; k < kTicks; ++k) {
+      t += kPeriod;
+      drive(checked, start, t);
+      drive(plain, start, t);
+      checked.integrate(corrupted, kPeriod, 0.01);
+      plain.integrate(c.model, kPeriod, 0.01);
+      worst = std::max(worst, state_difference(checked, plain, start));
+    }
+    std::printf("Hessenberg entries off by %g: largest relative difference %.2e, fallbacks %ld\n", corruption, worst,
+                checked.solver_fallbacks());
+    EXPECT_EQ(checked.resets(), 0);
+    EXPECT_LT(worst, 1e-10);
+    EXPECT_EQ(checked.solver_refinements(), kTicks);  // every tick's probes objected
+    if (corruption < 1e-3)
+      EXPECT_EQ(checked.solver_fallbacks(), 0);
+    else
+      EXPECT_EQ(checked.solver_fallbacks(), kTicks);
+  }
 }
 
 // Fewer handles than kMinPreparedHandles, a model of another size or a non-finite one: not prepared.
