@@ -80,7 +80,26 @@ bool linearize_handles(const HandModel& model, const HandState& s, CoupledSolver
     J_t = held->J.rightCols(nt);
     J_b = held->J.middleCols(nh, 6 * nb);
   }
-  Eigen::MatrixXd Y;
+  const Eigen::SparseMatrix<double> A_bt = sys.A_ht.bottomRows(6 * nb);
+  // The tool solution Y (nt x (nk + nc + 6 nb)) is only ever looked at through three sparse
+  // operators: the handles' springs KD_ht (what the model is made of), the held rows J_t and the
+  // bodies' couplings A_bt. Everything after the solves works on their stacked product O Y
+  // ((nh + nc + 6 nb) rows), never on the tool's nt rows.
+  Eigen::SparseMatrix<double> O(nh + nc + 6 * nb, nt);
+  {
+    std::vector<Eigen::Triplet<double>> o;
+    o.reserve(KD_ht.nonZeros() + J_t.nonZeros() + A_bt.nonZeros());
+    const auto append = [&o](const Eigen::SparseMatrix<double>& M, int row0) {
+      for (int col = 0; col < M.outerSize(); ++col)
+        for (Eigen::SparseMatrix<double>::InnerIterator it(M, col); it; ++it)
+          o.emplace_back(row0 + static_cast<int>(it.row()), static_cast<int>(it.col()), it.value());
+    };
+    append(KD_ht, 0);
+    append(J_t, nh);
+    append(A_bt, nh + nc);
+    O.setFromTriplets(o.begin(), o.end());
+  }
+  Eigen::MatrixXd OY(nh + nc + 6 * nb, nk + nc + 6 * nb);
   const Eigen::MatrixXd* solved = solver.tool_solution(sys);  // A_t^-1 [b_t, A_th] when the solver kept it
   const double k = cp.stiffness_n_m, d = cp.damping_ns_m;
   if (solved != nullptr && d > 0) {
@@ -89,63 +108,66 @@ bool linearize_handles(const HandModel& model, const HandState& s, CoupledSolver
     // A_th = -h D_th - h^2 K_th = -(1 + h k / d) h D_th - h E, and only E, the
     // held rows and the contact impulses need new solves (3m + nc + 1 columns
     // instead of 12m + nc + 1).
-    const Eigen::MatrixXd E = h * K_th - (k / d) * h * D_th;
     Eigen::MatrixXd rhs(nt, 3 * m + nc + 1);
-    for (int j = 0; j < m; ++j) rhs.middleCols<3>(3 * j) = E.middleCols<3>(6 * j + 3);
+    for (int j = 0; j < m; ++j)
+      rhs.middleCols<3>(3 * j) = h * K_th.middleCols<3>(6 * j + 3) - (k / d) * h * D_th.middleCols<3>(6 * j + 3);
     rhs.middleCols(3 * m, nc) = Eigen::MatrixXd(J_t.transpose());
     rhs.col(3 * m + nc) = held ? Eigen::VectorXd(held->impulse.tail(nt)) : Eigen::VectorXd::Zero(nt);
     Eigen::MatrixXd Z;
     if (!solver.solve_tool(sys, rhs, Z)) return false;
-    Eigen::MatrixXd Y_E = Eigen::MatrixXd::Zero(nt, nh);
-    for (int j = 0; j < m; ++j) Y_E.middleCols<3>(6 * j + 3) = Z.middleCols<3>(3 * j);
-    const Eigen::MatrixXd Y_D = -(solved->middleCols(1, nh) + h * Y_E) / (1 + h * k / d);
-    Y.resize(nt, nk + nc + 6 * nb);
+    const Eigen::MatrixXd OZ = O * Z, OS = O * (*solved);
+    Eigen::MatrixXd OY_E = Eigen::MatrixXd::Zero(O.rows(), nh);
+    for (int j = 0; j < m; ++j) OY_E.middleCols<3>(6 * j + 3) = OZ.middleCols<3>(3 * j);
+    const Eigen::MatrixXd OY_D = -(OS.middleCols(1, nh) + h * OY_E) / (1 + h * k / d);
     // The step's contact impulses act as known forces; the held rows' multipliers then only correct them.
-    Y.col(0) = solved->col(0) + Z.col(3 * m + nc);
-    Y.middleCols(1, nh) = (k / d) * Y_D + Y_E;
-    Y.middleCols(1 + nh, nh) = Y_D;
-    Y.middleCols(nk, nc) = Z.middleCols(3 * m, nc);
-    Y.rightCols(6 * nb) = solved->rightCols(6 * nb);
+    OY.col(0) = OS.col(0) + OZ.col(3 * m + nc);
+    OY.middleCols(1, nh) = (k / d) * OY_D + OY_E;
+    OY.middleCols(1 + nh, nh) = OY_D;
+    OY.middleCols(nk, nc) = OZ.middleCols(3 * m, nc);
+    OY.rightCols(6 * nb) = OS.rightCols(6 * nb);
   } else {
-    Eigen::MatrixXd rhs(nt, nk + nc + 6 * nb);
+    Eigen::MatrixXd rhs(nt, nk + nc + 6 * nb), Y;
     rhs << sys.b_t, h * K_th, h * D_th, Eigen::MatrixXd(J_t.transpose()), Eigen::MatrixXd(sys.A_th.rightCols(6 * nb));
     if (held) rhs.col(0) += held->impulse.tail(nt);
     if (!solver.solve_tool(sys, rhs, Y)) return false;
+    OY.noalias() = O * Y;
   }
   Eigen::MatrixXd X_b = Eigen::MatrixXd::Zero(6 * nb, nk + nc);  // the bodies' part of each solution
   if (nb > 0) {
-    const Eigen::MatrixXd A_bt = Eigen::MatrixXd(sys.A_ht.bottomRows(6 * nb));
-    const Eigen::MatrixXd Y_b = Y.rightCols(6 * nb);
-    const Eigen::MatrixXd S_b = sys.A_h.bottomRightCorner(6 * nb, 6 * nb) - A_bt * Y_b;
-    Eigen::MatrixXd R_b = -A_bt * Y.leftCols(nk + nc);
+    const Eigen::MatrixXd AY_b = OY.bottomRightCorner(6 * nb, 6 * nb);  // A_bt Y_b
+    const Eigen::MatrixXd S_b = sys.A_h.bottomRightCorner(6 * nb, 6 * nb) - AY_b;
+    Eigen::MatrixXd R_b = -OY.bottomLeftCorner(6 * nb, nk + nc);
     R_b.col(0) += sys.b_h.tail(6 * nb);  // the bodies' own RHS for b_t's column; zero for the handle columns
     if (held) R_b.col(0) += held->impulse.segment(nh, 6 * nb);
     if (nc > 0) R_b.rightCols(nc) += Eigen::MatrixXd(J_b.transpose());
     X_b = S_b.partialPivLu().solve(R_b);
-    Y.leftCols(nk + nc) -= Y_b * X_b;
+    // Y -= Y_b X_b, seen through O.
+    OY.leftCols(nk + nc) -= OY.rightCols(6 * nb) * X_b;
   }
   if (nc > 0) {
     // Multipliers that keep J V = u for every column: W mu = u e0^T - J Y, with
     // W = J A^-1 J^T (handles held). Redundant rows (more contacts than a body
     // has DOFs) make W singular: a relative 1e-10 regularization picks the
     // least-norm multipliers without changing the held velocities measurably.
-    const Eigen::MatrixXd Z = Y.middleCols(nk, nc), Z_b = X_b.rightCols(nc);
-    Eigen::MatrixXd W = J_t * Z + J_b * Z_b;
+    const Eigen::MatrixXd Z_b = X_b.rightCols(nc);
+    Eigen::MatrixXd W = OY.block(nh, nk, nc, nc) + J_b * Z_b;
     W.diagonal().array() += 1e-10 * W.diagonal().cwiseAbs().maxCoeff();
-    Eigen::MatrixXd Q = -(J_t * Y.leftCols(nk) + J_b * X_b.leftCols(nk));
+    Eigen::MatrixXd Q = -(OY.block(nh, 0, nc, nk) + J_b * X_b.leftCols(nk));
     Q.col(0) += held->u;
     const Eigen::MatrixXd mu = W.ldlt().solve(Q);
-    Y.leftCols(nk) += Z * mu;
+    // Y += Z mu (Z: the held rows' columns of Y), for the springs' rows, all the model needs below.
+    OY.topLeftCorner(nh, nk) += OY.block(0, nk, nh, nc) * mu;
   }
-  const Eigen::VectorXd y0 = Y.col(0);
-  const Eigen::MatrixXd Y_K = Y.middleCols(1, nh), Y_D = Y.middleCols(1 + nh, nh);
-  out.K = K_hh + KD_ht * Y_K;
-  out.D = D_hh + KD_ht * Y_D;
+  // KD_ht times y0, Y_K and Y_D.
+  const Eigen::VectorXd P0 = OY.block(0, 0, nh, 1);
+  const Eigen::MatrixXd P_D = OY.block(0, 1 + nh, nh, nh);
+  out.K = K_hh + OY.block(0, 1, nh, nh);
+  out.D = D_hh + P_D;
   out.x0 = s.handles;
   Eigen::VectorXd v0(nh);
   for (int j = 0; j < m; ++j) v0.segment<6>(6 * j) << s.handles[j].v_WH, s.handles[j].w_WH;
   // F0 = W_el + D_hh v0 + (h K_ht + D_ht) v_t(dx = 0, v = v0).
-  out.F0 = W_el + D_hh * v0 + KD_ht * (y0 + Y_D * v0);
+  out.F0 = W_el + D_hh * v0 + P0 + P_D * v0;
   return out.F0.allFinite() && out.K.allFinite() && out.D.allFinite();
 }
 
