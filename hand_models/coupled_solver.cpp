@@ -24,16 +24,22 @@ double ms_since(Clock::time_point t0) {
 // Handle solve of eq. 13 given Y = A_t^-1 A_th and y0 = A_t^-1 b_t: S = A_h - A_ht Y,
 // r = b_h - A_ht y0 (S is small and, with the rotational terms, not symmetric:
 // LU with partial pivoting; a singular S shows as an inaccurate solution).
-bool solve_handles(const CoupledSystem& s, const Eigen::MatrixXd& Y, const Eigen::VectorXd& y0, Eigen::VectorXd& v_h) {
+// The handles' part of eq. 12 given S = A_h - A_ht Y and its LU, checked against S.
+bool solve_schur(const CoupledSystem& s, const Eigen::MatrixXd& S, const Eigen::PartialPivLU<Eigen::MatrixXd>& lu,
+                 const Eigen::VectorXd& y0, Eigen::VectorXd& v_h) {
   // A free body (no handles, no bodies in contact): eq. 7 is A_t v_t = b_t alone.
   if (s.handle_dofs() == 0) {
     v_h.resize(0);
     return true;
   }
-  const Eigen::MatrixXd S = s.A_h - s.A_ht * Y;
   const Eigen::VectorXd r = s.b_h - s.A_ht * y0;
-  v_h = S.partialPivLu().solve(r);
+  v_h = lu.solve(r);
   return v_h.allFinite() && (S * v_h - r).norm() <= 1e-8 * (r.norm() + S.norm() * v_h.norm());
+}
+
+bool solve_handles(const CoupledSystem& s, const Eigen::MatrixXd& Y, const Eigen::VectorXd& y0, Eigen::VectorXd& v_h) {
+  const Eigen::MatrixXd S = s.A_h - s.A_ht * Y;
+  return solve_schur(s, S, S.partialPivLu(), y0, v_h);
 }
 
 }  // namespace
@@ -102,7 +108,7 @@ class CholmodSchur {
   // A_t^-1 (b_t - A_th v_h) = y0 - Y v_h.
   bool solve_factored(const CoupledSystem& s, Eigen::VectorXd& v_h, Eigen::VectorXd& v_t) const {
     const int nh = s.handle_dofs();
-    if (!solve_handles(s, Y_.rightCols(nh), Y_.col(0), v_h)) return false;
+    if (!solve_schur(s, S_, lu_, Y_.col(0), v_h)) return false;  // factor() formed S and its LU
     v_t = Y_.col(0) - Y_.rightCols(nh) * v_h;
     return v_t.allFinite();
   }

@@ -85,7 +85,7 @@ bool linearize_handles(const HandModel& model, const HandState& s, CoupledSolver
   // operators: the handles' springs KD_ht (what the model is made of), the held rows J_t and the
   // bodies' couplings A_bt. Everything after the solves works on their stacked product O Y
   // ((nh + nc + 6 nb) rows), never on the tool's nt rows.
-  Eigen::SparseMatrix<double> O(nh + nc + 6 * nb, nt);
+  Eigen::SparseMatrix<double, Eigen::RowMajor> O(nh + nc + 6 * nb, nt);  // by rows: each row a dot product down a column of Y
   {
     std::vector<Eigen::Triplet<double>> o;
     o.reserve(KD_ht.nonZeros() + J_t.nonZeros() + A_bt.nonZeros());
