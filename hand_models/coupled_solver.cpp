@@ -131,15 +131,23 @@ class CholmodSchur {
   template <class In, class Out>
   void apply(const In& r, Out& z) const {
     const Eigen::Index nh = S_.rows(), n = r.rows();
-    const Eigen::MatrixXd y = chol_.solve(Eigen::MatrixXd(r.bottomRows(n - nh)));
+    Eigen::MatrixXd z_h, y;
+    apply_parts(r, z_h, y);
     if (nh == 0) {
       z = y;
       return;
     }
-    const Eigen::MatrixXd z_h = lu_.solve(Eigen::MatrixXd(r.topRows(nh) - A_ht_ * y));
     z.resize(n, r.cols());
     z.topRows(nh) = z_h;
     z.bottomRows(n - nh) = y - Y_.rightCols(nh) * z_h;
+  }
+
+  // apply() without its last product: z = [z_h; y - Y z_h], Y = A_t^-1 A_th.
+  template <class In>
+  void apply_parts(const In& r, Eigen::MatrixXd& z_h, Eigen::MatrixXd& y) const {
+    const Eigen::Index nh = S_.rows(), n = r.rows();
+    y = chol_.solve(Eigen::MatrixXd(r.bottomRows(n - nh)));
+    z_h = nh == 0 ? Eigen::MatrixXd(0, r.cols()) : Eigen::MatrixXd(lu_.solve(Eigen::MatrixXd(r.topRows(nh) - A_ht_ * y)));
   }
 
  private:
@@ -301,6 +309,14 @@ class SchurCholmodSolver final : public CoupledSolver {
     if (!factored_ || !schur_.factors(s.A_t)) return CoupledSolver::solve_block(s, R, X);
     schur_.apply(R, X);
     return X.allFinite();
+  }
+
+  bool solve_block_parts(const CoupledSystem& s, const Eigen::MatrixXd& R, Eigen::MatrixXd& X_h, Eigen::MatrixXd& X_t,
+                         const Eigen::MatrixXd*& Y_tool) override {
+    Y_tool = factored_ ? schur_.tool_solution(s) : nullptr;
+    if (Y_tool == nullptr) return CoupledSolver::solve_block_parts(s, R, X_h, X_t, Y_tool);
+    schur_.apply_parts(R, X_h, X_t);
+    return X_h.allFinite() && X_t.allFinite();
   }
 
   // Its factorization preconditions CG on the given A_t: one iteration when it
@@ -487,6 +503,16 @@ bool CoupledSolver::solve_block(const CoupledSystem& s, const Eigen::MatrixXd& R
   if (lu.info() != Eigen::Success) return false;
   X = lu.solve(R);
   return X.allFinite();
+}
+
+bool CoupledSolver::solve_block_parts(const CoupledSystem& s, const Eigen::MatrixXd& R, Eigen::MatrixXd& X_h,
+                                      Eigen::MatrixXd& X_t, const Eigen::MatrixXd*& Y_tool) {
+  Y_tool = nullptr;
+  Eigen::MatrixXd X;
+  if (!solve_block(s, R, X)) return false;
+  X_h = X.topRows(s.handle_dofs());
+  X_t = X.bottomRows(s.tool_dofs());
+  return true;
 }
 
 bool CoupledSolver::solve_tool(const CoupledSystem& s, const Eigen::MatrixXd& B, Eigen::MatrixXd& X) {

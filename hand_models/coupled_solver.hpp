@@ -54,6 +54,11 @@ class CoupledSolver {
   // directly with the solver's factorization when it is this system's, else by
   // a sparse LU of the whole system.
   virtual bool solve_block(const CoupledSystem& system, const Eigen::MatrixXd& R, Eigen::MatrixXd& X);
+  // solve_block in the Schur complement's own form, X = [X_h; X_t - Y X_h] with Y the handle
+  // columns (1 ... nh) of *Y_tool = tool_solution(system): what X is needed for (J X, X lambda)
+  // then takes no nt x nh x cols product. Y_tool null (no such solution kept): X_t is X's tool part.
+  virtual bool solve_block_parts(const CoupledSystem& system, const Eigen::MatrixXd& R, Eigen::MatrixXd& X_h,
+                                 Eigen::MatrixXd& X_t, const Eigen::MatrixXd*& Y_tool);
   // A_t^-1 [b_t, A_th] (the Schur complement's tool solves) when the solver
   // keeps them and `system` is the one it last solved, else null.
   virtual const Eigen::MatrixXd* tool_solution(const CoupledSystem& /*system*/) const { return nullptr; }

@@ -546,7 +546,18 @@ bool solve_constraint_contacts(const HandModel& model, HandState& s, CoupledSolv
   ContactProblem problem;
   Eigen::VectorXd lambda;  // the last solution, the next round's first guess
   Eigen::SparseMatrix<double> Jt(nh + nt, 0);
-  Eigen::MatrixXd X(nh + nt, 0);
+  // A^-1 J^T = [X_h; X_t - Y X_h] (CoupledSolver::solve_block_parts; Y the handle columns of *Y_tool).
+  Eigen::MatrixXd X_h(nh, 0), X_t(nt, 0);
+  const Eigen::MatrixXd* Y_tool = nullptr;
+  // V_free + A^-1 J^T l.
+  const auto velocities = [&](const Eigen::VectorXd& l) {
+    Eigen::VectorXd V = V_free;
+    const Eigen::VectorXd dv_h = X_h * l;
+    V.head(nh) += dv_h;
+    V.tail(nt) += X_t * l;
+    if (Y_tool) V.tail(nt).noalias() -= Y_tool->middleCols(1, nh) * dv_h;
+    return V;
+  };
   auto append_rows = [&](int first) -> bool {
     const int c = static_cast<int>(rows.size()), added = c - first;
     frames.assign(added, Eigen::Matrix3d::Identity());
@@ -578,15 +589,21 @@ bool solve_constraint_contacts(const HandModel& model, HandState& s, CoupledSolv
     }
     const Eigen::SparseMatrix<double> Jt_new = transposed_rows(added);
     problem.u_free.tail(3 * added) += Jt_new.transpose() * V_free;
-    Eigen::MatrixXd X_new;
-    if (!solver.solve_block(sys, Eigen::MatrixXd(Jt_new), X_new)) return false;
+    Eigen::MatrixXd X_h_new, X_t_new;
+    if (!solver.solve_block_parts(sys, Eigen::MatrixXd(Jt_new), X_h_new, X_t_new, Y_tool)) return false;
     Eigen::SparseMatrix<double> joined(nh + nt, 3 * c);
     joined.leftCols(3 * first) = Jt;
     joined.rightCols(3 * added) = Jt_new;
     Jt = std::move(joined);
-    X.conservativeResize(nh + nt, 3 * c);
-    X.rightCols(3 * added) = X_new;
-    problem.W = Jt.transpose() * X;
+    X_h.conservativeResize(nh, 3 * c);
+    X_h.rightCols(3 * added) = X_h_new;
+    X_t.conservativeResize(nt, 3 * c);
+    X_t.rightCols(3 * added) = X_t_new;
+    // W = J A^-1 J^T = J_h X_h + J_t (X_t - Y X_h); J by rows, so its products run down X's columns.
+    const Eigen::SparseMatrix<double, Eigen::RowMajor> J_h = Jt.topRows(nh).transpose(),
+                                                      J_t = Jt.bottomRows(nt).transpose();
+    problem.W = J_h * X_h + J_t * X_t;
+    if (Y_tool) problem.W.noalias() -= (J_t * Y_tool->middleCols(1, nh)) * X_h;
     return true;
   };
 
@@ -603,7 +620,7 @@ bool solve_constraint_contacts(const HandModel& model, HandState& s, CoupledSolv
       lambda = r.lambda;
       s.timings.contact_iterations = r.iterations;
       s.timings.contact_converged = r.converged;
-      V = V_free + X * lambda;
+      V = velocities(lambda);
     }
     first = static_cast<int>(rows.size());
     if (round == kReserveRounds || reserves.empty()) break;
