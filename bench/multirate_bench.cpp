@@ -69,6 +69,7 @@ void run_multirate_bench(const MultirateArgs& a) {
   const int frames = a.glove_frames ? a.glove_frames : size.glove_frames;
   const std::vector<Interaction> interactions = {
       stylus_press(stylus_scene, a.stylus_s > 0 ? a.stylus_s : size.stylus_s),
+      stylus_press_fixed(stylus_scene, a.stylus_s > 0 ? a.stylus_s : size.stylus_s),
       glove_grasp(glove_scene, a.glove_s > 0 ? a.glove_s : size.glove_s, frames)};
   std::vector<HandleModelKind> models;
   for (const std::string& m : a.models)

@@ -200,13 +200,15 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
   // velocity for the time since: the flesh kept moving meanwhile.
   const double late = std::max(0.0, -lookahead_s);
   b_.setZero();
+  // The proxies' rotational inertia in world axes: for a glove-sized model (the prepared solver's,
+  // faded or not), at the model's anchor orientations (its linearization point) rather than the
+  // proxies' own, so that the system matrix is fixed for the model's life and
+  // prepare_tick_solver's factors solve it exactly. The two differ by a proxy's turn within one
+  // visual step, on an inertia of ~2 % of the coupling's rotational damping per tick for a
+  // phalanx: second order next to the model's own linearization error.
+  const bool anchor_inertia = use_model && handles_ >= kMinPreparedHandles;
   for (int j = 0; j < handles_; ++j) {
-    // The proxy's rotational inertia in world axes: under a model, at the model's anchor orientation
-    // (its linearization point) rather than the proxy's own, so that the system matrix is fixed for
-    // the model's life and prepare_tick_solver's factors solve it exactly. The two differ by the
-    // proxy's turn within one visual step, on an inertia of ~2 % of the coupling's rotational
-    // damping per tick for a phalanx: second order next to the model's own linearization error.
-    const Eigen::Matrix3d R = (use_model ? model.x0[j].q_W : proxy_[j].q_W).toRotationMatrix();
+    const Eigen::Matrix3d R = (anchor_inertia ? model.x0[j].q_W : proxy_[j].q_W).toRotationMatrix();
     const Eigen::Matrix3d I_W = R * inertia_B_[j] * R.transpose();
     a_lin_[j] = mass_[j] + dt * gains_.b_ns_m + dt * dt * gains_.k_n_m;
     a_rot_[j] = I_W;

@@ -34,6 +34,18 @@ Interaction stylus_press(SceneDesc scene, double seconds) {
   return in;
 }
 
+Interaction stylus_press_fixed(SceneDesc scene, double seconds) {
+  for (ObjectDesc& o : scene.objects)
+    if (o.kind == BodyKind::rigid) {
+      o.kind = BodyKind::static_body;
+      o.linear_velocity.setZero();
+      o.angular_velocity.setZero();
+    }
+  Interaction in = stylus_press(std::move(scene), seconds);
+  in.name = "stylus_press_fixed";
+  return in;
+}
+
 Interaction glove_grasp(SceneDesc scene, double seconds, int frames) {
   if (frames != sim::kGloveFramesAll && frames != sim::kGloveFramesTips)
     throw std::invalid_argument("glove_grasp: 16 or 6 frames, not " + std::to_string(frames));

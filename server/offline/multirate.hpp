@@ -37,6 +37,11 @@ struct Interaction {
 // The simulated stylus along sim::Trajectory::press (settle, 2 cm down over
 // 1 s, hold; device space), starting where the scene's handle is.
 Interaction stylus_press(SceneDesc scene, double seconds);
+// The same press with the scene's rigid bodies made static ("stylus_press_fixed"): nothing but the
+// hand moves, so the world at the visual rate differs from the every-tick world only in the hand
+// and its contacts, and the error is the rendering's own. On the movable bunny the 30 Hz world
+// also lets the bunny slide under the held stylus and starts the contact a step late.
+Interaction stylus_press_fixed(SceneDesc scene, double seconds);
 // The simulated glove along sim::GloveTrajectory::grasp (rest, close into the
 // power grasp over 1 s, hold), its palm starting on the palm handle; `frames`
 // 16 (phalanges handles) or 6 (fingertips), the scene's first hand set to match.

@@ -12,9 +12,9 @@ if(NOT suite STREQUAL "multirate")
   message(FATAL_ERROR "suite is '${suite}'")
 endif()
 string(JSON rows LENGTH "${doc}" rows)
-# 2 interactions x 6 visual rates (15, 30, 60, 120, 240 Hz, every tick) x 2 models.
-if(NOT rows EQUAL 24)
-  message(FATAL_ERROR "${rows} rows, expected 24")
+# 3 interactions x 6 visual rates (15, 30, 60, 120, 240 Hz, every tick) x 2 models.
+if(NOT rows EQUAL 36)
+  message(FATAL_ERROR "${rows} rows, expected 36")
 endif()
 math(EXPR last "${rows} - 1")
 foreach(i RANGE ${last})
