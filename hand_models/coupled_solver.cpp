@@ -21,10 +21,9 @@ double ms_since(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
 
-// Handle solve of eq. 13 given Y = A_t^-1 A_th and y0 = A_t^-1 b_t: S = A_h - A_ht Y,
-// r = b_h - A_ht y0 (S is small and, with the rotational terms, not symmetric:
-// LU with partial pivoting; a singular S shows as an inaccurate solution).
-// The handles' part of eq. 12 given S = A_h - A_ht Y and its LU, checked against S.
+// Handle solve of eq. 13 given S = A_h - A_ht Y (Y = A_t^-1 A_th), its LU, and y0 = A_t^-1 b_t:
+// r = b_h - A_ht y0 (S is small and, with the rotational terms, not symmetric: LU with partial
+// pivoting; a singular S shows as an inaccurate solution, checked against S).
 bool solve_schur(const CoupledSystem& s, const Eigen::MatrixXd& S, const Eigen::PartialPivLU<Eigen::MatrixXd>& lu,
                  const Eigen::VectorXd& y0, Eigen::VectorXd& v_h) {
   // A free body (no handles, no bodies in contact): eq. 7 is A_t v_t = b_t alone.
@@ -37,6 +36,7 @@ bool solve_schur(const CoupledSystem& s, const Eigen::MatrixXd& S, const Eigen::
   return v_h.allFinite() && (S * v_h - r).norm() <= 1e-8 * (r.norm() + S.norm() * v_h.norm());
 }
 
+// The same, forming S and its LU from Y.
 bool solve_handles(const CoupledSystem& s, const Eigen::MatrixXd& Y, const Eigen::VectorXd& y0, Eigen::VectorXd& v_h) {
   const Eigen::MatrixXd S = s.A_h - s.A_ht * Y;
   return solve_schur(s, S, S.partialPivLu(), y0, v_h);

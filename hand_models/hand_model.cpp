@@ -590,7 +590,10 @@ bool solve_constraint_contacts(const HandModel& model, HandState& s, CoupledSolv
     const Eigen::SparseMatrix<double> Jt_new = transposed_rows(added);
     problem.u_free.tail(3 * added) += Jt_new.transpose() * V_free;
     Eigen::MatrixXd X_h_new, X_t_new;
-    if (!solver.solve_block_parts(sys, Eigen::MatrixXd(Jt_new), X_h_new, X_t_new, Y_tool)) return false;
+    const Eigen::MatrixXd* Y_round = nullptr;
+    if (!solver.solve_block_parts(sys, Eigen::MatrixXd(Jt_new), X_h_new, X_t_new, Y_round)) return false;
+    if (first > 0 && Y_round != Y_tool) return false;  // every column of X must be in the same form
+    Y_tool = Y_round;
     Eigen::SparseMatrix<double> joined(nh + nt, 3 * c);
     joined.leftCols(3 * first) = Jt;
     joined.rightCols(3 * added) = Jt_new;
