@@ -15,22 +15,32 @@ namespace {
 
 SceneDesc stylus_scene() { return load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json"); }
 
-TEST(Multirate, LinearizedModelBeatsAZeroOrderHoldInRmsForceErrorAt30HzOnTheStylusPress) {
-  // The bench's default stylus press: settle 0.5 s, 2 cm (device) down over 1 s onto the bunny, 1 s held.
-  const Interaction press = stylus_press(stylus_scene(), 2.5);
+// The press at 30 Hz, open loop, with the linearized model and the zero-order hold: the ratio of
+// their RMS force errors against the every-tick world, after the checks that the runs mean
+// something (the press loads the device; neither the reference nor the linearized run reset).
+double zoh_over_linearized_at_30_hz(const Interaction& press) {
   const MultirateRuns runs = run_multirate(press, {33}, {HandleModelKind::linearized, HandleModelKind::zoh});
-  ASSERT_EQ(runs.rows.size(), 2u);
+  if (runs.rows.size() != 2u) {
+    ADD_FAILURE() << runs.rows.size() << " rows";
+    return 0;
+  }
   const MultirateRow &lin = runs.rows[0], &zoh = runs.rows[1];
-  ASSERT_EQ(lin.model, HandleModelKind::linearized);
-  ASSERT_EQ(zoh.model, HandleModelKind::zoh);
+  EXPECT_EQ(lin.model, HandleModelKind::linearized);
+  EXPECT_EQ(zoh.model, HandleModelKind::zoh);
   const double ratio = zoh.error.rms_n / lin.error.rms_n;
   std::printf(
-      "30 Hz stylus press: reference RMS force %.3f N; RMS error linearized %.4f N (max %.4f), zoh %.4f N "
-      "(max %.4f, %ld resets): %.2fx\n",
-      rms_force(runs.reference), lin.error.rms_n, lin.error.max_n, zoh.error.rms_n, zoh.error.max_n, zoh.resets, ratio);
+      "30 Hz %s: reference RMS force %.3f N; RMS error linearized %.4f N (max %.4f), zoh %.4f N (max %.4f, %ld "
+      "resets): %.2fx\n",
+      press.name.c_str(), rms_force(runs.reference), lin.error.rms_n, lin.error.max_n, zoh.error.rms_n, zoh.error.max_n,
+      zoh.resets, ratio);
   EXPECT_GT(rms_force(runs.reference), 0.5) << "the press loads the device";
   EXPECT_EQ(runs.reference.resets, 0);
   EXPECT_EQ(lin.resets, 0);
+  return ratio;
+}
+
+TEST(Multirate, LinearizedModelBeatsAZeroOrderHoldInRmsForceErrorAt30HzOnTheStylusPress) {
+  // The bench's default stylus press: settle 0.5 s, 2 cm (device) down over 1 s onto the bunny, 1 s held.
   // On the movable bunny the ratio is below seed 004's 5x (the next test asserts
   // it on a fixed object): measured 3.4x at this revision. The zero-order hold's error is that of an
   // unstable loop (the proxy under a force held for 33 ms resets ~1500 times in
@@ -43,25 +53,13 @@ TEST(Multirate, LinearizedModelBeatsAZeroOrderHoldInRmsForceErrorAt30HzOnTheStyl
   // bunny slide ~4 mm, the 1 kHz world does not. With the bunny static the same
   // press gives 16.7x. A regression below 3x fails here; the zero-order hold's
   // error, an unstable loop's, moves by ~10 % with any change to the rounding.
-  EXPECT_GE(ratio, 3.0);
+  EXPECT_GE(zoh_over_linearized_at_30_hz(stylus_press(stylus_scene(), 2.5)), 3.0);
 }
 
 // The claim itself, where only the rendering differs: the same press on the bunny made static
 // (stylus_press_fixed). Seed 004's linearized model against the zero-order hold at 30 Hz.
 TEST(Multirate, LinearizedModelBeatsAZeroOrderHoldFiveTimesAt30HzOnTheStylusPressOnAFixedObject) {
-  const Interaction press = stylus_press_fixed(stylus_scene(), 2.5);
-  const MultirateRuns runs = run_multirate(press, {33}, {HandleModelKind::linearized, HandleModelKind::zoh});
-  ASSERT_EQ(runs.rows.size(), 2u);
-  const MultirateRow &lin = runs.rows[0], &zoh = runs.rows[1];
-  const double ratio = zoh.error.rms_n / lin.error.rms_n;
-  std::printf(
-      "30 Hz stylus press on the fixed bunny: reference RMS force %.3f N; RMS error linearized %.4f N (max %.4f), "
-      "zoh %.4f N (max %.4f, %ld resets): %.2fx\n",
-      rms_force(runs.reference), lin.error.rms_n, lin.error.max_n, zoh.error.rms_n, zoh.error.max_n, zoh.resets, ratio);
-  EXPECT_GT(rms_force(runs.reference), 0.5) << "the press loads the device";
-  EXPECT_EQ(runs.reference.resets, 0);
-  EXPECT_EQ(lin.resets, 0);
-  EXPECT_GE(ratio, 5.0);
+  EXPECT_GE(zoh_over_linearized_at_30_hz(stylus_press_fixed(stylus_scene(), 2.5)), 5.0);  // measured 16.7x
 }
 
 TEST(Multirate, At30HzOnlyTheLinearizedModelRendersTheStylusPressStablyInClosedLoop) {
