@@ -4,7 +4,7 @@
 // every step. Left to glibc's defaults, each is a fresh mmap whose pages the kernel faults in and
 // zeroes again every time (with mlockall(MCL_FUTURE), at the mmap itself): on the 16-frame glove
 // scene that was ~30 % of the visual step (`haptic-bench world --scene scenes/glove_grasp.json`,
-// step median 17.1 -> 12.5 ms).
+// step median about 17 -> 12 ms, contact-free; run-to-run spread on this machine is large).
 
 namespace hapticd {
 
