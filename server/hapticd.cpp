@@ -117,7 +117,7 @@ int main(int argc, char** argv) {
     std::vector<DeviceLink> links;
     for (const DeviceDesc& d : scene.devices) links.push_back(make_device_link(world, d, options.haptic_rate_hz));
     if (!keep_large_allocations_on_heap())
-      say(Level::warn, "the C library refused the heap settings: the visual step's large blocks are mmapped anew");
+      say(Level::warn, "the allocator refused the heap settings (a sanitizer's does): the visual step's large blocks are mapped anew each step");
     // Lock memory so a page fault never stalls the haptic thread (needs CAP_IPC_LOCK).
     if (mlockall(MCL_CURRENT | MCL_FUTURE) != 0)
       say(Level::warn, "memory not locked (mlockall not permitted): page faults may delay the haptic loop");

@@ -10,7 +10,8 @@ namespace hapticd {
 
 // Serves allocations of up to 32 MB (glibc's largest mmap threshold) from the heap and keeps freed
 // heap memory in the process, so that a steady visual loop reuses its pages instead of faulting
-// them in. Process-wide; call once at start-up, before threads. False if the C library refused.
+// them in. Process-wide; call once at start-up, before threads. False if the allocator refused
+// (a sanitizer's allocator ignores these settings).
 bool keep_large_allocations_on_heap();
 
 }  // namespace hapticd
