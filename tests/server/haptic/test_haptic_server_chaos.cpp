@@ -171,8 +171,12 @@ TEST(HapticServerChaos, LossReorderDuplicationAndJitterKeepTheSessionAliveAndThe
   EXPECT_EQ(rejected(r, RejectReason::kReplayed), r.relay.to_server.duplicated);
   EXPECT_EQ(r.server.packets_dropped, rejected(r, RejectReason::kReplayed) + r.server.stale);
   EXPECT_EQ(r.server.packets_in, r.relay.to_server.sent);
-  // The client refused every duplicate of the server's replies the same way.
-  EXPECT_EQ(r.client.datagrams_unauthenticated, r.relay.to_client.duplicated);
+  // The client refused every duplicate of the server's replies the same way, and nothing else. A
+  // copy of the last reply it waited for (the closing stats request's) can still be on its way when
+  // it stops reading: that one is counted by the relay but never read (seen once under a loaded
+  // ctest -j2, 26 of 27).
+  EXPECT_LE(r.client.datagrams_unauthenticated, r.relay.to_client.duplicated);
+  EXPECT_GE(r.client.datagrams_unauthenticated + 1, r.relay.to_client.duplicated);
   EXPECT_GT(r.relay.to_server.reordered, 0u);
   EXPECT_GT(r.relay.to_server.duplicated, 0u);
 }
