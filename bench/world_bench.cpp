@@ -1,6 +1,7 @@
 #include "world_bench.hpp"
 
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -10,6 +11,10 @@
 #include <vector>
 
 #include "bench_common.hpp"
+#include "clients/sim/glove_model.hpp"
+#include "clients/sim/glove_trajectory.hpp"
+#include "hand_models/skeleton/hand_skeleton.hpp"
+#include "server/haptic/device_link.hpp"
 #include "server/world/scene_loader.hpp"
 #include "server/world/world.hpp"
 
@@ -34,13 +39,57 @@ struct RunStats {
   long resets = 0;
 };
 
-// Every hand's handles travel in the first second to 6 cm above the scene's
+// A hand driven by a glove device of the scene follows the glove's grasp (sim::GloveTrajectory::grasp:
+// rest, close into the power grasp over 1 s, hold) from where its palm starts, its handles on the
+// commanded frames as the glove's DeviceMap places them (no haptic loop: the handles' targets are the
+// frames themselves).
+Eigen::Vector3d to_eigen(sim::Vec3d v) { return {v.x, v.y, v.z}; }
+
+struct GloveScript {
+  int hand = -1;
+  DeviceLink link;
+  sim::GloveTrajectory trajectory = sim::GloveTrajectory::grasp();
+};
+
+std::vector<GloveScript> glove_scripts(const SceneDesc& scene, const World& world) {
+  std::vector<GloveScript> out;
+  for (const DeviceDesc& d : scene.devices) {
+    if (d.kind != DeviceKind::glove) continue;
+    GloveScript g;
+    g.hand = world.find_hand(d.hand);
+    g.link = make_device_link(world, d, 1000.0);
+    const HandleState& palm = world.hand(g.hand).state.handles[0];
+    Eigen::Vector3d palm_D;
+    Eigen::Quaterniond q_D;
+    g.link.map.to_device(0, {palm.p_WH, palm.q_WH}, palm_D, q_D);
+    g.trajectory = sim::GloveTrajectory::grasp({palm_D.x(), palm_D.y(), palm_D.z()});
+    g.trajectory.set_palm_orientation(q_D);
+    out.push_back(std::move(g));
+  }
+  return out;
+}
+
+void set_glove_targets(const GloveScript& g, double t, HandState& state) {
+  const sim::RigidPose palm{to_eigen(g.trajectory.palm_position(t)), g.trajectory.palm_orientation()};
+  const auto frames = sim::glove_frame_poses(skeleton_pose(HandJointAngles::from_vector(g.trajectory.angles(t)), g.link.left),
+                                        palm, g.link.handles);
+  for (int j = 0; j < g.link.handles; ++j) {
+    const HapticPose pose = g.link.map.to_world(j, frames[j].p_m, frames[j].q);
+    HandleTarget target;
+    target.p_W = pose.p_W;
+    target.q_W = pose.q_W;
+    set_target(state, j, target);
+  }
+}
+
+// Every other hand's handles travel in the first second to 6 cm above the scene's
 // first rigid or deformable object (file order), come down onto it in the next
 // half second (palm centre 5 mm above its top surface, so the palm's skin
 // presses into it), then stroke 2 cm along x with a 2 s period.
 RunStats run(const SceneDesc& scene, WorldOptions options, int steps) {
   options.linearize = false;  // the model is the coming step's, built after each step as the server does
   World world(scene, options);
+  const std::vector<GloveScript> gloves = glove_scripts(scene, world);
   HandleLinearization model;
   std::vector<std::vector<HandleState>> start;
   for (int h = 0; h < world.num_hands(); ++h) start.push_back(world.hand(h).state.handles);
@@ -80,13 +129,19 @@ RunStats run(const SceneDesc& scene, WorldOptions options, int steps) {
   for (int k = 0; k < steps; ++k) {
     const double t = (k + 1) * world.dt();
     const Eigen::Vector3d stroke(0.02 * std::sin(2 * std::numbers::pi * std::max(0.0, t - 1.5) / 2.0), 0, 0);
-    for (int h = 0; h < world.num_hands(); ++h)
+    for (int h = 0; h < world.num_hands(); ++h) {
+      const auto glove = std::find_if(gloves.begin(), gloves.end(), [h](const GloveScript& g) { return g.hand == h; });
+      if (glove != gloves.end()) {
+        set_glove_targets(*glove, t, world.hand(h).state);
+        continue;
+      }
       for (size_t j = 0; j < start[h].size(); ++j) {
         HandleTarget target;
         target.p_W = start[h][j].p_WH + approach(t) + stroke;
         target.q_W = start[h][j].q_WH;
         set_target(world.hand(h).state, static_cast<int>(j), target);
       }
+    }
     const HandleLinearization previous = model;
     world.step();
     const auto t_model = std::chrono::steady_clock::now();
@@ -178,7 +233,7 @@ void run_world_bench(const WorldBenchArgs& a) {
 
 void add_world_suite(CLI::App& app) {
   auto args = std::make_shared<WorldBenchArgs>();
-  CLI::App* sub = app.add_subcommand("world", "a scene's world under a scripted press and stroke, contact on and off");
+  CLI::App* sub = app.add_subcommand("world", "a scene's world under a scripted press and stroke (a glove's hand: its grasp), contact on and off");
   sub->add_option("--scene", args->scene, "scene file (scenes/*.json)")->required()->check(CLI::ExistingFile);
   sub->add_option("--steps", args->steps, "steps (the first 10 are not measured)")->check(CLI::Range(11, 1000000));
   sub->add_option("--solver", args->solver, "hand solver: monolithic | cg | cholmod | lagged")

@@ -49,6 +49,14 @@ HapticPose DeviceMap::to_world(const Eigen::Vector3d& p_D, const Eigen::Quaterni
   return {offset_W + scale * (R_WD * p_D), (R_WD * q_D).normalized()};
 }
 
+void DeviceMap::to_device(int j, const HapticPose& handle_W, Eigen::Vector3d& p_D, Eigen::Quaterniond& q_D) const {
+  // The frame carries its handle at (handle_p_F, handle_q_F).
+  const Eigen::Quaterniond q_frame_W = (handle_W.q_W * handle_q_F[j].conjugate()).normalized();
+  const Eigen::Vector3d p_frame_W = handle_W.p_W - q_frame_W * handle_p_F[j];
+  p_D = R_WD.conjugate() * (p_frame_W - offset_W) / scale;
+  q_D = (R_WD.conjugate() * q_frame_W).normalized();
+}
+
 bool prepare_tick_solver(HapticModel& model, int handles, const double* mass_kg, const Eigen::Matrix3d* inertia_B,
                          const CouplingGains& gains, double dt) {
   TickSolver& s = model.solver;

@@ -116,6 +116,8 @@ struct DeviceMap {
   HapticPose to_world(int j, const Eigen::Vector3d& p_D, const Eigen::Quaterniond& q_D) const;
   // The frame as such (no handle offset).
   HapticPose to_world(const Eigen::Vector3d& p_D, const Eigen::Quaterniond& q_D) const;
+  // The inverse of to_world(j, .): frame j's pose in device space when its handle is at `handle_W`.
+  void to_device(int j, const HapticPose& handle_W, Eigen::Vector3d& p_D, Eigen::Quaterniond& q_D) const;
 };
 
 // Coupling gains for a device whose declared stiffness is k_dev (N/m in device

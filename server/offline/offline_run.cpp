@@ -89,12 +89,7 @@ OfflineLoops::OfflineLoops(SceneDesc scene, const OfflineOptions& options) : opt
 
 void OfflineLoops::frame_pose_at_handle(int j, Eigen::Vector3d& p_D, Eigen::Quaterniond& q_D) const {
   const HandleState& h = world_->hand(link_.hand).state.handles[j];
-  const DeviceMap& map = link_.map;
-  // Invert DeviceMap::to_world(j, .): the frame carries its handle at (handle_p_F, handle_q_F).
-  const Eigen::Quaterniond q_frame_W = (h.q_WH * map.handle_q_F[j].conjugate()).normalized();
-  const Eigen::Vector3d p_frame_W = h.p_WH - q_frame_W * map.handle_p_F[j];
-  p_D = map.R_WD.conjugate() * (p_frame_W - map.offset_W) / map.scale;
-  q_D = (map.R_WD.conjugate() * q_frame_W).normalized();
+  link_.map.to_device(j, {h.p_WH, h.q_WH}, p_D, q_D);
 }
 
 long OfflineLoops::resets() const { return proxy_.resets() + world_->snapshot().resets; }

@@ -599,6 +599,24 @@ TEST(VirtualCoupling, TheTickCatchesPreparedFactorsThatDoNotSolveTheirMatrix) {
   }
 }
 
+// DeviceMap::to_device inverts to_world(j, .) for a scaled, turned and offset workspace with a
+// handle carried off its frame's origin.
+TEST(VirtualCoupling, DeviceMapToDeviceInvertsToWorld) {
+  DeviceMap map(0.5, Eigen::Vector3d(0.1, -0.2, 0.85), Eigen::Quaterniond(Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 2, 3).normalized())));
+  map.handle_p_F[2] = Eigen::Vector3d(0.01, 0.03, -0.005);
+  map.handle_q_F[2] = Eigen::Quaterniond(Eigen::AngleAxisd(0.4, Eigen::Vector3d::UnitY()));
+  const Eigen::Vector3d p_D(0.03, -0.02, 0.05);
+  const Eigen::Quaterniond q_D(Eigen::AngleAxisd(1.1, Eigen::Vector3d(0.3, -1, 0.2).normalized()));
+  Eigen::Vector3d p_back;
+  Eigen::Quaterniond q_back;
+  map.to_device(2, map.to_world(2, p_D, q_D), p_back, q_back);
+  EXPECT_LT((p_back - p_D).norm(), 1e-14);
+  EXPECT_LT(q_back.angularDistance(q_D), 1e-12);
+  // The handle sits |handle_p_F| (world units) from its frame's origin.
+  const HapticPose frame = map.to_world(p_D, q_D), handle = map.to_world(2, p_D, q_D);
+  EXPECT_NEAR((handle.p_W - frame.p_W).norm(), map.handle_p_F[2].norm(), 1e-14);
+}
+
 // Fewer handles than kMinPreparedHandles, a model of another size or a non-finite one: not prepared.
 TEST(VirtualCoupling, PrepareTickSolverRefusesWhatItCannotServe) {
   const GloveModelCase c(5);
