@@ -22,6 +22,18 @@ namespace hapticd {
 namespace asio = boost::asio;
 using protocol::MessageType;
 
+namespace {
+
+// A session's proxy counters, summed into the server's (when it closes, and at the end of a run).
+void add_proxy_counts(ServerStats& st, const ProxyHand& p) {
+  st.clamps += static_cast<std::uint64_t>(p.clamps());
+  st.resets += static_cast<std::uint64_t>(p.resets());
+  st.solver_fallbacks += static_cast<std::uint64_t>(p.solver_fallbacks());
+  st.solver_refinements += static_cast<std::uint64_t>(p.solver_refinements());
+}
+
+}  // namespace
+
 struct HapticServer::Session {
   bool active = false;
   bool follower = false;  // shares a device's hand with an earlier session: feels it, does not drive it
@@ -222,12 +234,7 @@ void HapticServer::run(const std::atomic<bool>& stop) {
   if (getrusage(RUSAGE_THREAD, &usage) == 0)
     st.cpu_s = static_cast<double>(usage.ru_utime.tv_sec + usage.ru_stime.tv_sec) +
                1e-6 * static_cast<double>(usage.ru_utime.tv_usec + usage.ru_stime.tv_usec);
-  for (int i = 0; i < kMaxSessions; ++i) {
-    st.clamps += static_cast<std::uint64_t>(sessions_[i].proxy.clamps());
-    st.resets += static_cast<std::uint64_t>(sessions_[i].proxy.resets());
-    st.solver_fallbacks += static_cast<std::uint64_t>(sessions_[i].proxy.solver_fallbacks());
-    st.solver_refinements += static_cast<std::uint64_t>(sessions_[i].proxy.solver_refinements());
-  }
+  for (int i = 0; i < kMaxSessions; ++i) add_proxy_counts(st, sessions_[i].proxy);
   st.rate_sources_evicted = limiter_->evictions();
 }
 
@@ -613,10 +620,7 @@ void HapticServer::confirm(Session& s) {
 }
 
 void HapticServer::close(Session& s) {
-  stats_->clamps += static_cast<std::uint64_t>(s.proxy.clamps());
-  stats_->resets += static_cast<std::uint64_t>(s.proxy.resets());
-  stats_->solver_fallbacks += static_cast<std::uint64_t>(s.proxy.solver_fallbacks());
-  stats_->solver_refinements += static_cast<std::uint64_t>(s.proxy.solver_refinements());
+  add_proxy_counts(*stats_, s.proxy);
   s = Session{};
 }
 
