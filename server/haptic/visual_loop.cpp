@@ -43,7 +43,7 @@ void fill_haptic_model(World& world, int h, HandleLinearization& lin, HapticMode
   out.handles = m;
 }
 
-bool prepare_for_links(const std::vector<DeviceLink>& links, int h, double haptic_dt_s, HapticModel& model) {
+bool prepare_for_links(std::span<const DeviceLink> links, int h, double haptic_dt_s, HapticModel& model) {
   model.solver.prepared = false;
   for (const DeviceLink& link : links)
     if (link.hand == h && link.handles == model.handles)

@@ -4,6 +4,7 @@
 // pulling each driven hand's handles toward the haptic proxies and publishing
 // each hand's handle-space model for the haptic loop.
 #include <atomic>
+#include <span>
 
 #include "server/haptic/haptic_server.hpp"
 #include "server/haptic/loop_stats.hpp"
@@ -37,7 +38,7 @@ struct VisualStats {
 void fill_haptic_model(World& world, int h, HandleLinearization& lin, HapticModel& out);
 // Prepares `model`'s tick solver (prepare_tick_solver) for the first of `links` that drives hand h
 // with as many handles, at the haptic period `haptic_dt_s`; false when none does.
-bool prepare_for_links(const std::vector<DeviceLink>& links, int h, double haptic_dt_s, HapticModel& model);
+bool prepare_for_links(std::span<const DeviceLink> links, int h, double haptic_dt_s, HapticModel& model);
 // Only its contact flags (in_contact, handle_in_contact) from the world's last contacts.
 void fill_contact_flags(const World& world, int h, HapticModel& out);
 

@@ -211,8 +211,7 @@ void OfflineLoops::visual_step(double t) {
   for (int h = 0; h < world_->num_hands(); ++h) world_->hand(h).state.dt_s = dt;
   build_model(next_);
   // As VisualLoop::run: the haptic tick's solver of the model, prepared here (a glove's).
-  if (!coupled && next_.handles >= kMinPreparedHandles)
-    prepare_tick_solver(next_, link_.handles, link_.mass_kg, link_.inertia_B, link_.gains, T);
+  if (!coupled && next_.handles >= kMinPreparedHandles) prepare_for_links({&link_, 1}, link_.hand, T, next_);
   next_.resyncs = resyncs_seen_;
   next_t_end_s_ = t_read + latency + dt;
   pending_ = true;
