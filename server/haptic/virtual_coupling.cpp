@@ -84,9 +84,9 @@ bool prepare_tick_solver(HapticModel& model, int handles, const double* mass_kg,
   const Eigen::HessenbergDecomposition<HapticMatrix> hessenberg(E);
   s.U = hessenberg.matrixQ();
   const HapticMatrix H = hessenberg.matrixH();
-  for (int i = 0; i < n; ++i) {
-    double* row = s.hessenberg_row(i, n);
-    for (int j = std::max(i - 1, 0); j < n; ++j) row[j] = H(i, j);
+  for (int j = 0; j < n; ++j) {
+    double* column = s.hessenberg_column(j);
+    for (int i = 0; i <= std::min(j + 1, n - 1); ++i) column[i] = H(i, j);
   }
   s.G.noalias() = s.U.transpose() * lu.inverse();
   HapticVector v0(n);
@@ -141,7 +141,8 @@ void ProxyHand::configure(int handles, const double* mass_kg, const Eigen::Matri
   }
   const int n = 6 * handles_;
   A_.resize(n, n);
-  W_.resize(n, n);
+  column_.resize(n);
+  multiplier_.resize(n);
   b_.resize(n);
   x_rel_.resize(n);
   v_next_.resize(n);
@@ -320,55 +321,53 @@ void ProxyHand::apply_prepared(const TickSolver& s, double tau, const HapticVect
   const int n = 6 * handles_;
   // c = U^T B^-1 rhs; (I - tau H) y = c; v = U y.
   c_.noalias() = s.G * rhs;
-  // Gaussian elimination with partial pivoting on the Hessenberg matrix I - tau H, O(n^2): below
-  // each pivot only the next row is nonzero, so the pivot is either the row carried down from the
-  // previous steps (held in row k of W_) or that next row, formed from H as it is needed; W_ ends
-  // up holding the triangular factor, and c_ is transformed alongside.
-  const Eigen::Index ld = W_.outerStride();
-  double* W = W_.data();
-  double* c = c_.data();
-  const double* h_first = s.hessenberg_row(0, n);
-  for (int j = 0; j < n; ++j) W[j] = -tau * h_first[j];
-  W[0] += 1.0;
-  for (int k = 0; k + 1 < n; ++k) {
-    double* __restrict carried = W + k * ld;
-    double* __restrict below = W + (k + 1) * ld;
-    const double* __restrict h_next = s.hessenberg_row(k + 1, n);
-    const double pivot = carried[k], next = -tau * h_next[k];
-    if (std::abs(next) > std::abs(carried[k])) {
-      // The next row is the pivot row; the carried row, eliminated by it, moves down.
-      const double l = pivot / next;
-      carried[k] = next;
-      for (int j = k + 1; j < n; ++j) {
-        const double w = -tau * h_next[j], a = carried[j];
-        carried[j] = w;
-        below[j] = a - l * w;
+  // M = I - tau H is upper Hessenberg. Column operations from the right reduce it to upper
+  // triangular, M Q = R: step i (n - 1 down to 1) takes the larger of the two entries of row i
+  // (in the column reduced so far, w, and in M's column i - 1) as pivot, swapping the two columns
+  // if it is the latter (partial pivoting, |multiplier| <= 1), and subtracts the pivot column from
+  // the other, which becomes the next w. Column i of R is then final, so R z = c is back-solved
+  // column by column as it goes; y = Q z follows by replaying the steps. R is never stored: the
+  // tick reads H once, in order, and writes n numbers.
+  double* __restrict w = column_.data();
+  double* __restrict c = c_.data();
+  double* __restrict multiplier = multiplier_.data();
+  const double* last = s.hessenberg_column(n - 1);
+  for (int r = 0; r < n; ++r) w[r] = -tau * last[r];
+  w[n - 1] += 1.0;
+  for (int i = n - 1; i >= 1; --i) {
+    const double* __restrict h = s.hessenberg_column(i - 1);  // M's column i - 1 is e_{i-1} - tau h, rows 0 .. i
+    const double w_i = w[i], m_i = -tau * h[i];
+    swapped_[i] = std::abs(m_i) > std::abs(w_i);
+    if (swapped_[i]) {
+      // M's column i - 1 is the pivot; w, less it, becomes the next w.
+      const double l = w_i / m_i, z = c[i] / m_i;
+      for (int r = 0; r < i; ++r) {
+        const double p = -tau * h[r];
+        c[r] -= z * p;
+        w[r] -= l * p;
       }
-      carried[k + 1] += 1.0;
-      below[k + 1] -= l;
-      const double c_carried = c[k];
-      c[k] = c[k + 1];
-      c[k + 1] = c_carried - l * c[k];
+      c[i - 1] -= z;
+      w[i - 1] -= l;
+      multiplier[i] = l;
+      c[i] = z;
     } else {
-      const double l = next / pivot;
-      for (int j = k + 1; j < n; ++j) below[j] = -tau * h_next[j] - l * carried[j];
-      below[k + 1] += 1.0;
-      c[k + 1] -= l * c[k];
+      const double l = m_i / w_i, z = c[i] / w_i;
+      for (int r = 0; r < i; ++r) {
+        const double p = w[r];
+        c[r] -= z * p;
+        w[r] = -tau * h[r] - l * p;
+      }
+      w[i - 1] += 1.0;
+      multiplier[i] = l;
+      c[i] = z;
     }
   }
-  // Back substitution by rows; four partial sums keep the dot products off one addition chain.
-  for (int i = n - 1; i >= 0; --i) {
-    const double* u = W + i * ld;
-    double s0 = 0, s1 = 0, s2 = 0, s3 = 0;
-    int j = i + 1;
-    for (; j + 3 < n; j += 4) {
-      s0 += u[j] * c[j];
-      s1 += u[j + 1] * c[j + 1];
-      s2 += u[j + 2] * c[j + 2];
-      s3 += u[j + 3] * c[j + 3];
-    }
-    for (; j < n; ++j) s0 += u[j] * c[j];
-    c[i] = (c[i] - ((s0 + s1) + (s2 + s3))) / u[i];
+  c[0] /= w[0];
+  // y = Q z, Q = T_{n-1} E_{n-1} ... T_1 E_1: E_i subtracted multiplier_i times column i from
+  // column i - 1, T_i swapped the two.
+  for (int i = 1; i < n; ++i) {
+    c[i] -= multiplier[i] * c[i - 1];
+    if (swapped_[i]) std::swap(c[i], c[i - 1]);
   }
   dv_.noalias() = s.U * c_;
 }

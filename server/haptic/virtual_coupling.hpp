@@ -55,13 +55,13 @@ struct TickSolver {
   // passes; a probe that objects sends the tick to the exact residual.
   static constexpr int kProbes = 4;
   Eigen::Matrix<double, kProbes, Eigen::Dynamic, Eigen::RowMajor, kProbes, kMaxHapticDofs> Z, ZB, ZC;
-  // H upper Hessenberg, packed by rows from its subdiagonal (hessenberg_row(i)[j], j >= i - 1).
-  static constexpr int kPackedSize = kMaxHapticDofs * (kMaxHapticDofs + 3) / 2 - 1;
+  // H upper Hessenberg, packed by columns: column j holds rows 0 .. min(j + 1, n - 1), so where it
+  // starts does not depend on n; hessenberg_column(j)[i] is H(i, j).
+  static constexpr int column_offset(int j) { return j * (j + 3) / 2; }
+  static constexpr int kPackedSize = (kMaxHapticDofs - 1) * (kMaxHapticDofs + 2) / 2 + kMaxHapticDofs;
   double H[kPackedSize]{};
-  // Where row i starts in H for an n x n matrix; hessenberg_row(i, n)[j] is H(i, j).
-  static constexpr int row_offset(int i, int n) { return i == 0 ? 0 : n + (i - 1) * (n + 1) - (i - 1) * i / 2; }
-  double* hessenberg_row(int i, int n) { return H + row_offset(i, n) - (i > 0 ? i - 1 : 0); }
-  const double* hessenberg_row(int i, int n) const { return H + row_offset(i, n) - (i > 0 ? i - 1 : 0); }
+  double* hessenberg_column(int j) { return H + column_offset(j); }
+  const double* hessenberg_column(int j) const { return H + column_offset(j); }
 };
 
 // One hand's handle-space model as the visual loop publishes it.
@@ -247,7 +247,10 @@ class ProxyHand {
   Eigen::Matrix3d a_rot_[kMaxHapticHandles];
   HapticMatrix A_;
   HapticVector b_, x_rel_, v_next_, v0_, r_, c_, dv_;
-  HapticRowMatrix W_;  // the triangular factor of I - tau H (TickSolver)
+  // apply_prepared's elimination: the column being reduced, each step's multiplier, and whether
+  // the step swapped its two columns (partial pivoting).
+  HapticVector column_, multiplier_;
+  bool swapped_[kMaxHapticDofs]{};
   Eigen::PartialPivLU<HapticMatrix> lu_;
 };
 

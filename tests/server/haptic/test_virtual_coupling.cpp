@@ -568,14 +568,13 @@ TEST(VirtualCoupling, PreparedTickSolverDoesNotAllocate) {
 // dense LU answers. Unchecked, the first would leave errors of ~1e-6 and the second would diverge.
 TEST(VirtualCoupling, TheTickCatchesPreparedFactorsThatDoNotSolveTheirMatrix) {
   const GloveModelCase c(13);
-  const int n = 6 * GloveModelCase::kHandles;
   HapticPose start[GloveModelCase::kHandles];
   for (int j = 0; j < GloveModelCase::kHandles; ++j) start[j] = c.model.x0[j];
   for (const double corruption : {1e-6, 0.5}) {
     HapticModel corrupted = c.model;
     ASSERT_TRUE(c.prepare(corrupted));
-    corrupted.solver.hessenberg_row(5, n)[9] *= 1 + corruption;
-    corrupted.solver.hessenberg_row(6, n)[5] *= 1 + corruption;  // the subdiagonal too
+    corrupted.solver.hessenberg_column(9)[5] *= 1 + corruption;
+    corrupted.solver.hessenberg_column(5)[6] *= 1 + corruption;  // the subdiagonal too
     ProxyHand checked = c.proxy(), plain = c.proxy();
     double worst = 0, t = 0;
     constexpr int kTicks = 50;
