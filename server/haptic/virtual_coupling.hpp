@@ -16,8 +16,6 @@ constexpr int kMaxHapticHandles = 16;
 constexpr int kMaxHapticDofs = 6 * kMaxHapticHandles;
 using HapticVector = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, kMaxHapticDofs, 1>;
 using HapticMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kMaxHapticDofs, kMaxHapticDofs>;
-using HapticRowMatrix =
-    Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor, kMaxHapticDofs, kMaxHapticDofs>;
 
 // Virtual coupling and proxy parameters, in world units (the device's are mapped in).
 struct CouplingGains {
