@@ -236,7 +236,7 @@ class ProxyHand {
   // The prepared solve of A(tau) v = b (TickSolver), refined against the exact matrix; false
   // when it does not converge (v_next_ is then to be recomputed).
   bool solve_prepared(const HapticModel& model, double h, double tau);
-  // y = A_ref(tau)^-1 rhs through the prepared factors (TickSolver), into dv_.
+  // y = A(tau)^-1 rhs through the prepared factors (TickSolver), into dv_.
   void apply_prepared(const TickSolver& s, double tau, const HapticVector& rhs);
   bool solver_matches(const TickSolver& s, double dt) const;
   // Workspace of the implicit step, sized once. The block diagonal part of A per handle:
