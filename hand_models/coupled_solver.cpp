@@ -81,9 +81,12 @@ class CholmodSchur {
         chol_.analyzePattern(s.A_t);
         analyzed_nnz_ = s.A_t.nonZeros();
         analyzed_rows_ = nt;
+        // The analysis's count for the ordering it kept (the same on any machine).
+        factor_nnz_ = chol_.cholmod().lnz;
       }
       chol_.factorize(s.A_t);
       report.factor_ms += ms_since(t0);
+      ++report.factorizations;
       fingerprint_ = fingerprint(s.A_t);
     }
     if (chol_.info() != Eigen::Success) return false;
@@ -114,6 +117,9 @@ class CholmodSchur {
   }
 
   Eigen::MatrixXd solve_tool(const Eigen::MatrixXd& B) const { return chol_.solve(B); }
+
+  // nnz(L) for the analysed pattern (cholmod_common::lnz).
+  double factor_nnz() const { return factor_nnz_; }
 
   // Whether the current factorization is of exactly this A_t (same pattern and values).
   bool factors(const Eigen::SparseMatrix<double>& A) const { return fingerprint(A) == fingerprint_; }
@@ -177,6 +183,7 @@ class CholmodSchur {
   Eigen::CholmodDecomposition<Eigen::SparseMatrix<double>, Eigen::Lower> chol_;
   long analyzed_nnz_ = -1;
   long analyzed_rows_ = -1;
+  double factor_nnz_ = 0;
   Eigen::MatrixXd rhs_, Y_, S_;
   Eigen::SparseMatrix<double, Eigen::RowMajor> A_ht_;
   Eigen::PartialPivLU<Eigen::MatrixXd> lu_;
@@ -242,6 +249,7 @@ class MonolithicSolver final : public CoupledSolver {
     const Eigen::SparseMatrix<double> A = full_matrix(s);
     lu_.compute(A);
     report.factor_ms = ms_since(t0);
+    report.factorizations = 1;
     if (lu_.info() != Eigen::Success) return false;
     const auto t1 = Clock::now();
     Eigen::VectorXd b(nh + nt);
@@ -344,11 +352,55 @@ class SchurCholmodSolver final : public CoupledSolver {
   bool factored_ = false;
 };
 
+// The lagged solver's costs, estimated from counts only: nnz(L) for A_t's pattern, the nonzeros
+// of eq. 7's blocks and its handle DOFs, in flops of sparse products and triangular solves. Every
+// number is the same on any machine under any load, so the refactoring schedule (and with it the
+// result, bit for bit) is too. A triangular solve pair with L and L^T is a multiply-add per entry
+// of each: 4 nnz(L) flops per column.
+//
+// A numeric factorization counts as kFactorSolvePairs solve pairs, not as its flops
+// (cholmod_common::fl): a supernodal factorization's dense kernels run its flops faster than a
+// solve runs its own, the more so the larger the supernodes. On the bench's pressed hands of 350
+// to 12,000 tets fl / (4 nnz(L)) grew from 11 to 74 while a numeric factorization took 14 to 25
+// solve pairs' time; with 14, a factor step's counted work and a GMRES step's ran at the same
+// rate within 10 % from 350 to 5,000 tets (AMD EPYC, OpenBLAS serial), where counting fl made a
+// factor step look 2.4x (5,000 tets) to 4x (12,000) dearer than it was. The constant sets only
+// how often the solver refactors, never what it converges to.
+constexpr double kFactorSolvePairs = 14;
+
+struct LaggedWork {
+  double factor = 0;    // a step that factors: A_t = L L^T, the Schur set-up and the exact solve
+  double apply = 0;     // P^-1 r: one A_t solve pair and the handle solve
+  double multiply = 0;  // A v with the whole eq. 7 matrix
+  double n = 0;         // rows of eq. 7
+
+  static LaggedWork of(const CoupledSystem& s, double factor_nnz) {
+    const double nh = s.handle_dofs(), nt = s.tool_dofs(), solve_pair = 4 * factor_nnz;
+    const double ht = static_cast<double>(s.A_ht.nonZeros()), th = static_cast<double>(s.A_th.nonZeros());
+    // seed 004 eq. 13 then eq. 12: r_h - A_ht y, the LU solve with S, y - Y z_h.
+    const double handle_solve = 2 * ht + 2 * nh * nh + 2 * nt * nh;
+    LaggedWork w;
+    w.n = nh + nt;
+    w.multiply = 2 * (static_cast<double>(s.A_t.nonZeros()) + th + ht + nh * nh);
+    w.apply = solve_pair + handle_solve;
+    // seed 004 eq. 13: Y = A_t^-1 [b_t, A_th] (nh + 1 solve pairs), S = A_h - A_ht Y, S's LU.
+    w.factor = (kFactorSolvePairs + nh + 1) * solve_pair + 2 * ht * nh + 2.0 / 3.0 * nh * nh * nh + handle_solve;
+    return w;
+  }
+  // GMRES's start: the previous solution corrected by one application, two products.
+  double start() const { return apply + 2 * multiply; }
+  // Iteration k (from 0): an application, a product, Gram-Schmidt twice against k + 1 vectors.
+  double iteration(int k) const { return apply + multiply + 8 * n * (k + 1); }
+  // Closing after k iterations: x += Z y and the product for the true residual.
+  double finish(int k) const { return 2 * n * k + multiply; }
+};
+
 // GMRES on the whole of eq. 7, right-preconditioned by the exact Schur solve of
 // an earlier step's system (its CHOLMOD factor, Y and S kept). Element rotations
 // and contacts change little between visual steps, so a handful of iterations
-// (one A_t triangular solve each) replace a factorization. The refactoring
-// schedule depends on measured times, so runs agree to the tolerance, not bitwise.
+// (one A_t triangular solve each) replace a factorization. When to refactor is
+// decided on LaggedWork's counts, never on measured times: the same sequence of
+// systems gives the same schedule and the same solutions, bit for bit.
 class SchurLaggedSolver final : public CoupledSolver {
  public:
   explicit SchurLaggedSolver(const SolverOptions& o) : options_(o), schur_(o) {}
@@ -362,37 +414,24 @@ class SchurLaggedSolver final : public CoupledSolver {
 
   bool solve(const CoupledSystem& s, Eigen::VectorXd& v_h, Eigen::VectorXd& v_t, SolveReport& report) override {
     const int nh = s.handle_dofs(), nt = s.tool_dofs();
-    if (refactor_ || factored_size_ != nh + nt) {
-      refactor_ = false;
-      factored_size_ = -1;
-      if (!schur_.factor(s, report)) return false;
-      factored_size_ = nh + nt;
-      const auto t0 = Clock::now();
-      const bool ok = schur_.solve_factored(s, v_h, v_t);
-      report.solve_ms = ms_since(t0);
-      steps_since_factor_ = 1;
-      factor_cost_ms_ = report.factor_ms + report.schur_ms + report.solve_ms;
-      ms_since_factor_ = factor_cost_ms_;
-      if (ok) previous_ = (Eigen::VectorXd(nh + nt) << v_h, v_t).finished();
-      return ok;
-    }
+    if (refactor_ || factored_size_ != nh + nt) return factor_and_solve(s, v_h, v_t, report);
     const auto t0 = Clock::now();
     Eigen::VectorXd b(nh + nt), v;
     b << s.b_h, s.b_t;
-    const int iterations = gmres(s, b, v);
-    report.iterations += std::max(iterations, 0);
+    int iterations = 0;
+    double work = 0;
+    const bool converged = gmres(s, b, v, iterations, work);
+    report.iterations += iterations;
+    report.work_flops += work;
     report.solve_ms = ms_since(t0);
-    if (iterations < 0) {  // not converged: factor this system and solve it exactly
-      refactor_ = true;
-      return solve(s, v_h, v_t, report);
-    }
-    // Refactor once this step's solve costs more than the average step since the
-    // last factorization, factorization included: that minimises the mean cost.
-    // (Measured times: the factor/solve cost ratio varies 5x with mesh size and BLAS.)
+    // Not converged within the budget: factor this system and solve it exactly.
+    if (!converged) return factor_and_solve(s, v_h, v_t, report);
+    // Refactor once this step's solve costs more than the mean step since the last
+    // factorization, factorization included: with costs that grow as the factor ages,
+    // that is when the mean cost per step stops falling.
     ++steps_since_factor_;
-    ms_since_factor_ += report.solve_ms;
-    refactor_ = report.solve_ms > ms_since_factor_ / steps_since_factor_ ||
-                iterations > options_.lagged_refactor_iterations;
+    work_since_factor_ += work;
+    refactor_ = work > work_since_factor_ / steps_since_factor_ || iterations > options_.lagged_refactor_iterations;
     v_h = v.head(nh);
     v_t = v.tail(nt);
     previous_ = v;
@@ -400,14 +439,33 @@ class SchurLaggedSolver final : public CoupledSolver {
   }
 
  private:
-  // Right-preconditioned GMRES (no restarts: the Krylov space stays small);
-  // returns the iteration count, or -1 if the relative residual did not reach
-  // the tolerance within the iteration budget or within the time a
-  // factorization would have cost (then refactoring is the cheaper way).
-  int gmres(const CoupledSystem& s, const Eigen::VectorXd& b, Eigen::VectorXd& x) {
+  bool factor_and_solve(const CoupledSystem& s, Eigen::VectorXd& v_h, Eigen::VectorXd& v_t, SolveReport& report) {
+    const int nh = s.handle_dofs(), nt = s.tool_dofs();
+    refactor_ = false;
+    factored_size_ = -1;
+    if (!schur_.factor(s, report)) return false;
+    factored_size_ = nh + nt;
+    work_ = LaggedWork::of(s, schur_.factor_nnz());
     const auto t0 = Clock::now();
+    const bool ok = schur_.solve_factored(s, v_h, v_t);
+    report.solve_ms += ms_since(t0);
+    // The cycle's cost starts with this step's, a GMRES it gave up included.
+    report.work_flops += work_.factor;
+    steps_since_factor_ = 1;
+    work_since_factor_ = report.work_flops;
+    if (ok) previous_ = (Eigen::VectorXd(nh + nt) << v_h, v_t).finished();
+    return ok;
+  }
+
+  // Right-preconditioned GMRES (no restarts: the Krylov space stays small). True
+  // when the relative residual reached the tolerance; `iterations` and `work` (in
+  // LaggedWork's count) are what it spent. It gives up after lagged_max_iterations or
+  // once it has spent a factor step's work (then refactoring is cheaper).
+  bool gmres(const CoupledSystem& s, const Eigen::VectorXd& b, Eigen::VectorXd& x, int& iterations, double& work) {
     const int max_it = options_.lagged_max_iterations, n = static_cast<int>(b.size());
     const double b_norm = b.norm();
+    iterations = 0;
+    work = work_.start();
     // Start from the previous step's velocities corrected by one preconditioner application.
     Eigen::VectorXd Ax, r, z, w;
     x = previous_;
@@ -417,7 +475,7 @@ class SchurLaggedSolver final : public CoupledSolver {
     multiply(s, x, Ax);
     r = b - Ax;
     double beta = r.norm();
-    if (b_norm == 0 || beta <= options_.lagged_tolerance * b_norm) return 0;
+    if (b_norm == 0 || beta <= options_.lagged_tolerance * b_norm) return true;
     V_.resize(n, max_it + 1);
     Z_.resize(n, max_it);
     H_.setZero(max_it + 1, max_it);
@@ -450,27 +508,29 @@ class SchurLaggedSolver final : public CoupledSolver {
       H_(k + 1, k) = 0;
       g[k + 1] = -sn[k] * g[k];
       g[k] = cs[k] * g[k];
-      const bool out_of_time = ms_since(t0) > factor_cost_ms_;
+      work += work_.iteration(k);
+      const bool over_budget = work > work_.factor;
       if (std::abs(g[k + 1]) <= options_.lagged_tolerance * b_norm || h_next == 0 || k + 1 == max_it ||
-          out_of_time) {
+          over_budget) {
         const Eigen::VectorXd y =
             H_.topLeftCorner(k + 1, k + 1).triangularView<Eigen::Upper>().solve(g.head(k + 1));
         x += Z_.leftCols(k + 1) * y;
         multiply(s, x, Ax);
-        const bool converged = (b - Ax).norm() <= options_.lagged_tolerance * b_norm;
-        return converged ? k + 1 : -1;
+        iterations = k + 1;
+        work += work_.finish(k + 1);
+        return (b - Ax).norm() <= options_.lagged_tolerance * b_norm;
       }
     }
-    return -1;
+    return false;
   }
 
   SolverOptions options_;
   CholmodSchur schur_;
+  LaggedWork work_;  // of the system last factored
   bool refactor_ = true;
   int factored_size_ = -1;
   int steps_since_factor_ = 0;
-  double factor_cost_ms_ = 0;
-  double ms_since_factor_ = 0;
+  double work_since_factor_ = 0;  // LaggedWork of the steps since the last factorization, it included
   Eigen::VectorXd previous_;
   Eigen::MatrixXd V_, Z_, H_;
 };

@@ -8,7 +8,9 @@
 //    solved as one block;
 //  - schur_lagged: GMRES on eq. 7 preconditioned by the exact Schur solve of an
 //    earlier step (factorization reused across steps, refactored when the
-//    iteration count grows), converged to a residual tolerance.
+//    iterations' estimated cost, counted not timed, grows), converged to a residual tolerance.
+//    Its decisions use counts only, never a clock: the same steps give the same
+//    result, bit for bit, on any machine under any load.
 #include <Eigen/Core>
 #include <memory>
 #include <string>
@@ -31,11 +33,19 @@ struct SolverOptions {
   int lagged_refactor_iterations = 20;  // a solve needing more always refactors on the next step
 };
 
+// Times are measurements for the stats only: no solver decision reads them.
 struct SolveReport {
-  double factor_ms = 0;  // numeric factorization (or preconditioner set-up)
-  double schur_ms = 0;   // A_t solves for the Schur complement and its right-hand side
-  double solve_ms = 0;   // handle solve and tool back-substitution
-  long iterations = 0;   // CG or GMRES iterations summed over all solves
+  double factor_ms = 0;    // numeric factorization (or preconditioner set-up)
+  double schur_ms = 0;     // A_t solves for the Schur complement and its right-hand side
+  double solve_ms = 0;     // handle solve and tool back-substitution
+  long iterations = 0;     // CG or GMRES iterations summed over all solves
+  int factorizations = 0;  // numeric factorizations this solve made (sparse LU or CHOLMOD)
+  // schur_lagged: the solve's cost as its refactoring rule counts it, in flops of sparse
+  // products and triangular solves estimated from counts (nnz(L) of CHOLMOD's analysis, the
+  // nonzeros of eq. 7, iterations; the factorization itself as a fixed number of solve pairs);
+  // a step that factors counts the factorization, its Schur set-up and any GMRES it gave up.
+  // 0 for the other solvers.
+  double work_flops = 0;
 };
 
 class CoupledSolver {

@@ -694,6 +694,7 @@ StepStatus step(const HandModel& model, HandState& s, CoupledSolver& solver, Han
   s.timings.schur_ms = report.schur_ms;
   s.timings.solve_ms = report.solve_ms;
   s.timings.iterations = report.iterations;
+  s.timings.factorizations = report.factorizations;
   const auto t1 = Clock::now();
   StepStatus status = StepStatus::ok;
   if (!solved) {

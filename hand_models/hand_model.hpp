@@ -183,11 +183,13 @@ struct HandleTarget {
   Eigen::Vector3d w_W = Eigen::Vector3d::Zero();
 };
 
-// Per-stage wall time of the last step, ms, and the solver's iteration count.
+// Per-stage wall time of the last step, ms (measured for the stats; nothing steps by it), and
+// the solver's iteration and factorization counts.
 struct StepTimings {
   double assembly_ms = 0, factor_ms = 0, schur_ms = 0, solve_ms = 0, contact_ms = 0, linearize_ms = 0,
          integrate_ms = 0, total_ms = 0;
   long iterations = 0;
+  int factorizations = 0;      // the solver's numeric factorizations (SolveReport::factorizations)
   int contact_iterations = 0;  // Gauss-Seidel sweeps of the constraint contacts (last round)
   int reserve_rounds = 0;      // constraint solves repeated for reserve contacts that joined
   bool contact_converged = true;
