@@ -12,22 +12,30 @@
 
 namespace hapticd {
 
+// Bounds of scene values that other code builds on (scene_loader.cpp holds the rest; every field
+// below states its range). The loader refuses whatever lies outside, so whatever it accepts builds
+// a World that steps, passes ODE's checks, and gives a device link whose Welcome encodes.
+inline constexpr int kMinHandTets = 100;     // hand_spacing_for_tets is accurate from here
+inline constexpr int kMaxHandTets = 20000;   // ~90 ms a step (README, bench-hand): beyond, no visual rate is left
+inline constexpr double kMinMassKg = 1e-4;   // 0.1 g: a tenth of a paper clip
+inline constexpr double kMaxMassKg = 1e3;    // 1 t: contact with a hand stays solvable (1e-3..1e3 mass ratios tested)
+
 // x_W = q_W * x_local + p_W.
 struct Pose {
-  Eigen::Vector3d p_W{0, 0, 0};                             // m; default origin
+  Eigen::Vector3d p_W{0, 0, 0};                             // m, |p_W| <= 1000 (BodyBounds); default origin
   Eigen::Quaterniond q_W = Eigen::Quaterniond::Identity();  // unit (normalised on load); default identity
 };
 
 struct MaterialDesc {
   std::string name;                   // key in the scene's "materials" map; "" for inline and built-in materials
-  double youngs_modulus_pa = 50e3;    // Young's modulus E, Pa, > 0 (deformable bodies and hands); default 50 kPa
-  double poisson_ratio = 0.45;        // in (-1, 0.5); default 0.45
-  double density_kg_m3 = 1000.0;      // kg/m^3, > 0; default 1000 (hands: 1070, see HandDesc)
-  double friction = 0.5;              // Coulomb (kinetic) coefficient, >= 0; default 0.5
-  double friction_static = -1.0;      // >= friction, or -1 (the default): same as friction; read static_friction()
+  double youngs_modulus_pa = 50e3;    // Young's modulus E, Pa, in [100, 1e9] (deformable bodies and hands); default 50 kPa
+  double poisson_ratio = 0.45;        // in [-0.9, 0.49] (0.5 is incompressible: no FEM step); default 0.45
+  double density_kg_m3 = 1000.0;      // kg/m^3, in [1, 25000] (osmium: 22590); default 1000 (hands: 1070, see HandDesc)
+  double friction = 0.5;              // Coulomb (kinetic) coefficient, in [0, 10]; default 0.5
+  double friction_static = -1.0;      // in [friction, 10], or -1 (the default): same as friction; read static_friction()
   double restitution = 0.0;           // in [0, 1]; default 0 (no bounce)
-  double rayleigh_alpha_per_s = 1.0;  // mass-proportional damping, 1/s, >= 0 (deformables, hands); default 1
-  double rayleigh_beta_s = 0.005;     // stiffness-proportional damping, s, >= 0 (deformables, hands); default 0.005
+  double rayleigh_alpha_per_s = 1.0;  // mass-proportional damping, 1/s, in [0, 1000] (deformables, hands); default 1
+  double rayleigh_beta_s = 0.005;     // stiffness-proportional damping, s, in [0, 1] (deformables, hands); default 0.005
 
   double static_friction() const { return friction_static < 0 ? friction : friction_static; }
 };
@@ -37,17 +45,18 @@ enum class ShapeType { box, sphere, capsule, cylinder, plane, mesh, tet_mesh };
 // One shape in its object's local frame; only the fields of `type` are meaningful.
 struct ShapeDesc {
   ShapeType type = ShapeType::box;
-  Eigen::Vector3d size{0, 0, 0};    // box: full extents along local x, y, z, m, each > 0
-  double radius = 0;                // sphere, capsule, cylinder: m, > 0
-  double length = 0;                // capsule (between the cap centres), cylinder: along local z, m, > 0
-  Eigen::Vector3d normal{0, 0, 1};  // plane: unit normal (normalised on load); default +z
-  double offset = 0;                // plane: the points x with normal . x = offset, m; default 0
+  // Lengths in [0.001, 100] m; a deformable box's sides in [0.001, 1] m (its mesh and distance grids).
+  Eigen::Vector3d size{0, 0, 0};    // box: full extents along local x, y, z, m
+  double radius = 0;                // sphere, capsule, cylinder: m
+  double length = 0;                // capsule (between the cap centres), cylinder: along local z, m
+  Eigen::Vector3d normal{0, 0, 1};  // plane: unit normal (normalised on load; any finite non-zero vector); default +z
+  double offset = 0;                // plane: the points x with normal . x = offset, m, in [-1000, 1000]; default 0
   std::string file;  // mesh: OBJ surface; tet_mesh: TetGen .node (its .ele beside it) or Gmsh .msh; absolute path
   // tet_mesh, optional and only together: the closed OBJ surface (collision and display) and its
   // barycentric embedding in the tets (.embed), absolute paths; "" if none (the mesh's own boundary is the surface).
   std::string surface_file;
   std::string embedding_file;
-  double scale = 1.0;  // mesh, tet_mesh: uniform scale applied to the file's coordinates, > 0; default 1
+  double scale = 1.0;  // mesh, tet_mesh: uniform scale applied to the file's coordinates, in [0.01, 100]; default 1
 };
 
 enum class BodyKind {
@@ -61,10 +70,13 @@ struct ObjectDesc {
   BodyKind kind = BodyKind::rigid;
   ShapeDesc shape;
   Pose pose;              // initial pose; default identity
-  double mass_kg = -1;    // total mass, kg, > 0; -1 (the default): shape volume x material.density_kg_m3
+  // Total mass, kg, in [kMinMassKg, kMaxMassKg]; -1 (the default): shape volume x material.density_kg_m3,
+  // which must lie in that range too (checked on load for primitives, by the World for files).
+  double mass_kg = -1;
   MaterialDesc material;  // resolved copy (a named material, an inline one, or the built-in defaults)
-  Eigen::Vector3d linear_velocity{0, 0, 0};   // initial, m/s, world frame; default 0 (always 0 when static)
-  Eigen::Vector3d angular_velocity{0, 0, 0};  // initial, rad/s, world frame; default 0 (always 0 when static)
+  // Initial, world frame, within BodyBounds (faster is a diverged body); default 0 (always 0 when static).
+  Eigen::Vector3d linear_velocity{0, 0, 0};   // m/s, |v| <= 50
+  Eigen::Vector3d angular_velocity{0, 0, 0};  // rad/s, |w| <= 1000
 };
 
 enum class JointType { hinge, ball, fixed, slider };
@@ -74,10 +86,11 @@ struct JointDesc {
   JointType type = JointType::hinge;
   std::string body_a;                 // a rigid or static object
   std::string body_b;                 // a rigid or static object, or "world"; at least one of the two is rigid
-  Eigen::Vector3d anchor_W{0, 0, 0};  // m, at the initial poses (required for hinge and ball); default origin
+  Eigen::Vector3d anchor_W{0, 0, 0};  // m, |anchor| <= 1000, at the initial poses (required for hinge and ball); default origin
   Eigen::Vector3d axis_W{0, 0, 1};    // unit, at the initial poses (hinge, slider: required); default +z
   bool limited = false;               // hinge and slider only; default false
-  double lo = 0, hi = 0;              // limits, lo <= hi: rad for a hinge, m for a slider (0 = initial pose)
+  // Limits, lo <= hi: rad in [-pi, pi] for a hinge (ODE's stops), m in [-1000, 1000] for a slider (0 = initial pose).
+  double lo = 0, hi = 0;
 };
 
 enum class HandModelKind {
@@ -107,20 +120,20 @@ struct HandDesc {
   std::string name;
   HandModelKind model = HandModelKind::fem;         // default fem
   HandSide side = HandSide::right;                  // default right
-  int resolution_tets = 1700;                       // fem: target tet count, in [100, 1e6]; default 1700
+  int resolution_tets = 1700;                       // fem: target tet count, in [kMinHandTets, kMaxHandTets]; default 1700
   HandleSet handles = HandleSet::palm;              // fem: default palm
   MaterialDesc material = default_hand_material();  // flesh; default: default_hand_material()
   Pose pose;  // initial pose of the hand frame (palm centre, fingers +y, palmar side -z); default identity
-  double coupling_stiffness_n_m = 2000.0;  // per coupled node, handle to flesh, N/m, > 0; default 2000
-  double coupling_damping_ns_m = 2.0;      // per coupled node, N s/m, >= 0; default 2
+  double coupling_stiffness_n_m = 2000.0;  // per coupled node, handle to flesh, N/m, in [1, 1e6]; default 2000
+  double coupling_damping_ns_m = 2.0;      // per coupled node, N s/m, in [0, 1000]; default 2
 };
 
 enum class DeviceKind { stylus, glove };
 
 // Device coordinates D (m) to world: x_W = offset_W + scale * (R_WD * x_D).
 struct WorkspaceMap {
-  double scale = 1.0;                                        // > 0; default 1
-  Eigen::Vector3d offset_W{0, 0, 0};                         // m; default origin
+  double scale = 1.0;                                        // in [0.01, 100]; default 1
+  Eigen::Vector3d offset_W{0, 0, 0};                         // m, |offset| <= 1000; default origin
   Eigen::Quaterniond R_WD = Eigen::Quaterniond::Identity();  // unit; default identity
 };
 
@@ -133,10 +146,11 @@ struct DeviceDesc {
   DeviceKind kind = DeviceKind::stylus;
   std::string hand;  // the hand it drives (each hand is driven by at most one device)
   WorkspaceMap workspace;
-  double max_force_n = 8.0;            // output force clamp, N, > 0; default 8
-  double max_torque_nm = 0.5;          // output torque clamp, N m, > 0; default 0.5
-  double max_force_rate_n_s = 1000.0;  // output force slew limit, N/s, > 0; default 1000
-  double stiffness_n_m = 1000.0;       // device-to-proxy coupling stiffness, N/m, > 0; default 1000
+  // The limits travel in the Welcome as float32: their upper bounds are the wire's (protocol/limits.hpp).
+  double max_force_n = 8.0;            // output force clamp, N, in [0.01, protocol::kMaxForceN]; default 8
+  double max_torque_nm = 0.5;          // output torque clamp, N m, in [0.001, protocol::kMaxTorqueNm]; default 0.5
+  double max_force_rate_n_s = 1000.0;  // output force slew limit, N/s, in [1, protocol::kMaxForceRateNPerS]; default 1000
+  double stiffness_n_m = 1000.0;       // device-to-proxy coupling stiffness, N/m, in [1, 1e5]; default 1000
   GloveForceOutput force_output = GloveForceOutput::frames;  // gloves only; default frames
   // finger_lines: the actuator's line of action in the distal phalanx frame (y along the bone,
   // z dorsal), unit; default dorsal (the cable pulls the fingertip back, resisting flexion).
@@ -148,9 +162,9 @@ enum class ContactModel { constraint, penalty };
 struct SceneDesc {
   std::string name;                                 // default: the file name without directory and extension
   std::string path;                                 // the scene file as given to the loader (or the source name)
-  Eigen::Vector3d gravity_m_s2{0, 0, -9.81};        // m/s^2, world frame; default -9.81 z
-  double visual_rate_hz = 60.0;                     // visual (simulation) loop rate, Hz, > 0; default 60
-  double dt_s = 1.0 / 60.0;                         // simulation step, s, in (0, 0.1]; default 1 / visual_rate_hz
+  Eigen::Vector3d gravity_m_s2{0, 0, -9.81};        // m/s^2, world frame, each component in [-100, 100]; default -9.81 z
+  double visual_rate_hz = 60.0;                     // visual (simulation) loop rate, Hz, in [10, 1000]; default 60
+  double dt_s = 1.0 / 60.0;                         // simulation step, s, in [1e-4, 0.1]; default 1 / visual_rate_hz
   ContactModel contact = ContactModel::constraint;  // default constraint
   std::vector<MaterialDesc> materials;              // the named materials, sorted by name
   std::vector<ObjectDesc> objects;                  // file order

@@ -12,11 +12,15 @@
 #include <limits>
 #include <map>
 #include <nlohmann/json.hpp>
+#include <numbers>
 #include <optional>
 #include <string_view>
 #include <type_traits>
 #include <utility>
 #include <vector>
+
+#include "protocol/limits.hpp"
+#include "server/world/rigid_world.hpp"
 
 namespace hapticd {
 
@@ -146,12 +150,41 @@ struct Range {
     return std::string("in ") + (lo_open ? "(" : "[") + fmt(lo) + ", " + fmt(hi) + (hi_open ? ")" : "]");
   }
 };
-constexpr Range kAny{};
-constexpr Range kPositive{0, kInf, true, false};
-constexpr Range kNonNegative{0, kInf, false, false};
+constexpr Range kAny{};  // directions and quaternion components: normalised, any finite non-zero value does
 constexpr Range kUnitInterval{0, 1, false, false};
-constexpr Range kPoissonRatio{-1, 0.5, true, true};
-constexpr Range kTimeStep{0, 0.1, true, false};
+
+// The range of every number a scene gives (scene.hpp states each with its field). Physically sensible
+// bounds, each tight enough that what passes builds and steps a World without tripping an assertion
+// (ODE's included), and that a device link's limits fit the Welcome that carries them.
+// A rigid body beyond BodyBounds is reset as diverged: a scene starts within them.
+constexpr BodyBounds kBodyBounds{};
+constexpr double kMaxDistanceM = kBodyBounds.max_distance_m;     // |position|, offsets, anchors, slider limits
+constexpr Range kCoordinate{-kMaxDistanceM, kMaxDistanceM};       // one component of a position
+constexpr Range kGravity{-100, 100};                              // m/s^2 per component: 10 g
+constexpr Range kVisualRate{10, 1000};                            // Hz; 1 / rate is then a valid dt_s
+constexpr Range kTimeStep{1e-4, 0.1};                             // s: 10 kHz to 10 Hz
+constexpr Range kYoungsModulus{100, 1e9};                         // Pa: a soft gel to a stiff plastic
+constexpr Range kPoissonRatio{-0.9, 0.49};                        // 0.5 (incompressible) has no FEM step
+constexpr Range kDensity{1, 25000};                               // kg/m^3: aerogel-light to osmium
+constexpr Range kFriction{0, 10};
+constexpr Range kRayleighAlpha{0, 1000};                          // 1/s
+constexpr Range kRayleighBeta{0, 1};                              // s
+constexpr Range kLength{0.001, 100};                              // m: sizes, radii and lengths of shapes
+constexpr Range kDeformableLength{0.001, 1};                      // m: its tets and distance grids stay small
+constexpr Range kMeshScale{0.01, 100};
+constexpr Range kMass{kMinMassKg, kMaxMassKg};                    // kg
+constexpr double kMaxSpeedMS = kBodyBounds.max_speed_m_s;         // |linear_velocity|
+constexpr double kMaxAngularSpeedRadS = kBodyBounds.max_angular_speed_rad_s;
+constexpr Range kHingeLimit{-std::numbers::pi, std::numbers::pi};  // rad: ODE's hinge stops
+constexpr Range kCouplingStiffness{1, 1e6};                       // N/m per node
+constexpr Range kCouplingDamping{0, 1000};                        // N s/m per node
+constexpr Range kWorkspaceScale{0.01, 100};
+constexpr Range kDeviceStiffness{1, 1e5};                         // N/m
+// Device limits go out in the Welcome as float32, which the encoder refuses beyond the wire's
+// limits: the upper bounds are those limits. The lower ones keep them positive as float32.
+constexpr Range kMaxForce{0.01, protocol::kMaxForceN};
+constexpr Range kMaxTorque{0.001, protocol::kMaxTorqueNm};
+constexpr Range kMaxForceRate{1, protocol::kMaxForceRateNPerS};
 
 double get_number(const json& value, const std::string& path, const Range& range = kAny) {
   if (!value.is_number()) fail(path, "expected a number, got " + type_name(value));
@@ -228,6 +261,15 @@ Vector3d get_vec3(const json& value, const std::string& path, const Range& range
   return v;
 }
 
+// A vector whose length is at most max_norm (each component finite).
+Vector3d get_bounded_vec3(const json& value, const std::string& path, double max_norm, std::string_view unit) {
+  const Vector3d v = get_vec3(value, path);
+  const double norm = v.stableNorm();
+  if (!(norm <= max_norm))
+    fail(path, "length must be <= " + fmt(max_norm) + " " + std::string(unit) + ", got " + fmt(norm));
+  return v;
+}
+
 // stableNorm: components near 1e±200 must neither overflow nor vanish.
 Vector3d get_direction(const json& value, const std::string& path) {
   const Vector3d v = get_vec3(value, path);
@@ -287,6 +329,15 @@ class Obj {
     const json* v = find(key, !fallback);
     return v ? get_vec3(*v, at(key), range) : *fallback;
   }
+  Vector3d bounded_vec3(std::string_view key, double max_norm, std::string_view unit,
+                        std::optional<Vector3d> fallback = {}) const {
+    const json* v = find(key, !fallback);
+    return v ? get_bounded_vec3(*v, at(key), max_norm, unit) : *fallback;
+  }
+  // A position in the world: within kMaxDistanceM of the origin.
+  Vector3d position(std::string_view key, std::optional<Vector3d> fallback = {}) const {
+    return bounded_vec3(key, kMaxDistanceM, "m", fallback);
+  }
   Vector3d direction(std::string_view key) const { return get_direction(get(key), at(key)); }
   Obj object(std::string_view key) const { return Obj(get(key), at(key)); }
 
@@ -323,7 +374,7 @@ Eigen::Quaterniond get_quaternion(const Obj& o) {
 Pose get_pose(const Obj& o) {
   o.allow({"position", "orientation"});
   Pose pose;
-  pose.p_W = o.vec3("position", kAny, pose.p_W);
+  pose.p_W = o.position("position", pose.p_W);
   if (o.has("orientation")) pose.q_W = get_quaternion(o.object("orientation"));
   return pose;
 }
@@ -388,14 +439,14 @@ struct Context {
 MaterialDesc parse_material(const Obj& o, MaterialDesc m) {
   o.allow({"youngs_modulus_pa", "poisson_ratio", "density_kg_m3", "friction", "friction_static", "restitution",
            "rayleigh_alpha_per_s", "rayleigh_beta_s"});
-  m.youngs_modulus_pa = o.number("youngs_modulus_pa", kPositive, m.youngs_modulus_pa);
+  m.youngs_modulus_pa = o.number("youngs_modulus_pa", kYoungsModulus, m.youngs_modulus_pa);
   m.poisson_ratio = o.number("poisson_ratio", kPoissonRatio, m.poisson_ratio);
-  m.density_kg_m3 = o.number("density_kg_m3", kPositive, m.density_kg_m3);
-  m.friction = o.number("friction", kNonNegative, m.friction);
-  m.friction_static = o.number("friction_static", kNonNegative, m.friction_static);
+  m.density_kg_m3 = o.number("density_kg_m3", kDensity, m.density_kg_m3);
+  m.friction = o.number("friction", kFriction, m.friction);
+  m.friction_static = o.number("friction_static", kFriction, m.friction_static);
   m.restitution = o.number("restitution", kUnitInterval, m.restitution);
-  m.rayleigh_alpha_per_s = o.number("rayleigh_alpha_per_s", kNonNegative, m.rayleigh_alpha_per_s);
-  m.rayleigh_beta_s = o.number("rayleigh_beta_s", kNonNegative, m.rayleigh_beta_s);
+  m.rayleigh_alpha_per_s = o.number("rayleigh_alpha_per_s", kRayleighAlpha, m.rayleigh_alpha_per_s);
+  m.rayleigh_beta_s = o.number("rayleigh_beta_s", kRayleighBeta, m.rayleigh_beta_s);
   // Coulomb: sticking never holds less than sliding.
   if (m.friction_static >= 0 && m.friction_static < m.friction)
     fail(o.at("friction_static"), "must be >= friction (" + fmt(m.friction) + "), got " + fmt(m.friction_static));
@@ -437,35 +488,36 @@ ShapeDesc parse_shape(const Obj& o, BodyKind kind, const fs::path& base_dir) {
     fail(type_path, "tet_mesh is for deformable objects (rigid and static objects use mesh)");
   if (kind == BodyKind::deformable && s.type != ShapeType::tet_mesh && s.type != ShapeType::box)
     fail(type_path, "deformable objects need a tet_mesh or box shape, got " + std::string(to_string(s.type)));
+  const Range& length = kind == BodyKind::deformable ? kDeformableLength : kLength;
   switch (s.type) {
     case ShapeType::box:
       o.allow({"type", "size"}, "a box");
-      s.size = o.vec3("size", kPositive);
+      s.size = o.vec3("size", length);
       break;
     case ShapeType::sphere:
       o.allow({"type", "radius"}, "a sphere");
-      s.radius = o.number("radius", kPositive);
+      s.radius = o.number("radius", length);
       break;
     case ShapeType::capsule:
     case ShapeType::cylinder:
       o.allow({"type", "radius", "length"}, s.type == ShapeType::capsule ? "a capsule" : "a cylinder");
-      s.radius = o.number("radius", kPositive);
-      s.length = o.number("length", kPositive);
+      s.radius = o.number("radius", length);
+      s.length = o.number("length", length);
       break;
     case ShapeType::plane:
       o.allow({"type", "normal", "offset"}, "a plane");
       s.normal = o.direction("normal");
-      s.offset = o.number("offset");
+      s.offset = o.number("offset", kCoordinate);
       break;
     case ShapeType::mesh:
       o.allow({"type", "file", "scale"}, "a mesh");
       s.file = get_file(o, "file", base_dir, {".obj"});
-      s.scale = o.number("scale", kPositive, 1.0);
+      s.scale = o.number("scale", kMeshScale, 1.0);
       break;
     case ShapeType::tet_mesh:
       o.allow({"type", "file", "scale", "surface", "embedding"}, "a tet_mesh");
       s.file = get_file(o, "file", base_dir, {".node", ".msh"});
-      s.scale = o.number("scale", kPositive, 1.0);
+      s.scale = o.number("scale", kMeshScale, 1.0);
       // An embedding places a surface's vertices in the tets: one is no use without the other.
       if (o.has("surface") != o.has("embedding"))
         fail(o.at(o.has("surface") ? "surface" : "embedding"),
@@ -476,6 +528,18 @@ ShapeDesc parse_shape(const Obj& o, BodyKind kind, const fs::path& base_dir) {
       break;
   }
   return s;
+}
+
+// Volume of a primitive shape, m^3; 0 for shapes read from files (their volume is known once built).
+double primitive_volume(const ShapeDesc& s) {
+  const double pi = std::numbers::pi;
+  switch (s.type) {
+    case ShapeType::box: return s.size.prod();
+    case ShapeType::sphere: return 4.0 / 3.0 * pi * s.radius * s.radius * s.radius;
+    case ShapeType::capsule: return pi * s.radius * s.radius * (s.length + 4.0 / 3.0 * s.radius);
+    case ShapeType::cylinder: return pi * s.radius * s.radius * s.length;
+    default: return 0;
+  }
 }
 
 ObjectDesc parse_object(const Obj& o, Context& ctx) {
@@ -503,10 +567,18 @@ ObjectDesc parse_object(const Obj& o, Context& ctx) {
   if (o.has("mass_kg") && (own_density || inline_density))
     fail(own_density ? o.at("density_kg_m3") : o.at("material") + ".density_kg_m3",
          "conflicts with mass_kg: give a mass or a density, not both");
-  d.mass_kg = o.number("mass_kg", kPositive, -1.0);
-  if (own_density) d.material.density_kg_m3 = o.number("density_kg_m3", kPositive);
-  d.linear_velocity = o.vec3("linear_velocity", kAny, Vector3d::Zero());
-  d.angular_velocity = o.vec3("angular_velocity", kAny, Vector3d::Zero());
+  d.mass_kg = o.number("mass_kg", kMass, -1.0);
+  if (own_density) d.material.density_kg_m3 = o.number("density_kg_m3", kDensity);
+  // A mass from the density is bounded as a given one is (ODE wants a positive definite inertia).
+  if (const double volume = primitive_volume(d.shape); d.mass_kg < 0 && volume > 0) {
+    const double mass_kg = d.material.density_kg_m3 * volume;
+    if (!kMass.contains(mass_kg))
+      fail(o.path(), "its mass (density " + fmt(d.material.density_kg_m3) + " kg/m^3 x volume " + fmt(volume) +
+                         " m^3 = " + fmt(mass_kg) + " kg) must be " + kMass.text() +
+                         " kg; give mass_kg or change the size or density");
+  }
+  d.linear_velocity = o.bounded_vec3("linear_velocity", kMaxSpeedMS, "m/s", Vector3d::Zero());
+  d.angular_velocity = o.bounded_vec3("angular_velocity", kMaxAngularSpeedRadS, "rad/s", Vector3d::Zero());
   return d;
 }
 
@@ -540,7 +612,7 @@ JointDesc parse_joint(const Obj& o, Context& ctx, const std::vector<ObjectDesc>&
 
   const bool has_axis = d.type == JointType::hinge || d.type == JointType::slider;
   const bool needs_anchor = d.type == JointType::hinge || d.type == JointType::ball;
-  d.anchor_W = needs_anchor ? o.vec3("anchor") : o.vec3("anchor", kAny, d.anchor_W);
+  d.anchor_W = needs_anchor ? o.position("anchor") : o.position("anchor", d.anchor_W);
   if (has_axis) {
     d.axis_W = o.direction("axis");
   } else if (o.has("axis")) {
@@ -552,8 +624,9 @@ JointDesc parse_joint(const Obj& o, Context& ctx, const std::vector<ObjectDesc>&
     if (!limits->is_array() || limits->size() != 2)
       fail(path, "expected [lo, hi], got " +
                      (limits->is_array() ? std::to_string(limits->size()) + " elements" : type_name(*limits)));
-    d.lo = get_number((*limits)[0], index_path(path, 0));
-    d.hi = get_number((*limits)[1], index_path(path, 1));
+    const Range& range = d.type == JointType::hinge ? kHingeLimit : kCoordinate;
+    d.lo = get_number((*limits)[0], index_path(path, 0), range);
+    d.hi = get_number((*limits)[1], index_path(path, 1), range);
     if (d.lo > d.hi) fail(path, "lo must be <= hi, got [" + fmt(d.lo) + ", " + fmt(d.hi) + "]");
     d.limited = true;
   }
@@ -567,14 +640,13 @@ HandDesc parse_hand(const Obj& o, Context& ctx) {
   d.name = ctx.register_name(o);
   d.model = o.choice("model", kHandModelNames, "hand model", d.model);
   d.side = o.choice("side", kHandSideNames, "hand side", d.side);
-  // hand_spacing_for_tets is accurate from 100 to 10^6 tets.
-  d.resolution_tets = o.integer("resolution_tets", 100, 1'000'000, d.resolution_tets);
+  d.resolution_tets = o.integer("resolution_tets", kMinHandTets, kMaxHandTets, d.resolution_tets);
   d.handles = o.choice("handles", kHandleSetNames, "handle set", d.handles);
   bool inline_density = false;
   d.material = get_material_ref(o, ctx.materials, d.material, &inline_density);
   if (o.has("pose")) d.pose = get_pose(o.object("pose"));
-  d.coupling_stiffness_n_m = o.number("coupling_stiffness_n_m", kPositive, d.coupling_stiffness_n_m);
-  d.coupling_damping_ns_m = o.number("coupling_damping_ns_m", kNonNegative, d.coupling_damping_ns_m);
+  d.coupling_stiffness_n_m = o.number("coupling_stiffness_n_m", kCouplingStiffness, d.coupling_stiffness_n_m);
+  d.coupling_damping_ns_m = o.number("coupling_damping_ns_m", kCouplingDamping, d.coupling_damping_ns_m);
   return d;
 }
 
@@ -593,14 +665,14 @@ DeviceDesc parse_device(const Obj& o, Context& ctx, const std::vector<HandDesc>&
   if (o.has("workspace")) {
     const Obj w = o.object("workspace");
     w.allow({"scale", "offset", "orientation"});
-    d.workspace.scale = w.number("scale", kPositive, d.workspace.scale);
-    d.workspace.offset_W = w.vec3("offset", kAny, d.workspace.offset_W);
+    d.workspace.scale = w.number("scale", kWorkspaceScale, d.workspace.scale);
+    d.workspace.offset_W = w.position("offset", d.workspace.offset_W);
     if (w.has("orientation")) d.workspace.R_WD = get_quaternion(w.object("orientation"));
   }
-  d.max_force_n = o.number("max_force_n", kPositive, d.max_force_n);
-  d.max_torque_nm = o.number("max_torque_nm", kPositive, d.max_torque_nm);
-  d.max_force_rate_n_s = o.number("max_force_rate_n_s", kPositive, d.max_force_rate_n_s);
-  d.stiffness_n_m = o.number("stiffness_n_m", kPositive, d.stiffness_n_m);
+  d.max_force_n = o.number("max_force_n", kMaxForce, d.max_force_n);
+  d.max_torque_nm = o.number("max_torque_nm", kMaxTorque, d.max_torque_nm);
+  d.max_force_rate_n_s = o.number("max_force_rate_n_s", kMaxForceRate, d.max_force_rate_n_s);
+  d.stiffness_n_m = o.number("stiffness_n_m", kDeviceStiffness, d.stiffness_n_m);
   d.force_output = o.choice("force_output", kGloveForceOutputNames, "force output", d.force_output);
   if (o.has("actuator_line")) d.actuator_line_F = o.direction("actuator_line");
   if (d.kind != DeviceKind::glove && (o.has("force_output") || o.has("actuator_line")))
@@ -624,16 +696,10 @@ SceneDesc parse_document(const json& doc, const fs::path& base_dir, const std::s
   SceneDesc scene;
   scene.path = source_name;
   scene.name = top.has("name") ? top.name("name") : fs::path(source_name).stem().string();
-  scene.gravity_m_s2 = top.vec3("gravity", kAny, scene.gravity_m_s2);
-  scene.visual_rate_hz = top.number("visual_rate_hz", kPositive, scene.visual_rate_hz);
-  if (top.has("dt_s")) {
-    scene.dt_s = top.number("dt_s", kTimeStep);
-  } else {
-    scene.dt_s = 1.0 / scene.visual_rate_hz;
-    if (!kTimeStep.contains(scene.dt_s))
-      fail("visual_rate_hz",
-           "gives a default dt_s of " + fmt(scene.dt_s) + " s, not " + kTimeStep.text() + "; set dt_s");
-  }
+  scene.gravity_m_s2 = top.vec3("gravity", kGravity, scene.gravity_m_s2);
+  scene.visual_rate_hz = top.number("visual_rate_hz", kVisualRate, scene.visual_rate_hz);
+  // kVisualRate keeps the default within kTimeStep.
+  scene.dt_s = top.number("dt_s", kTimeStep, 1.0 / scene.visual_rate_hz);
   scene.contact = top.choice("contact", kContactModelNames, "contact model", scene.contact);
 
   Context ctx;

@@ -4,9 +4,9 @@
 //   {
 //     "version": 1,                        required; the only version
 //     "name": "blocks",                    optional; default: file name without extension
-//     "gravity": [0, 0, -9.81],            m/s^2
-//     "visual_rate_hz": 60,                > 0
-//     "dt_s": 0.0166667,                   in (0, 0.1]; default 1 / visual_rate_hz
+//     "gravity": [0, 0, -9.81],            m/s^2, each component in [-100, 100]
+//     "visual_rate_hz": 60,                in [10, 1000]
+//     "dt_s": 0.0166667,                   in [1e-4, 0.1]; default 1 / visual_rate_hz
 //     "contact": "constraint",             constraint | penalty
 //     "materials": { "<name>": <material>, ... },
 //     "objects": [ <object>, ... ],  "joints": [ <joint>, ... ],
@@ -38,7 +38,9 @@
 //
 // Rules (each violation is a SceneError naming the key path):
 //  - Unknown and duplicate keys are errors, as are wrong types, non-finite numbers and
-//    out-of-range values. Names ("name" keys and material keys) are 1-64 letters, digits,
+//    out-of-range values. Every number has a range, stated with its field in scene.hpp: what
+//    loads builds a World that steps and serves its devices (their force, torque and slew
+//    limits are bounded by the wire's, protocol/limits.hpp, so the Welcome carrying them encodes). Names ("name" keys and material keys) are 1-64 letters, digits,
 //    '_' or '-', unique across objects, joints, hands and devices; "world" is reserved.
 //  - "material" is the name of a "materials" entry or an inline <material>; an inline
 //    material starts from the owner's defaults (MaterialDesc, or HandDesc's for hands).
