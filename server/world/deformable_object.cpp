@@ -163,6 +163,11 @@ std::unique_ptr<DeformableObject> make_deformable_object(const ObjectDesc& desc,
   const double mass_kg = desc.mass_kg > 0 ? desc.mass_kg : desc.material.density_kg_m3 * solid_volume;
   if (!(mass_kg > 0) || !std::isfinite(mass_kg))
     throw std::runtime_error("object '" + desc.name + "': mass is not positive (is the surface closed and outward?)");
+  // The loader bounds given masses and boxes' masses; a tet mesh's comes from its volume only now.
+  if (!(mass_kg >= kMinMassKg && mass_kg <= kMaxMassKg))
+    throw std::runtime_error("object '" + desc.name + "': mass " + std::to_string(mass_kg) + " kg from its volume is outside [" +
+                             std::to_string(kMinMassKg) + ", " + std::to_string(kMaxMassKg) +
+                             "] kg: give mass_kg or change the scale or density");
   HandConfig config;
   config.free_body = true;
   config.dt_s = build.dt_s;

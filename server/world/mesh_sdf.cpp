@@ -34,6 +34,10 @@ Eigen::Vector3d closest_on_triangle(const Eigen::Vector3d& p, const Eigen::Vecto
 MeshSdf::MeshSdf(const SurfaceMesh& mesh, double cell, int band) : cell_(cell) {
   Eigen::Vector3d lo = Eigen::Vector3d::Constant(INFINITY), hi = -lo;
   for (const Eigen::Vector3d& v : mesh.vertices) lo = lo.cwiseMin(v), hi = hi.cwiseMax(v);
+  if (mesh.vertices.empty() || !lo.allFinite() || !hi.allFinite()) return;  // no surface: every query misses
+  // A scaled-up mesh keeps its grid small: 10 m at 3 mm cells would be 3e10 values.
+  cell = std::max(cell, (hi - lo).maxCoeff() / kMaxCellsPerAxis);
+  cell_ = cell;
   origin_ = lo - Eigen::Vector3d::Constant(band * cell);
   for (int d = 0; d < 3; ++d) dims_[d] = static_cast<int>(std::ceil((hi[d] - lo[d]) / cell)) + 2 * band + 2;
   const double far = band * cell;

@@ -12,6 +12,10 @@ namespace hapticd {
 
 class MeshSdf {
  public:
+  // Cells are cell_m, or coarser for a mesh wider than kMaxCellsPerAxis of them, so the grid
+  // holds at most (kMaxCellsPerAxis + 2 band_cells + 2)^3 values whatever the mesh's scale.
+  static constexpr int kMaxCellsPerAxis = 128;
+
   MeshSdf() = default;
   MeshSdf(const SurfaceMesh& mesh, double cell_m, int band_cells = 3);
 

@@ -182,7 +182,7 @@ RigidWorld::RigidWorld(const SceneDesc& scene) : dt_(scene.dt_s) {
         obj.geom = dCreateTriMesh(space_, obj.trimesh, nullptr, nullptr, nullptr);
         SurfaceMesh scaled = surface;
         for (Eigen::Vector3d& v : scaled.vertices) v *= s.scale;
-        obj.sdf = MeshSdf(scaled, 0.003, 6);  // distances exact to 1.8 cm from the surface
+        obj.sdf = MeshSdf(scaled, 0.003, 6);  // distances exact to 6 cells (1.8 cm, more for a mesh over 38 cm)
         break;
       }
       case ShapeType::tet_mesh:
@@ -197,6 +197,14 @@ RigidWorld::RigidWorld(const SceneDesc& scene) : dt_(scene.dt_s) {
       set_mass(m, s, o.mass_kg, o.material.density_kg_m3, obj.geom);
       if (!(m.mass > 0) || !std::isfinite(m.mass))
         throw std::runtime_error("object '" + o.name + "': mass is not positive (is the mesh closed and outward?)");
+      // The loader bounds given masses and primitives' masses; a mesh's comes from its volume only now.
+      if (!(m.mass >= kMinMassKg && m.mass <= kMaxMassKg))
+        throw std::runtime_error("object '" + o.name + "': mass " + std::to_string(m.mass) + " kg from the mesh's volume is "
+                                 "outside [" + std::to_string(kMinMassKg) + ", " + std::to_string(kMaxMassKg) +
+                                 "] kg: give mass_kg or change the scale or density");
+      // dBodySetMass asserts this (an abort, not an exception): a mesh can give an inertia that is not positive definite.
+      if (!dMassCheck(&m))
+        throw std::runtime_error("object '" + o.name + "': its inertia is not positive definite (is the mesh closed?)");
       // ODE wants the centre of mass at the body origin: shift the geometry instead.
       obj.com_O = Eigen::Vector3d(m.c[0], m.c[1], m.c[2]);
       dMassTranslate(&m, -m.c[0], -m.c[1], -m.c[2]);
