@@ -1,38 +1,138 @@
-// libFuzzer target: the scene loader (parse_scene_text), on any text.
+// libFuzzer target: the scene loader (parse_scene_text), on any text; then, for what loads, the
+// World it describes, three steps of it, and each device's link and the Welcome that would carry
+// its limits (tests/fuzz/README.md).
 //
-// Relative asset paths resolve against a private scratch directory holding empty placeholders of
-// the assets the shipped scenes name (the loader only checks that an asset is a readable regular
-// file; it does not parse it), so inputs derived from scenes/ get past their file keys. An input
-// may still name an absolute path: the loader then only stats it and opens it for reading.
-// SceneError is the documented failure; anything else escaping is a finding.
+// Relative asset paths resolve against a private scratch directory holding copies of the shipped
+// assets (scenes/assets) and an empty box.msh, so inputs derived from scenes/ get past their file
+// keys and build. An input may still name an absolute path: the loader then only stats it and
+// opens it for reading, and the World may fail to read it.
+//
+// Oracles: SceneError is the loader's only failure. A scene the loader accepts whose shapes are all
+// primitives (no file to misread) and whose hands are all fem (the one model built so far) must
+// build: any exception from the World or make_device_link is then a finding, as is a non-finite
+// handle or body pose after a step (World::step promises none) and a Welcome the encoder refuses
+// (the user-found bug: a device limit beyond the wire's left every Hello unanswered). Scenes with
+// files may fail to build with the World's documented std::exception (a placeholder or unreadable
+// file, or a mass from a mesh's volume out of range).
+//
+// Cost: hands above 4 x kMinHandTets are built at kMinHandTets (the loader's own lower bound; the
+// count changes only the mesh's spacing), and the flesh distance grids are left out (hand-hand
+// contact, hand contact in scenes with deformable objects), so an input builds and steps within the
+// 10 s limit under the sanitizers.
+#include <cmath>
 #include <cstdint>
+#include <cstdio>
+#include <cstdlib>
+#include <exception>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <string>
 
+#include "protocol/codec.hpp"
+#include "protocol/limits.hpp"
+#include "server/haptic/device_link.hpp"
 #include "server/world/scene_loader.hpp"
+#include "server/world/world.hpp"
 #include "tests/fuzz/fuzz_util.hpp"
 
 namespace {
 
+namespace fs = std::filesystem;
+
 const std::string& base_dir() {
   static const std::string dir = [] {
     auto& s = hapticd::fuzz::scratch();
-    for (const char* asset : {"assets/bunny.obj", "assets/bunny_271.node", "assets/bunny_271.ele",
-                              "assets/bunny_271.embed", "assets/letter_a.obj", "assets/letter_a_65.node",
-                              "assets/letter_a_65.ele", "assets/letter_a_65.embed", "box.msh"})
-      s.write(asset, "");
+    for (const fs::directory_entry& e : fs::directory_iterator(fs::path(HAPTICD_SCENES_DIR) / "assets")) {
+      if (!e.is_regular_file()) continue;
+      std::ifstream in(e.path(), std::ios::binary);
+      const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+      s.write("assets/" + e.path().filename().string(), bytes);
+    }
+    s.write("box.msh", "");
     return s.path().string();
   }();
   return dir;
+}
+
+[[noreturn]] void finding(const std::string& what, const std::string& detail) {
+  std::fprintf(stderr, "fuzz_scene: %s: %s\n", what.c_str(), detail.c_str());
+  std::abort();
+}
+
+// Only primitives and fem hands: nothing but the scene's numbers decides whether it builds.
+bool must_build(const hapticd::SceneDesc& scene) {
+  for (const hapticd::ObjectDesc& o : scene.objects)
+    if (o.shape.type == hapticd::ShapeType::mesh || o.shape.type == hapticd::ShapeType::tet_mesh) return false;
+  for (const hapticd::HandDesc& h : scene.hands)
+    if (h.model != hapticd::HandModelKind::fem) return false;
+  return true;
+}
+
+void check_finite(const hapticd::World& world) {
+  const hapticd::WorldSnapshot& s = world.snapshot();
+  for (const auto& hand : s.handles)
+    for (const hapticd::HandleState& h : hand)
+      if (!h.p_WH.allFinite() || !h.q_WH.coeffs().allFinite())
+        finding("non-finite handle pose", "step " + std::to_string(s.step));
+  for (const hapticd::RigidBodyState& b : s.bodies)
+    if (!b.p_WO.allFinite() || !b.q_WO.coeffs().allFinite() || !b.v_WO.allFinite() || !b.w_W.allFinite())
+      finding("non-finite body state", "step " + std::to_string(s.step));
+}
+
+// The Welcome the haptic server sends for this link (HapticServer's handshake), encoded.
+void check_welcome(const hapticd::DeviceLink& link, hapticd::protocol::Encoder& encoder) {
+  namespace protocol = hapticd::protocol;
+  protocol::Welcome w;
+  w.session_id = 1;
+  w.rate_hz = 1000;
+  w.force_limit_n = static_cast<float>(link.limits.max_force_n);
+  w.torque_limit_nm = static_cast<float>(link.limits.max_torque_nm);
+  w.max_force_rate_n_per_s = static_cast<float>(link.limits.max_force_rate_n_s);
+  for (int j = 0; j < link.handles && j < static_cast<int>(protocol::kMaxFrames); ++j)
+    w.frame_map.push_back({static_cast<std::uint16_t>(j), static_cast<std::uint16_t>(j)});
+  const protocol::EncodeResult r = encoder.encode(w);
+  if (!r.ok())
+    finding("the Welcome of device " + link.name + " does not encode",
+            std::string(protocol::to_string(r.reason)) + ", force " + std::to_string(link.limits.max_force_n) +
+                ", torque " + std::to_string(link.limits.max_torque_nm) + ", rate " +
+                std::to_string(link.limits.max_force_rate_n_s));
+}
+
+void build_and_step(hapticd::SceneDesc scene) {
+  const bool strict = must_build(scene);
+  for (hapticd::HandDesc& h : scene.hands)
+    if (h.resolution_tets > 4 * hapticd::kMinHandTets) h.resolution_tets = hapticd::kMinHandTets;
+  hapticd::WorldOptions options;
+  options.contact.reset();  // the scene's contact model: both get fuzzed
+  // The flesh distance grids (1-3 mm cells) take tens of seconds under the sanitizers: hands pass
+  // through each other, and touch deformable objects only in a scene without two hands.
+  options.hand_hand_contacts = false;
+  if (scene.needs_deformable_objects()) options.hand_contacts = false;
+  try {
+    hapticd::World world(scene, options);
+    check_finite(world);
+    for (int k = 0; k < 3; ++k) {
+      world.step();
+      check_finite(world);
+    }
+    static hapticd::protocol::Encoder encoder;
+    for (const hapticd::DeviceDesc& d : scene.devices) check_welcome(hapticd::make_device_link(world, d, 1000.0), encoder);
+  } catch (const std::exception& e) {
+    if (strict) finding("a scene of primitives and fem hands did not build", e.what());
+  }
 }
 
 }  // namespace
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   const std::string text(hapticd::fuzz::as_text(data, size));
+  hapticd::SceneDesc scene;
   try {
-    const hapticd::SceneDesc scene = hapticd::parse_scene_text(text, base_dir(), "fuzz.json");
-    (void)scene;
+    scene = hapticd::parse_scene_text(text, base_dir(), "fuzz.json");
   } catch (const hapticd::SceneError&) {
+    return 0;
   }
+  build_and_step(std::move(scene));
   return 0;
 }
