@@ -73,17 +73,14 @@ void run_multirate_bench(const MultirateArgs& a) {
       glove_grasp(glove_scene, a.glove_s > 0 ? a.glove_s : size.glove_s, frames)};
   std::vector<HandleModelKind> models;
   for (const std::string& m : a.models)
-    models.push_back(m == "linearized" ? HandleModelKind::linearized
-                     : m == "zoh"      ? HandleModelKind::zoh
-                                       : HandleModelKind::zoh_coupling);
+    models.push_back(m == "linearized" ? HandleModelKind::linearized : HandleModelKind::zoh);
 
   nlohmann::json rows = nlohmann::json::array(), meta = nlohmann::json::array(), ratios = nlohmann::json::object();
   std::printf(
       "Open loop: each run replays the device poses of the reference (world stepped every 1 ms, linearized "
       "model, closed loop), all from the same world (rigid bodies settled 1 s first); error per tick = "
       "|f_D - f_D,ref| over all frames, RMS and max over the run. zoh: the proxy under the last visual step's "
-      "coupling force, held; zoh_coupling: no proxy, the virtual coupling simulated in the visual loop and its "
-      "force held.\n");
+      "coupling force, held.\n");
   std::printf("%-18s %8s %6s %-12s %10s %10s %9s %10s %10s %7s\n", "interaction", "visual", "ticks", "model",
               "rms_err_N", "max_err_N", "x_lin", "haptic_us", "visual_ms", "resets");
   for (const Interaction& in : interactions) {
@@ -140,10 +137,7 @@ void run_multirate_bench(const MultirateArgs& a) {
                          "|f_D - f_D,ref|^2), RMS and max over the run"},
                         {"models",
                          {{"linearized", "proxy under the coming step's handle-space linearization (hapticd)"},
-                          {"zoh", "proxy under the last visual step's coupling force, held (K = D = 0)"},
-                          {"zoh_coupling",
-                           "no proxy: the virtual coupling simulated in the visual loop, its "
-                           "force held"}}},
+                          {"zoh", "proxy under the last visual step's coupling force, held (K = D = 0)"}}},
                         {"interactions", meta},
                         {"rows", rows},
                         {"rms_ratio_over_linearized", ratios},
@@ -165,8 +159,8 @@ void add_multirate_suite(CLI::App& app) {
       ->check(CLI::IsMember({6, 16}));
   sub->add_option("--stylus-seconds", args->stylus_s, "length of the stylus run (default: the size's)");
   sub->add_option("--glove-seconds", args->glove_s, "length of the glove run (default: the size's)");
-  sub->add_option("--models", args->models, "models compared: linearized, zoh, zoh_coupling (default: linearized zoh)")
-      ->check(CLI::IsMember({"linearized", "zoh", "zoh_coupling"}));
+  sub->add_option("--models", args->models, "models compared: linearized, zoh (default: linearized zoh)")
+      ->check(CLI::IsMember({"linearized", "zoh"}));
   sub->add_option("--json", args->json, "write the results as JSON to this file");
   sub->callback([args] { run_multirate_bench(*args); });
 }

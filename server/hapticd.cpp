@@ -12,6 +12,7 @@
 #include <nlohmann/json.hpp>
 #include <thread>
 
+#include "protocol/clock.hpp"
 #include "protocol/key_file.hpp"
 #include "server/haptic/haptic_server.hpp"
 #include "server/haptic/visual_loop.hpp"
@@ -108,11 +109,7 @@ int main(int argc, char** argv) {
     scene.visual_rate_hz = visual_rate;
     scene.dt_s = 1.0 / visual_rate;
     if (scene.devices.empty()) throw std::runtime_error(scene_path + ": devices: the scene names no device to serve");
-    WorldOptions world_options;
-    world_options.hand_gravity = false;
-    world_options.drive = kProxyDrive;
-    world_options.linearize = false;  // the visual loop builds the coming step's model itself
-    World world(scene, world_options);
+    World world(scene, served_world_options());
     if (world.num_hands() > kMaxHands) throw std::runtime_error("hands: at most " + std::to_string(kMaxHands));
     std::vector<DeviceLink> links;
     for (const DeviceDesc& d : scene.devices) links.push_back(make_device_link(world, d, options.haptic_rate_hz));
@@ -124,15 +121,17 @@ int main(int argc, char** argv) {
 
     auto snapshots = std::make_unique<TripleBuffer<HapticSnapshot>>();
     auto targets = std::make_unique<TripleBuffer<ProxyTargets>>();
-    {  // the first model before the first packet
-      HapticSnapshot& first = snapshots->back();
-      HandleLinearization lin;
-      first.hands = world.num_hands();
-      for (int h = 0; h < first.hands; ++h) fill_haptic_model(world, h, lin, first.model[h]);
-      snapshots->publish();
-    }
-    HapticServer server(links, options, *snapshots, *targets);
-    VisualLoop visual(world, visual_rate, *snapshots, *targets, &server);
+    VisualReport visual_report;
+    HapticServer server(links, options, *snapshots, *targets, &visual_report);
+    const TickSolverPreparer preparer(links, server.haptic_period_s());
+    VisualStep step(world, *snapshots, *targets, &preparer);
+    // The first models before the first packet.
+    step.build_models(protocol::now_ns(), 1.0 / visual_rate);
+    step.prepare_tick_solvers();
+    step.publish();
+    VisualLoop visual(step, visual_rate, &visual_report, [](const std::string& what) {
+      say(Level::error, "visual step failed (" + what + "): hands reset, models held until a step succeeds");
+    });
     std::signal(SIGINT, on_signal);
     std::signal(SIGTERM, on_signal);
     std::atomic<bool> stop_loops{false};
@@ -200,6 +199,7 @@ int main(int argc, char** argv) {
           {"world_step_ms_median", 1e-3 * vs.world_us.percentile(50)},
           {"model_ms_median", 1e-3 * vs.model_us.percentile(50)},
           {"hand_resets", vs.resets},
+          {"faults", vs.faults},
           {"body_resets", vs.body_resets}}},
         {"packets",
          {{"in", st.packets_in},

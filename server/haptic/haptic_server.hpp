@@ -1,11 +1,10 @@
 #pragma once
-// The haptic loop of hapticd (DESIGN.md sections 1, 4, 5): one dedicated thread
-// that owns the UDP socket, the sessions and their proxies. It waits on the
-// socket until the next tick's absolute deadline: a pose sample is answered at
-// once from the current proxy (the device does not wait for a tick); at each
-// tick every proxy is integrated under its hand's latest linearized model and
-// the proxy poses are handed to the visual loop. Both handoffs are triple
-// buffers: no lock, no allocation, no logging on this thread (counted instead).
+// The real-time runner of the haptic tick (DESIGN.md sections 1, 4, 5): one dedicated thread that
+// owns the UDP socket and drives a HapticCore (haptic_core.hpp: the sessions, their proxies, the
+// replies) on the wall clock. It waits on the socket until the next tick's absolute deadline: a pose
+// sample is answered at once from the current proxy (the device does not wait for a tick); at each
+// deadline the core ticks. Per-source rate limits and the socket's batching live here; no lock, no
+// allocation, no logging on this thread (counted instead).
 #include <atomic>
 #include <boost/asio/ip/udp.hpp>
 #include <cstdint>
@@ -15,97 +14,10 @@
 
 #include <optional>
 
-#include "protocol/auth.hpp"
-#include "protocol/codec.hpp"
-#include "protocol/sequence_window.hpp"
-#include "server/haptic/loop_stats.hpp"
+#include "server/haptic/haptic_core.hpp"
 #include "server/haptic/source_rate_limiter.hpp"
-#include "server/haptic/triple_buffer.hpp"
-#include "server/haptic/device_link.hpp"
-#include "server/haptic/virtual_coupling.hpp"
 
 namespace hapticd {
-
-constexpr int kMaxHands = 4;
-constexpr int kMaxSessions = 16;
-
-// What the visual loop publishes for the haptic loop.
-struct HapticSnapshot {
-  int hands = 0;
-  HapticModel model[kMaxHands];
-};
-
-// What the haptic loop publishes for the visual loop: per hand, where its
-// driving session's proxies are (the targets the simulated handles are pulled to).
-struct ProxyTargets {
-  bool driven[kMaxHands]{};
-  // Counts the driving session's re-syncs (a first pose, a pose after a gap): the
-  // proxies jumped onto the device, and the hand is moved there rigidly rather
-  // than dragged through space in one step.
-  std::uint32_t resyncs[kMaxHands]{};
-  HapticPose pose[kMaxHands][kMaxHapticHandles];
-  Eigen::Vector3d v_W[kMaxHands][kMaxHapticHandles], w_W[kMaxHands][kMaxHapticHandles];
-  // The time the poses are of (CLOCK_MONOTONIC, ns): the end of the haptic tick that integrated
-  // them, up to one period after the visual loop reads them.
-  std::uint64_t t_ns = 0;
-};
-
-struct ServerOptions {
-  std::string bind = "127.0.0.1";
-  std::uint16_t port = 0;
-  double haptic_rate_hz = 1000;
-  bool busy_poll = false;         // spin on the socket instead of sleeping (a dedicated core)
-  double resync_gap_s = 0.05;     // a pose after a longer gap re-syncs the proxy (no force jump)
-  double silence_s = 0.1;         // no pose for this long: the session's force ramps to zero...
-  double ramp_s = 0.1;            // ...over this time (and back up when poses resume)
-  double session_timeout_s = 5.0; // then the session is dropped
-  bool realtime = true;           // try SCHED_FIFO for the haptic thread (not with busy_poll)
-  // The pre-shared key: every session is authenticated and every datagram carries a MAC
-  // (protocol/auth.hpp). Without one the server binds only to loopback unless insecure_bind.
-  std::optional<protocol::Key> key;
-  bool insecure_bind = false;
-  // With a key, a session stays pending (drives nothing, replaces nothing) until its client's
-  // first authenticated datagram; a pending session silent this long is dropped.
-  double pending_timeout_s = 2.0;
-  // Visual-loop watchdog: a hand's model is overdue from the later of its arrival and the end of the
-  // step it describes (HapticModel::t_end_ns). Overdue longer than model_stale_after_s, its
-  // influence (F0, K, D) fades smoothly over model_fade_s to the safe model, where the proxy feels
-  // only its device (the replies are flagged stale); when models flow again it comes back over the
-  // same time, so neither way has a force jump.
-  double model_stale_after_s = 0.1;
-  double model_fade_s = 0.1;
-  // Per-source limit (a token bucket per address and port, before anything is decoded): datagrams
-  // a second (0: 4x haptic_rate_hz, the rate every session is granted) and the burst allowed.
-  double source_rate_hz = 0;
-  double source_burst = 200;
-};
-
-struct ServerStats {
-  std::uint64_t packets_in = 0, packets_out = 0, packets_dropped = 0;
-  std::uint64_t rejected[protocol::kRejectReasonCount]{};
-  std::uint64_t unknown_session = 0, wrong_peer = 0, duplicates = 0, stale = 0, gaps = 0;
-  std::uint64_t frames_lost = 0;  // tracked frames left out of pose samples (lost tracking), summed
-  std::uint64_t clamps = 0, resets = 0, resyncs = 0, overruns = 0, ticks = 0, replies = 0;
-  // Ticks of a glove-sized model the dense LU solved instead of its prepared solver (ProxyHand::solver_fallbacks).
-  std::uint64_t solver_fallbacks = 0;
-  // Ticks whose prepared answer the probes sent to the exact residual (ProxyHand::solver_refinements).
-  std::uint64_t solver_refinements = 0;
-  std::uint64_t sessions_opened = 0, sessions_closed = 0, sessions_timed_out = 0, send_errors = 0;
-  // Sessions replaced by the same peer's newer one; pending sessions never confirmed (a key only).
-  std::uint64_t sessions_replaced = 0, pending_expired = 0;
-  // Datagrams over their source's allowance (also in rejected[kRateLimited]); sources that displaced
-  // another from the rate limiter's table.
-  std::uint64_t rate_limited = 0, rate_sources_evicted = 0;
-  // Visual-loop watchdog, per hand: models that went overdue (stale_models), ticks at which a hand's
-  // model was faded at all (stale_model_ticks), and the longest time a model was overdue, s.
-  std::uint64_t stale_models = 0, stale_model_ticks = 0;
-  double model_overdue_max_s = 0;
-  MicrosecondHistogram tick_compute_us, tick_jitter_us, reply_compute_us;
-  double elapsed_s = 0;
-  double cpu_s = 0;  // the haptic thread's CPU time over the run (user and system)
-  int receive_buffer_bytes = 0;  // the socket's, as the kernel granted it
-  bool realtime = false;
-};
 
 class HapticServer {
  public:
@@ -113,64 +25,37 @@ class HapticServer {
   // is no key and no insecure_bind. The constructor checks it too; hapticd calls it before loading
   // the scene.
   static void check_bind(const ServerOptions& options);
-  // Binds the socket (throws std::runtime_error with the address on failure).
+  // Binds the socket (throws std::runtime_error with the address on failure). `visual`: the visual
+  // runner's report for the Stats message (none: zeros).
   HapticServer(std::vector<DeviceLink> links, const ServerOptions& options, TripleBuffer<HapticSnapshot>& snapshots,
-               TripleBuffer<ProxyTargets>& targets);
+               TripleBuffer<ProxyTargets>& targets, const VisualReport* visual = nullptr);
   ~HapticServer();
   HapticServer(const HapticServer&) = delete;
   HapticServer& operator=(const HapticServer&) = delete;
 
   std::uint16_t port() const;
   std::string address() const;
-  // The device links and the haptic period, for the visual loop's prepare_tick_solver.
-  const std::vector<DeviceLink>& links() const { return links_; }
-  double haptic_period_s() const { return 1.0 / options_.haptic_rate_hz; }
+  const std::vector<DeviceLink>& links() const { return core_.links(); }
+  double haptic_period_s() const { return core_.haptic_period_s(); }
 
   // The haptic thread's body: returns when `stop` becomes true (sessions are sent nothing more).
   void run(const std::atomic<bool>& stop);
 
   // Readable after run() returned.
-  const ServerStats& stats() const { return *stats_; }
+  const ServerStats& stats() const { return core_.stats(); }
   // Memory, all of it allocated by the constructor (nothing after): one session slot, and the
   // whole server (kMaxSessions slots, buffers, codec, rate limiter), bytes.
-  static std::size_t session_bytes();
+  static std::size_t session_bytes() { return HapticCore::session_bytes(); }
   std::size_t memory_bytes() const;
-  // The visual loop's achieved rate and step time, for the Stats message (set by the visual thread).
-  std::atomic<double> visual_rate_hz{0}, visual_step_ms{0};
 
  private:
-  struct Session;
-  void tick(std::uint64_t now_ns);
-  // The visual-loop watchdog, at each tick: how far each hand's model has faded, and its weight.
-  void watch_models(std::uint64_t now_ns);
-  double model_weight(int hand) const;
-  void handle(std::size_t bytes, std::uint64_t now_ns);
-  void handle_authenticated(std::span<const std::uint8_t> datagram, std::uint64_t now_ns);
-  void dispatch(std::uint64_t now_ns);
-  void reject(protocol::RejectReason reason);
-  void on_hello(const protocol::Hello& hello, const protocol::Nonce* client_nonce);
-  void on_pose(const protocol::PoseSample& pose, std::uint64_t now_ns);
-  void confirm(Session& s);
-  void close(Session& s);
-  // Sends to the peer of the datagram being handled: plain without a key; with one, a session's
-  // reply sealed with its server -> client key, or a handshake reply sealed with the reply key of
-  // the Hello being answered (handshake_key_, or plain when that Hello was not authentic).
-  void send(const protocol::EncodeResult& encoded, Session* session = nullptr);
-  void send_error(protocol::ErrorCode code, const char* message);
-  Session* find_session(std::uint64_t id);
-  void fill_stats(protocol::Stats& out) const;
-
-  std::vector<DeviceLink> links_;
-  ServerOptions options_;
-  TripleBuffer<HapticSnapshot>& snapshots_;
-  TripleBuffer<ProxyTargets>& targets_;
   struct Io;
+  struct Socket;
+  struct RxBatch;
+  ServerOptions options_;
   std::unique_ptr<Io> io_;
-  std::unique_ptr<Session[]> sessions_;
-  std::unique_ptr<ServerStats> stats_;
-  std::unique_ptr<protocol::ReceiveBuffer> rx_;
-  std::unique_ptr<protocol::Message> message_;
-  std::unique_ptr<protocol::Message> reply_;
+  std::unique_ptr<Socket> socket_;
+  HapticCore core_;
   // Datagrams are read kRxBatch per system call, at most kRxRounds calls before the tick deadline is checked.
   static constexpr int kRxBatch = 32, kRxRounds = 8;
   // While a source is over its allowance, the loop drains the socket this often instead of waking
@@ -178,25 +63,10 @@ class HapticServer {
   static constexpr std::uint64_t kFloodCoalesce_ns = 50'000;
   // The socket's receive buffer asked for (the kernel counts its own overhead in it), bytes.
   static constexpr int kReceiveBufferBytes = 4 << 20;
-  struct RxBatch;
+  // SCHED_FIFO priority of the haptic thread (above the kernel's default threaded IRQs at 50).
+  static constexpr int kRealtimePriority = 80;
   std::unique_ptr<RxBatch> rx_batch_;
-  protocol::Encoder encoder_;
-  std::unique_ptr<protocol::AuthKeys> auth_;  // null without a key
-  std::unique_ptr<protocol::Sealer> sealer_;
-  std::unique_ptr<protocol::NonceCache> hello_nonces_;
-  const protocol::Key* handshake_key_ = nullptr;  // the reply key of the Hello being answered
-  protocol::Key handshake_key_storage_{};
-  std::uint64_t handshake_session_ = 0;
-  std::uint64_t next_session_id_ = 0;
-  std::uint32_t hand_resyncs_[kMaxHands]{};
   std::unique_ptr<SourceRateLimiter> limiter_;
-  // Visual-loop watchdog: when the newest snapshot arrived, and per hand how far its model has faded
-  // (0 fresh .. 1 safe model; its weight is 1 - smoothstep) and whether it is overdue.
-  std::uint64_t snapshot_arrival_ns_ = 0, last_watch_ns_ = 0;
-  double model_fade_[kMaxHands]{};
-  bool model_overdue_[kMaxHands]{};
-  HapticModel no_model_;  // handles = 0: the proxy feels only its device
-  std::uint64_t start_ns_ = 0;
 };
 
 }  // namespace hapticd

@@ -3,68 +3,20 @@
 #include <time.h>
 
 #include <algorithm>
+#include <exception>
 
-#include "hand_models/rigid_handle.hpp"
 #include "protocol/clock.hpp"
 
 namespace hapticd {
 
-void fill_contact_flags(const World& world, int h, HapticModel& out) {
-  const WorldSnapshot& snap = world.snapshot();
-  const WorldHand& hand = world.hand(h);
-  out.in_contact = false;
-  std::fill(std::begin(out.handle_in_contact), std::end(out.handle_in_contact), false);
-  for (const ContactRecord& c : snap.contacts) {
-    if (c.hand != h || c.depth_m <= 0) continue;
-    out.in_contact = true;
-    // A contact without a skin point of this hand (another hand's skin inside its flesh) marks no handle.
-    if (c.point < 0 || c.point >= static_cast<int>(hand.skin_handle.size())) continue;
-    const int j = hand.skin_handle[c.point];
-    if (j < kMaxHapticHandles) out.handle_in_contact[j] = true;
-  }
-}
-
-void fill_haptic_model(World& world, int h, HandleLinearization& lin, HapticModel& out) {
-  out.handles = 0;
-  out.solver.prepared = false;
-  WorldHand& hand = world.hand(h);
-  fill_contact_flags(world, h, out);
-  if (!linearize_next_step(*hand.model, hand.state, *hand.solver, lin)) return;
-  const int m = static_cast<int>(lin.x0.size());
-  if (m > kMaxHapticHandles || lin.F0.size() != 6 * m) return;
-  out.F0 = lin.F0;
-  out.K = lin.K;
-  out.D = lin.D;
-  for (int j = 0; j < m; ++j) {
-    out.x0[j] = {lin.x0[j].p_WH, lin.x0[j].q_WH};
-    out.v0[j] = lin.x0[j].v_WH;
-    out.w0[j] = lin.x0[j].w_WH;
-  }
-  out.handles = m;
-}
-
-bool prepare_for_links(std::span<const DeviceLink> links, int h, double haptic_dt_s, HapticModel& model) {
-  model.solver.prepared = false;
-  for (const DeviceLink& link : links)
-    if (link.hand == h && link.handles == model.handles)
-      return prepare_tick_solver(model, link.handles, link.mass_kg, link.inertia_B, link.gains, haptic_dt_s);
-  return false;
-}
-
-HandleTarget proxy_target(const ProxyTargets& targets, int h, int j, std::uint64_t until_ns) {
-  const double ahead = std::clamp(1e-9 * (static_cast<double>(until_ns) - static_cast<double>(targets.t_ns)), -0.1, 0.1);
-  const HapticPose& p = targets.pose[h][j];
-  const Eigen::Vector3d &v = targets.v_W[h][j], &w = targets.w_W[h][j];
-  return {p.p_W + ahead * v, rotate_by(p.q_W, ahead * w), v, w};
-}
-
-VisualLoop::VisualLoop(World& world, double rate_hz, TripleBuffer<HapticSnapshot>& snapshots,
-                       TripleBuffer<ProxyTargets>& targets, HapticServer* report_to)
-    : world_(world), rate_hz_(rate_hz), snapshots_(snapshots), targets_(targets), report_to_(report_to) {}
+VisualLoop::VisualLoop(VisualStep& step, double rate_hz, VisualReport* report,
+                       std::function<void(const std::string&)> on_fault)
+    : step_(step), rate_hz_(rate_hz), report_(report), on_fault_(std::move(on_fault)) {}
 
 void VisualLoop::run(const std::atomic<bool>& stop) {
   ensure_ode_for_this_thread();
   single_threaded_cholmod();
+  World& world = step_.world();
   const double period = 1.0 / rate_hz_;
   const std::uint64_t start = protocol::now_ns();
   double latency_s = 0;      // how long an iteration takes from reading the proxies to publishing
@@ -80,59 +32,57 @@ void VisualLoop::run(const std::atomic<bool>& stop) {
     // proxies' motion faster than it happened and a late model would lag the
     // flesh: both feed energy back to the device.
     const std::uint64_t publish = t0 + static_cast<std::uint64_t>(1e9 * latency_s);
-    targets_.update();
-    const ProxyTargets& targets = targets_.front();
-    for (int h = 0; h < std::min(world_.num_hands(), kMaxHands); ++h) {
-      if (!targets.driven[h]) continue;
-      WorldHand& hand = world_.hand(h);
-      if (targets.resyncs[h] != resyncs_seen_[h]) {
-        resyncs_seen_[h] = targets.resyncs[h];
-        place_hand(*hand.model, hand.state, targets.pose[h][0].p_W, targets.pose[h][0].q_W, 0);
-      }
-      for (int j = 0; j < std::min(hand.model->num_handles(), kMaxHapticHandles); ++j)
-        set_target(hand.state, j, proxy_target(targets, h, j, publish));
+    std::uint64_t t_world = t0, t_model = t0;
+    bool faulted = false;
+    try {
+      step_.advance_world(publish, dt);
+      world_time_s += dt;
+      t_world = protocol::now_ns();
+      // The coming step: at least the period and twice the loop's latency (its model
+      // must reach the haptic loop before the step is half over; a slower machine
+      // gets a lower visual rate, counted, never a late model), plus half of any
+      // lag of simulated time behind the wall clock. The model is built for exactly
+      // this length and the world then takes it, reusing the model's factorization.
+      const double lag_s = 1e-9 * static_cast<double>(publish - start) - world_time_s;
+      dt = std::clamp(std::max(period, kLatencyMargin * latency_s) + 0.5 * lag_s, kMinStepFraction * period,
+                      kMaxStep_s);
+      if (kLatencyMargin * latency_s > period) ++stats_.late_steps;
+      step_.build_models(publish, dt);
+      t_model = protocol::now_ns();
+      step_.prepare_tick_solvers();
+    } catch (const std::exception& e) {
+      faulted = true;
+      if (on_fault_) on_fault_(e.what());
+    } catch (...) {
+      faulted = true;
+      if (on_fault_) on_fault_("a non-standard exception");
     }
-    world_.step(dt);
-    world_time_s += dt;
-    const std::uint64_t t_world = protocol::now_ns();
-    // The coming step: at least the period and twice the loop's latency (its model
-    // must reach the haptic loop before the step is half over; a slower machine
-    // gets a lower visual rate, counted, never a late model), plus half of any
-    // lag of simulated time behind the wall clock. The model is built for exactly
-    // this length and the world then takes it, reusing the model's factorization.
-    const double lag_s = 1e-9 * static_cast<double>(publish - start) - world_time_s;
-    dt = std::clamp(std::max(period, kLatencyMargin * latency_s) + 0.5 * lag_s, 0.25 * period, kMaxStep_s);
-    if (kLatencyMargin * latency_s > period) ++stats_.late_steps;
-    HapticSnapshot& out = snapshots_.back();
-    out.hands = std::min(world_.num_hands(), kMaxHands);
-    std::uint64_t prepare_ns = 0;
-    for (int h = 0; h < out.hands; ++h) {
-      world_.hand(h).state.dt_s = dt;
-      fill_haptic_model(world_, h, scratch_, out.model[h]);
-      out.model[h].t_end_ns = publish + static_cast<std::uint64_t>(1e9 * dt);
-      out.model[h].resyncs = resyncs_seen_[h];
-      if (report_to_ && out.model[h].handles >= kMinPreparedHandles) {
-        const std::uint64_t p0 = protocol::now_ns();
-        prepare_for_links(report_to_->links(), h, report_to_->haptic_period_s(), out.model[h]);
-        prepare_ns += protocol::now_ns() - p0;
-      }
+    if (faulted) {
+      // Nothing of this step is published; the world restarts from the proxies at the clock.
+      step_.recover();
+      ++stats_.faults;
+      faults_.store(stats_.faults, std::memory_order_relaxed);
+      dt = period;
+      world_time_s = 1e-9 * static_cast<double>(protocol::now_ns() - start);
     }
     const std::uint64_t t1 = protocol::now_ns();
-    // The next iteration's latency: the slower of this one and a decaying memory of the last.
-    latency_s = std::max(1e-9 * static_cast<double>(t1 - t0), 0.8 * latency_s);
-    snapshots_.publish();
-    ++stats_.steps;
-    stats_.step_us.add(1e-3 * static_cast<double>(t1 - t0));
-    stats_.world_us.add(1e-3 * static_cast<double>(t_world - t0));
-    stats_.model_us.add(1e-3 * static_cast<double>(t1 - t_world));
-    stats_.prepare_us.add(1e-3 * static_cast<double>(prepare_ns));
-    stats_.resets = world_.snapshot().resets;
-    stats_.body_resets = world_.snapshot().body_resets;
+    if (!faulted) {
+      // The next iteration's latency: the slower of this one and a decaying memory of the last.
+      latency_s = std::max(1e-9 * static_cast<double>(t1 - t0), kLatencyMemory * latency_s);
+      step_.publish();
+      ++stats_.steps;
+      stats_.step_us.add(1e-3 * static_cast<double>(t1 - t0));
+      stats_.world_us.add(1e-3 * static_cast<double>(t_world - t0));
+      stats_.model_us.add(1e-3 * static_cast<double>(t_model - t_world));
+      stats_.prepare_us.add(1e-3 * static_cast<double>(t1 - t_model));
+    }
+    stats_.resets = world.snapshot().resets;
+    stats_.body_resets = world.snapshot().body_resets;
     stats_.elapsed_s = 1e-9 * static_cast<double>(t1 - start);
-    if (report_to_) {
-      report_to_->visual_step_ms.store(1e-3 * stats_.step_us.percentile(50), std::memory_order_relaxed);
-      report_to_->visual_rate_hz.store(static_cast<double>(stats_.steps) / std::max(stats_.elapsed_s, 1e-9),
-                                       std::memory_order_relaxed);
+    if (report_) {
+      report_->step_ms.store(1e-3 * stats_.step_us.percentile(50), std::memory_order_relaxed);
+      report_->rate_hz.store(static_cast<double>(stats_.steps) / std::max(stats_.elapsed_s, 1e-9),
+                             std::memory_order_relaxed);
     }
     // Read the proxies again one latency before the coming step's publication.
     const std::uint64_t deadline = publish + static_cast<std::uint64_t>(1e9 * dt) -

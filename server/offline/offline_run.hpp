@@ -1,13 +1,12 @@
 #pragma once
-// Deterministic offline mode: the whole pipeline of hapticd (device, haptic
-// loop, visual loop, world) on simulated time, in lockstep, on one thread,
-// without sockets. Each haptic tick of period T the device moves and sends its
-// frames' poses, the proxies answer (ProxyHand::reply, as HapticServer::handle)
-// and are integrated under the last published model (as HapticServer::tick);
-// every k ticks the visual loop drives the world's handles to the proxies,
-// steps the world by k T and builds the model of the coming step (as
-// VisualLoop::run with a latency of `model_delay_ticks`). Nothing reads a
-// clock except to time the stages: the same inputs give bit-identical outputs.
+// Deterministic offline mode, the lockstep runner: hapticd's own pipeline (HapticCore, VisualStep,
+// the world) on simulated time, in lockstep, on one thread, without sockets. Each haptic tick of
+// period T the device moves and sends its frames' poses as a PoseSample datagram, the core answers
+// it with a ForceSample from the proxies and integrates them under the last published model; every
+// k ticks the visual step drives the world's handles to the proxies, steps the world by k T and
+// builds the model of the coming step, handed over `model_delay_ticks` later (the visual step's
+// compute time). Nothing reads a clock except to time the stages: the same inputs give
+// bit-identical outputs.
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include <functional>
@@ -18,29 +17,13 @@
 #include "clients/sim/device_model.hpp"
 #include "clients/sim/glove_model.hpp"
 #include "clients/sim/glove_simulation.hpp"
+#include "protocol/codec.hpp"
 #include "server/haptic/device_link.hpp"
-#include "server/haptic/visual_loop.hpp"
+#include "server/haptic/haptic_core.hpp"
+#include "server/haptic/visual_step.hpp"
 #include "server/world/world.hpp"
 
 namespace hapticd {
-
-// How the haptic loop renders the hand between visual steps.
-enum class HandleModelKind {
-  // hapticd (seed 004 section 3): the proxies, coupled to the device, integrated
-  // every tick under the coming step's handle-space linearization
-  // F*(x, v) = F0 + K (x - x0) + D (v - v0) (fill_haptic_model).
-  linearized,
-  // The same pipeline with the model cut to its zeroth order: the proxies feel
-  // the coupling wrench the last visual step ended with (the flesh on the
-  // handles, seed 004 eq. 4-5), held until the next (K = D = 0). No linearization is built.
-  zoh,
-  // A naive multi-rate server without a proxy: the virtual coupling (the same
-  // gains) is simulated in the visual loop, the world's handles pulled toward the
-  // device by it, and the device receives the coupling force of the last visual
-  // step, held until the next.
-  zoh_coupling,
-};
-const char* to_string(HandleModelKind kind);
 
 struct OfflineOptions {
   double haptic_period_s = 1e-3;
@@ -49,6 +32,7 @@ struct OfflineOptions {
   int visual_every_ticks = 17;
   // How long after its step a model reaches the haptic loop (the visual step's
   // compute time); the world then simulates up to that publication, as VisualLoop does.
+  // Less than visual_every_ticks.
   int model_delay_ticks = 0;
   HandleModelKind model = HandleModelKind::linearized;
   int device = 0;  // the scene device served
@@ -59,13 +43,12 @@ struct OfflineOptions {
   // rest 5 mm apart after 1 s at 1 ms and at 33 ms steps).
   double settle_s = 0;
   // The proxies a visual step reads were integrated to the end of their tick
-  // (t + T), and the world and the model's step end are timed from there. True:
-  // timed from the tick's start instead, as hapticd's VisualLoop timed them
-  // before ProxyTargets carried their time (t_ns; the bias was up to one
-  // period, by the phase of the two threads). Measured with that bias:
-  // a free-space sweep at 60 Hz puts energy into the device (+0.03 J of 0.41 J
-  // exchanged, against -0.23 J at 1 kHz and with exact timing), and at 240 Hz
-  // the loops go unstable.
+  // (t + T, ProxyTargets::t_ns), and the world and the model's step end are timed
+  // from there. True: the model's step is timed from the tick's start instead (one
+  // period early), as hapticd's VisualLoop timed it before ProxyTargets carried
+  // their time (the bias was up to one period, by the phase of the two threads). Measured with that bias:
+  // a free-space sweep at 60 Hz puts energy into the device, and at 240 Hz the loops
+  // go unstable.
   bool targets_one_tick_stale = false;
   // The hands' contact model (WorldOptions::contact; unset: the scene's). Penalty by default, as hapticd.
   std::optional<ContactModel> contact = ContactModel::penalty;
@@ -94,21 +77,25 @@ struct OfflineTimings {
   long visual_steps = 0;
 };
 
-// The two loops and the world of one scene device, ticked in lockstep.
+// The lockstep runner: hapticd's haptic tick (HapticCore) and visual step (VisualStep) on simulated
+// time, one scene device served through the wire's own messages (a Hello, then a PoseSample each
+// tick, answered by a ForceSample), on one thread. The same objects hapticd's threads drive.
 class OfflineLoops {
  public:
-  // Builds the world as hapticd does (weightless hands, handles driven by the
-  // proxies, no in-step linearization) with the scene's step set to k T.
-  // Throws std::runtime_error when the scene's device cannot be served.
+  // Builds the world as hapticd does (served_world_options) with the scene's step set to k T, and
+  // opens the device's session. Throws std::runtime_error when the scene's device cannot be served.
   OfflineLoops(SceneDesc scene, const OfflineOptions& options);
+  ~OfflineLoops();
+  OfflineLoops(const OfflineLoops&) = delete;
+  OfflineLoops& operator=(const OfflineLoops&) = delete;
 
   // Where tracked frame j sits in device space when it carries its handle at the
   // handle's current pose (a device starting there starts without force).
   void frame_pose_at_handle(int j, Eigen::Vector3d& p_D, Eigen::Quaterniond& q_D) const;
 
-  // One haptic tick at t = ticks() T with the device's poses of this tick: the
-  // sample (a first one re-syncs the proxies), the reply the device receives,
-  // the proxies' integration, and the visual step when one is due.
+  // One haptic tick at t = ticks() T with the device's poses of this tick: a model due now is
+  // handed over, the sample is sent and answered (a first one re-syncs the proxies), the haptic
+  // tick integrates the proxies, and the visual step runs when one is due.
   void tick(const DeviceFrames& sample, DeviceReply& reply);
 
   long ticks() const { return ticks_; }
@@ -116,38 +103,36 @@ class OfflineLoops {
   World& world() { return *world_; }
   const World& world() const { return *world_; }
   const DeviceLink& link() const { return link_; }
-  const ProxyHand& proxy() const { return proxy_; }
+  // The session's proxies (as the haptic tick left them).
+  const ProxyHand& proxy() const;
   const OfflineOptions& options() const { return options_; }
-  // The model the haptic loop integrates under now (handles = 0: none yet).
-  const HapticModel& model() const { return current_; }
+  const ServerStats& server_stats() const { return core_->stats(); }
   // Proxy resets plus world resets.
   long resets() const;
   // Timings so far (sorts copies of the samples: not for the hot path).
   OfflineTimings timings() const;
 
  private:
-  void visual_step(double t_s);
-  void reply_held(DeviceReply& reply);
-  void build_model(HapticModel& out);
+  struct Wire;
+  std::uint64_t now_ns() const;
+  void visual_step();
+  void send(const protocol::EncodeResult& encoded);
 
   OfflineOptions options_;
+  std::uint64_t period_ns_ = 0;
   std::unique_ptr<World> world_;
   DeviceLink link_;
-  ProxyHand proxy_;
-  HandleLinearization scratch_;
-  HapticModel current_, next_, none_;
-  double t_end_s_ = 0, next_t_end_s_ = 0;
-  double output_scale_ = 0;  // the session's force ramp (HapticServer)
+  std::unique_ptr<TripleBuffer<HapticSnapshot>> snapshots_;
+  std::unique_ptr<TripleBuffer<ProxyTargets>> targets_;
+  std::unique_ptr<Wire> wire_;
+  std::unique_ptr<HapticCore> core_;
+  std::unique_ptr<TickSolverPreparer> preparer_;
+  std::unique_ptr<VisualStep> visual_;
+  protocol::Encoder encoder_;
+  std::unique_ptr<protocol::Message> pose_, received_;
+  std::uint64_t session_ = 0;
   bool pending_ = false;
   long publish_at_ = 0, ticks_ = 0;
-  std::uint32_t resyncs_ = 0, resyncs_seen_ = 0;  // the haptic loop's re-sync count, the visual loop's
-  // zoh_coupling: the device frames' handle poses (world) and velocities, the coupling
-  // wrench held since the last visual step, the last reply per frame (slew limit).
-  HapticPose device_W_[kMaxHapticHandles];
-  Eigen::Vector3d device_v_W_[kMaxHapticHandles], device_w_W_[kMaxHapticHandles];
-  Eigen::Vector3d held_f_W_[kMaxHapticHandles], held_tau_W_[kMaxHapticHandles];
-  Eigen::Vector3d last_f_D_[kMaxHapticHandles], last_tau_D_[kMaxHapticHandles];
-  bool have_device_ = false;
   std::vector<double> haptic_us_, visual_ms_;
 };
 

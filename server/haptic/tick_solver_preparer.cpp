@@ -1,0 +1,14 @@
+#include "server/haptic/tick_solver_preparer.hpp"
+
+namespace hapticd {
+
+bool TickSolverPreparer::prepare(int h, HapticModel& model) const {
+  model.solver.prepared = false;
+  if (model.handles < kMinPreparedHandles) return false;
+  for (const DeviceLink& link : links_)
+    if (link.hand == h && link.handles == model.handles)
+      return prepare_tick_solver(model, link.handles, link.mass_kg, link.inertia_B, link.gains, haptic_dt_s_);
+  return false;
+}
+
+}  // namespace hapticd

@@ -1,0 +1,25 @@
+#pragma once
+// What the haptic tick needs prepared from a model before it arrives: the factors of its tick solver
+// (prepare_tick_solver, for glove-sized models). The haptic side owns the device links and the
+// haptic period the factors depend on; the visual step calls it on each model it builds, off the
+// haptic thread.
+#include <vector>
+
+#include "server/haptic/device_link.hpp"
+
+namespace hapticd {
+
+class TickSolverPreparer {
+ public:
+  TickSolverPreparer(std::vector<DeviceLink> links, double haptic_dt_s)
+      : links_(std::move(links)), haptic_dt_s_(haptic_dt_s) {}
+  // Prepares `model`'s tick solver for the first link that drives hand h with as many handles;
+  // false (model.solver.prepared cleared) when none does or the model is too small to need it.
+  bool prepare(int h, HapticModel& model) const;
+
+ private:
+  std::vector<DeviceLink> links_;
+  double haptic_dt_s_;
+};
+
+}  // namespace hapticd

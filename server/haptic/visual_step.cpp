@@ -1,0 +1,167 @@
+#include "server/haptic/visual_step.hpp"
+
+#include <algorithm>
+
+#include "hand_models/rigid_handle.hpp"
+
+namespace hapticd {
+
+WorldOptions served_world_options() {
+  WorldOptions o;
+  o.hand_gravity = false;
+  o.drive = kProxyDrive;
+  o.linearize = false;
+  return o;
+}
+
+const char* to_string(HandleModelKind kind) {
+  switch (kind) {
+    case HandleModelKind::linearized:
+      return "linearized";
+    case HandleModelKind::zoh:
+      return "zoh";
+  }
+  return "?";
+}
+
+void fill_contact_flags(const World& world, int h, HapticModel& out) {
+  const WorldSnapshot& snap = world.snapshot();
+  const WorldHand& hand = world.hand(h);
+  out.in_contact = false;
+  std::fill(std::begin(out.handle_in_contact), std::end(out.handle_in_contact), false);
+  for (const ContactRecord& c : snap.contacts) {
+    if (c.hand != h || c.depth_m <= 0) continue;
+    out.in_contact = true;
+    // A contact without a skin point of this hand (another hand's skin inside its flesh) marks no handle.
+    if (c.point < 0 || c.point >= static_cast<int>(hand.skin_handle.size())) continue;
+    const int j = hand.skin_handle[c.point];
+    if (j < kMaxHapticHandles) out.handle_in_contact[j] = true;
+  }
+}
+
+void fill_haptic_model(World& world, int h, HandleLinearization& lin, HapticModel& out) {
+  out.handles = 0;
+  out.solver.prepared = false;
+  WorldHand& hand = world.hand(h);
+  fill_contact_flags(world, h, out);
+  if (!linearize_next_step(*hand.model, hand.state, *hand.solver, lin)) return;
+  const int m = static_cast<int>(lin.x0.size());
+  if (m > kMaxHapticHandles || lin.F0.size() != 6 * m) return;
+  out.F0 = lin.F0;
+  out.K = lin.K;
+  out.D = lin.D;
+  for (int j = 0; j < m; ++j) {
+    out.x0[j] = {lin.x0[j].p_WH, lin.x0[j].q_WH};
+    out.v0[j] = lin.x0[j].v_WH;
+    out.w0[j] = lin.x0[j].w_WH;
+  }
+  out.handles = m;
+}
+
+namespace {
+
+// The zero-order hold: the flesh's wrench on the handles as the step left them (seed 004 eq. 4-5), K = D = 0.
+void fill_held_model(World& world, int h, HapticModel& out) {
+  out.handles = 0;
+  out.solver.prepared = false;
+  fill_contact_flags(world, h, out);
+  const WorldHand& hand = world.hand(h);
+  const HandState& s = hand.state;
+  const int m = std::min(hand.model->num_handles(), kMaxHapticHandles);
+  const Eigen::VectorXd F = coupling_wrench(*hand.model, s.x, s.v, s.handles);
+  if (F.size() < 6 * m || !F.allFinite()) return;
+  out.F0 = F.head(6 * m);
+  out.K.setZero(6 * m, 6 * m);
+  out.D.setZero(6 * m, 6 * m);
+  for (int j = 0; j < m; ++j) {
+    out.x0[j] = {s.handles[j].p_WH, s.handles[j].q_WH};
+    out.v0[j] = s.handles[j].v_WH;
+    out.w0[j] = s.handles[j].w_WH;
+  }
+  out.handles = m;
+}
+
+}  // namespace
+
+HandleTarget proxy_target(const ProxyTargets& targets, int h, int j, std::uint64_t until_ns) {
+  const double ahead = std::clamp(1e-9 * (static_cast<double>(until_ns) - static_cast<double>(targets.t_ns)),
+                                  -kMaxProxyExtrapolation_s, kMaxProxyExtrapolation_s);
+  const HapticPose& p = targets.pose[h][j];
+  const Eigen::Vector3d &v = targets.v_W[h][j], &w = targets.w_W[h][j];
+  return {p.p_W + ahead * v, rotate_by(p.q_W, ahead * w), v, w};
+}
+
+VisualStep::VisualStep(World& world, TripleBuffer<HapticSnapshot>& snapshots, TripleBuffer<ProxyTargets>& targets,
+                       const TickSolverPreparer* preparer, HandleModelKind kind)
+    : world_(world), snapshots_(snapshots), targets_(targets), preparer_(preparer), kind_(kind) {}
+
+void VisualStep::advance_world(std::uint64_t publish_ns, double dt_s) {
+  targets_.update();
+  const ProxyTargets& targets = targets_.front();
+  for (int h = 0; h < std::min(world_.num_hands(), kMaxHands); ++h) {
+    if (!targets.driven[h]) continue;
+    WorldHand& hand = world_.hand(h);
+    if (targets.resyncs[h] != resyncs_seen_[h]) {
+      resyncs_seen_[h] = targets.resyncs[h];
+      place_hand(*hand.model, hand.state, targets.pose[h][0].p_W, targets.pose[h][0].q_W, 0);
+    }
+    for (int j = 0; j < std::min(hand.model->num_handles(), kMaxHapticHandles); ++j)
+      set_target(hand.state, j, proxy_target(targets, h, j, publish_ns));
+  }
+  if (inject_) inject_();
+  world_.step(dt_s);
+}
+
+void VisualStep::build_models(std::uint64_t publish_ns, double dt_s) {
+  HapticSnapshot& out = snapshots_.back();
+  out.hands = std::min(world_.num_hands(), kMaxHands);
+  for (int h = 0; h < out.hands; ++h) {
+    world_.hand(h).state.dt_s = dt_s;
+    if (kind_ == HandleModelKind::linearized) {
+      fill_haptic_model(world_, h, scratch_, out.model[h]);
+    } else {
+      fill_held_model(world_, h, out.model[h]);
+    }
+    out.model[h].t_end_ns = publish_ns + static_cast<std::uint64_t>(1e9 * dt_s);
+    out.model[h].resyncs = resyncs_seen_[h];
+  }
+}
+
+void VisualStep::prepare_tick_solvers() {
+  if (!preparer_) return;
+  HapticSnapshot& out = snapshots_.back();
+  for (int h = 0; h < out.hands; ++h) preparer_->prepare(h, out.model[h]);
+}
+
+void VisualStep::recover() {
+  const ProxyTargets& targets = targets_.front();
+  for (int h = 0; h < world_.num_hands(); ++h) {
+    WorldHand& hand = world_.hand(h);
+    HandState& s = hand.state;
+    ++s.resets;
+    // A hand whose positions are whole keeps its shape and its contacts (placed rigidly at rest, a
+    // hand pressed into an object would overlap it by its compression, and the next step would push
+    // back with a jump); only its motion, which a step broken off may have left half-updated, stops.
+    bool whole = s.x.allFinite();
+    for (const HandleState& handle : s.handles) whole = whole && handle.p_WH.allFinite() && handle.q_WH.coeffs().allFinite();
+    if (whole) {
+      s.v.setZero();
+      for (HandleState& handle : s.handles) handle.v_WH.setZero(), handle.w_WH.setZero();
+      continue;
+    }
+    // Otherwise at its proxy, rigidly, at rest, without contacts (or at rest where it began).
+    s.contacts.clear();
+    s.reserve_contacts.clear();
+    s.bodies.clear();
+    s.supports.clear();
+    if (h < kMaxHands && targets.driven[h]) {
+      place_hand(*hand.model, s, targets.pose[h][0].p_W, targets.pose[h][0].q_W, 0);
+    } else {
+      const long resets = s.resets;
+      s = make_rest_state(*hand.model);
+      s.resets = resets;
+    }
+  }
+}
+
+}  // namespace hapticd

@@ -1,0 +1,92 @@
+#pragma once
+// The visual step of hapticd (DESIGN.md section 1), without a clock: read the newest proxies, drive
+// each hand's handles toward them and step the world up to the moment the step's model will be
+// published, then build every hand's handle-space model of the coming step and publish it. Its
+// only notion of time is what it is given (the publication time and the step lengths): the
+// real-time runner (VisualLoop: the visual thread, pacing on the wall clock) and the lockstep runner
+// (server/offline) drive this same object.
+#include <cstdint>
+#include <functional>
+
+#include "server/haptic/haptic_core.hpp"
+#include "server/haptic/tick_solver_preparer.hpp"
+#include "server/world/world.hpp"
+
+namespace hapticd {
+
+// How the visual loop's handles follow the haptic proxies: almost kinematically
+// (GO09: the visual loop's handle is the proxy's), so the handle-space model is
+// the flesh's answer to the proxy's own motion.
+constexpr DriveParams kProxyDrive{1e6, 1e3, 1e3, 10.0};
+
+// The world a server steps: the scene's step is the visual period, hands are weightless (a device
+// in free space feels no virtual hand weight), their handles follow the proxies (kProxyDrive), and
+// the visual step builds the coming step's model itself (no in-step linearization).
+WorldOptions served_world_options();
+
+// What the visual step publishes for a hand between two steps.
+enum class HandleModelKind {
+  // hapticd (seed 004 section 3): the coming step's handle-space linearization
+  // F*(x, v) = F0 + K (x - x0) + D (v - v0) (fill_haptic_model).
+  linearized,
+  // The same pipeline with the model cut to its zeroth order, a baseline of the multirate suite:
+  // the coupling wrench the last step ended with (the flesh on the handles, seed 004 eq. 4-5), held
+  // until the next (K = D = 0). No linearization is built.
+  zoh,
+};
+const char* to_string(HandleModelKind kind);
+
+// Fills `out` with hand h's model for the coming interval (linearize_next_step:
+// the step about to be taken from the world's current state; `lin` is scratch),
+// in_contact from the hand's contacts; out.handles = 0 when it cannot.
+void fill_haptic_model(World& world, int h, HandleLinearization& lin, HapticModel& out);
+// Only its contact flags (in_contact, handle_in_contact) from the world's last contacts.
+void fill_contact_flags(const World& world, int h, HapticModel& out);
+
+// Handle j of hand h's target for a world that simulates up to `until_ns`: the proxy extrapolated
+// at its velocity from the time it is of (targets.t_ns) to then, by at most kMaxProxyExtrapolation_s
+// either way (a stalled haptic thread leaves old proxies).
+constexpr double kMaxProxyExtrapolation_s = 0.1;
+HandleTarget proxy_target(const ProxyTargets& targets, int h, int j, std::uint64_t until_ns);
+
+class VisualStep {
+ public:
+  // `preparer`: the haptic side's tick-solver preparation for the models of glove-sized hands
+  // (none: the tick solves them densely).
+  VisualStep(World& world, TripleBuffer<HapticSnapshot>& snapshots, TripleBuffer<ProxyTargets>& targets,
+             const TickSolverPreparer* preparer = nullptr, HandleModelKind kind = HandleModelKind::linearized);
+
+  // The world up to `publish_ns`: the newest proxies are read, a hand whose driving session re-synced
+  // is placed rigidly at its proxy, every driven hand's handles are driven toward their proxies
+  // extrapolated to `publish_ns`, and the world steps by `dt_s`.
+  void advance_world(std::uint64_t publish_ns, double dt_s);
+  // Every hand's model of the coming step, `dt_s` long from `publish_ns`, into the snapshot's back
+  // slot (not handed over yet). The world takes exactly that step next.
+  void build_models(std::uint64_t publish_ns, double dt_s);
+  // The haptic tick's prepared solvers of the models just built (a glove's; the preparer's).
+  void prepare_tick_solvers();
+  // Hands the models over to the haptic tick.
+  void publish() { snapshots_.publish(); }
+  // After a throw out of any of the above: nothing half-built is published (the models in use fade
+  // to the safe model if no step succeeds within the watchdog's time), and every hand is reset
+  // (counted in HandState::resets): one whose positions are finite stops where it is, keeping its
+  // shape and contacts; any other is placed rigidly at its proxy, at rest, without contacts.
+  void recover();
+
+  World& world() { return world_; }
+  const World& world() const { return world_; }
+  // Tests only: called before each world step; whatever it throws is a fault of the step.
+  void set_fault_injection(std::function<void()> inject) { inject_ = std::move(inject); }
+
+ private:
+  World& world_;
+  TripleBuffer<HapticSnapshot>& snapshots_;
+  TripleBuffer<ProxyTargets>& targets_;
+  const TickSolverPreparer* preparer_;
+  HandleModelKind kind_;
+  HandleLinearization scratch_;
+  std::uint32_t resyncs_seen_[kMaxHands]{};
+  std::function<void()> inject_;
+};
+
+}  // namespace hapticd
