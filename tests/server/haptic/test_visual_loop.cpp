@@ -8,8 +8,11 @@
 #include <cmath>
 #include <thread>
 
+#include <new>
+
 #include "haptic_server_test_util.hpp"
 #include "server/haptic/visual_loop.hpp"
+#include "server/world/scene_loader.hpp"
 
 namespace hapticd {
 namespace {
@@ -67,6 +70,172 @@ TEST(VisualLoopTargets, TheServerStampsItsProxiesWithTheEndOfTheTickThatWroteThe
     ++checked;
   }
   EXPECT_GT(checked, 20);
+}
+
+// hapticd's two real-time runners on their threads (HapticServer, VisualLoop around a VisualStep), on
+// the stylus scene with one static box under the hand (top face 1 cm below the hand's lowest point).
+struct Threads {
+  explicit Threads(double visual_hz = 60) {
+    SceneDesc scene = load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json");
+    scene.objects.clear();
+    ObjectDesc box;
+    box.name = "box";
+    box.kind = BodyKind::static_body;
+    box.shape.type = ShapeType::box;
+    box.shape.size = {0.3, 0.3, 0.04};
+    box.pose.p_W = {0.08, 0.1, 0.847};
+    scene.objects.push_back(box);
+    scene.visual_rate_hz = visual_hz;
+    scene.dt_s = 1.0 / visual_hz;
+    world = std::make_unique<World>(scene, served_world_options());
+    link = make_device_link(*world, scene.devices[0], 1000.0);
+    server = std::make_unique<HapticServer>(std::vector<DeviceLink>{link}, ServerOptions{}, *snapshots, *targets, &report);
+    preparer = std::make_unique<TickSolverPreparer>(std::vector<DeviceLink>{link}, 1e-3);
+    step = std::make_unique<VisualStep>(*world, *snapshots, *targets, preparer.get());
+    step->build_models(protocol::now_ns(), 1.0 / visual_hz);
+    step->publish();
+    loop = std::make_unique<VisualLoop>(*step, visual_hz, &report, [this](const std::string&) { ++logged; });
+    const HandleState& h = world->hand(0).state.handles[0];
+    Eigen::Quaterniond q;
+    link.map.to_device(0, {h.p_WH, h.q_WH}, start_D, q);
+  }
+  void start() {
+    haptic = std::thread([this] { server->run(stop); });
+    visual = std::thread([this] { loop->run(stop); });
+  }
+  void halt() {
+    stop = true;
+    if (haptic.joinable()) haptic.join();
+    if (visual.joinable()) visual.join();
+  }
+  ~Threads() { halt(); }
+
+  std::unique_ptr<TripleBuffer<HapticSnapshot>> snapshots = std::make_unique<TripleBuffer<HapticSnapshot>>();
+  std::unique_ptr<TripleBuffer<ProxyTargets>> targets = std::make_unique<TripleBuffer<ProxyTargets>>();
+  VisualReport report;
+  std::unique_ptr<World> world;
+  DeviceLink link;
+  std::unique_ptr<HapticServer> server;
+  std::unique_ptr<TickSolverPreparer> preparer;
+  std::unique_ptr<VisualStep> step;
+  std::unique_ptr<VisualLoop> loop;
+  std::atomic<bool> stop{false};
+  std::atomic<int> logged{0};
+  std::thread haptic, visual;
+  Eigen::Vector3d start_D = Eigen::Vector3d::Zero();  // the device pose that carries the handle where it is
+};
+
+// One reply of a press, with its time since the client started.
+struct Reply {
+  double t_s = 0, f_z = NAN;
+  bool stale = false, answered = false;
+};
+
+// A stylus client at 1 kHz (paced by its round trips): at the handle for 0.2 s, then 1.5 cm down
+// (device space: 3 cm in the world, the palm into the box) over 0.5 s, held until `seconds`.
+std::vector<Reply> press_and_hold(Threads& t, double seconds) {
+  test::TestClient c(t.server->port());
+  EXPECT_NE(c.hello(), 0u);
+  std::vector<Reply> out;
+  const std::uint64_t t0 = protocol::now_ns();
+  for (std::uint64_t seq = 1;; ++seq) {
+    const double now = 1e-9 * static_cast<double>(protocol::now_ns() - t0);
+    if (now > seconds) break;
+    protocol::PoseSample p = c.pose_at(0, seq);
+    const double down = 0.015 * std::clamp((now - 0.2) / 0.5, 0.0, 1.0);
+    p.poses[0].position_m = {static_cast<float>(t.start_D.x()), static_cast<float>(t.start_D.y()),
+                             static_cast<float>(t.start_D.z() - down)};
+    c.send(p);
+    const protocol::Message m = c.receive();
+    Reply r;
+    r.t_s = now;
+    r.answered = m.type == protocol::MessageType::kForceSample && m.force_sample.sequence == seq;
+    if (r.answered) {
+      r.f_z = m.force_sample.wrenches[0].wrench.force_n.z;
+      r.stale = m.force_sample.flags & protocol::ForceFlags::kStale;
+    }
+    out.push_back(r);
+    std::this_thread::sleep_for(std::chrono::microseconds(900));
+  }
+  return out;
+}
+
+TEST(VisualLoopThreads, TheRealTimeRunnersServeAPressOnTheWorldWithFreshModels) {
+  Threads t;
+  t.start();
+  const std::vector<Reply> replies = press_and_hold(t, 1.5);
+  t.halt();
+  long unanswered = 0, stale_late = 0;
+  double f_hold = 0;
+  int held = 0;
+  for (const Reply& r : replies) {
+    unanswered += !r.answered;
+    if (r.t_s > 1.0 && r.answered) stale_late += r.stale, f_hold += r.f_z, ++held;
+  }
+  ASSERT_GT(held, 100);
+  f_hold /= held;
+  std::printf("%zu poses, %ld unanswered; held force %.3f N; visual %ld steps (%.1f Hz), %ld late\n", replies.size(),
+              unanswered, f_hold, t.loop->stats().steps, t.report.rate_hz.load(), t.loop->stats().late_steps);
+  EXPECT_EQ(unanswered, 0);
+  EXPECT_EQ(stale_late, 0) << "models stopped flowing while the visual loop ran";
+  EXPECT_GT(f_hold, 0.3) << "the box does not push the stylus back up";
+  EXPECT_GT(t.loop->stats().steps, 30);  // 60 Hz for 1.5 s: 90 on time, fewer on a loaded machine
+  EXPECT_EQ(t.loop->stats().faults, 0);
+  EXPECT_GT(t.report.rate_hz.load(), 15.0);
+}
+
+TEST(VisualLoopThreads, AThrowInTheWorldStepIsAFaultTheServerKeepsAnsweringAndFadesToTheSafeModel) {
+  // While the press is held (from 1.2 s) the world step throws (an allocation fails) for 0.6 s, then
+  // works again.
+  Threads t;
+  std::atomic<std::uint64_t> first_ns{0}, last_ns{0};
+  const std::uint64_t t0 = protocol::now_ns();
+  t.step->set_fault_injection([&] {
+    const std::uint64_t now = protocol::now_ns();
+    if (now < t0 + 1'200'000'000ull || now > t0 + 1'800'000'000ull) return;
+    if (!first_ns) first_ns = now;
+    last_ns = now;
+    throw std::bad_alloc();
+  });
+  t.start();
+  const std::vector<Reply> replies = press_and_hold(t, 3.0);
+  t.halt();
+  ASSERT_NE(first_ns.load(), 0u) << "no fault was injected";
+  const double fault_from = 1e-9 * static_cast<double>(first_ns - t0), fault_to = 1e-9 * static_cast<double>(last_ns - t0);
+  const ServerOptions o;
+  // The safe model is reached within the watchdog's delay and fade, plus a visual period for the
+  // last good model's step to end.
+  const double safe_by = fault_from + o.model_stale_after_s + o.model_fade_s + 1.0 / 60 + 0.02;
+  long unanswered = 0, not_stale = 0, safe_samples = 0;
+  double f_before = 0, f_safe_max = 0, f_after_max = 0;
+  int before = 0;
+  for (const Reply& r : replies) {
+    unanswered += !r.answered;
+    if (!r.answered) continue;
+    if (r.t_s > fault_from - 0.2 && r.t_s < fault_from) f_before += r.f_z, ++before;
+    if (r.t_s > safe_by && r.t_s < fault_to) {
+      ++safe_samples;
+      not_stale += !r.stale;
+      f_safe_max = std::max(f_safe_max, std::abs(r.f_z));
+    }
+    if (r.t_s > fault_to) f_after_max = std::max(f_after_max, std::abs(r.f_z));
+  }
+  ASSERT_GT(before, 50);
+  f_before /= before;
+  std::printf("faults %ld (logged %d) from %.2f to %.2f s; force before %.3f N, max while safe %.4f N, max after %.3f N\n",
+              t.loop->stats().faults, t.logged.load(), fault_from, fault_to, f_before, f_safe_max, f_after_max);
+  EXPECT_EQ(unanswered, 0) << "the server stopped answering while the visual step failed";
+  EXPECT_GT(t.loop->stats().faults, 10);
+  EXPECT_EQ(t.loop->stats().faults, t.logged.load());
+  ASSERT_GT(f_before, 0.3) << "the stylus was not pressing before the faults";
+  ASSERT_GT(safe_samples, 100);
+  EXPECT_EQ(not_stale, 0) << "replies under the safe model must be flagged stale";
+  // The safe model holds the proxy on the device: the device feels (almost) nothing.
+  EXPECT_LT(f_safe_max, 0.05 * f_before);
+  // Steps succeed again: the press is felt again, without a spike above the force before.
+  EXPECT_GT(replies.back().f_z, 0.5 * f_before);
+  EXPECT_FALSE(replies.back().stale);
+  EXPECT_LT(f_after_max, 1.5 * f_before);
 }
 
 }  // namespace
