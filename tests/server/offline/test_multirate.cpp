@@ -39,21 +39,20 @@ double zoh_over_linearized_at_30_hz(const Interaction& press) {
   return ratio;
 }
 
-TEST(Multirate, LinearizedModelBeatsAZeroOrderHoldInRmsForceErrorAt30HzOnTheStylusPress) {
-  // The bench's default stylus press: settle 0.5 s, 2 cm (device) down over 1 s onto the bunny, 1 s held.
-  // On the movable bunny the ratio is below seed 004's 5x (the next test asserts
-  // it on a fixed object): measured 3.4x at this revision. The zero-order hold's error is that of an
-  // unstable loop (the proxy under a force held for 33 ms resets ~1500 times in
-  // 2.5 s); the linearized model's (0.67 N RMS of 0.97 N) comes from the world
-  // at 30 Hz, not from the haptic loop: (1) the first step that touches the rigid
-  // bunny is linearized without the bunny's supports (its held contacts are the
-  // previous step's, which had none), so for one visual step the model lets the
-  // bunny fall and pulls the hand after it (-1.5 N on the device where the
-  // reference pushes +0.4 N); (2) under the held hand the 30 Hz world lets the
-  // bunny slide ~4 mm, the 1 kHz world does not. With the bunny static the same
-  // press gives 16.7x. A regression below 3x fails here; the zero-order hold's
-  // error, an unstable loop's, moves by ~10 % with any change to the rounding.
-  EXPECT_GE(zoh_over_linearized_at_30_hz(stylus_press(stylus_scene(), 2.5)), 3.0);
+// Known faults of the rendering on the movable bunny (issue 17, "touch that lets go"): strict tests
+// that fail today. tests/CMakeLists.txt runs the Issue17KnownFault suite as one ctest expected to
+// fail (WILL_FAIL), so `make test` stays green while the fault stands and turns red the day it is
+// fixed, when these move back among the tests that must pass.
+TEST(Issue17KnownFault, LinearizedModelBeatsAZeroOrderHoldFiveTimesAt30HzOnTheStylusPressOnTheMovableBunny) {
+  // The bench's default stylus press: settle 0.5 s, 2 cm (device) down over 1 s onto the bunny, 1 s
+  // held. Seed 004's 5x holds on the fixed object (next test, 16.7x); on the movable bunny it does
+  // not (3.0-3.4x, by the rounding of the zero-order hold's unstable loop). The linearized model's
+  // error (0.67 N RMS of 0.97 N) comes from the world at 30 Hz, not from the haptic loop: (1) the
+  // first step that touches the rigid bunny is linearized without the bunny's supports (its held
+  // contacts are the previous step's, which had none), so for one visual step the model lets the
+  // bunny fall and pulls the hand after it; (2) under the held hand the 30 Hz world lets the bunny
+  // slide ~4 mm, the 1 kHz world does not.
+  EXPECT_GE(zoh_over_linearized_at_30_hz(stylus_press(stylus_scene(), 2.5)), 5.0);
 }
 
 // The claim itself, where only the rendering differs: the same press on the bunny made static
@@ -62,42 +61,51 @@ TEST(Multirate, LinearizedModelBeatsAZeroOrderHoldFiveTimesAt30HzOnTheStylusPres
   EXPECT_GE(zoh_over_linearized_at_30_hz(stylus_press_fixed(stylus_scene(), 2.5)), 5.0);  // measured 16.7x
 }
 
-TEST(Multirate, At30HzOnlyTheLinearizedModelRendersTheStylusPressStablyInClosedLoop) {
-  // The press with the simulated stylus feeling each run's forces (closed loop):
-  // the linearized model renders it as the 1 kHz world does; holding the last
-  // visual force, on the proxy or out of a virtual coupling simulated at 30 Hz,
-  // puts energy into the device until the force limit (8 N) or a reset stops it.
+// The press with the simulated stylus feeling each run's forces (closed loop), 2.5 s.
+struct ClosedLoop {
+  double rms_force_n = 0, max_force_n = 0, energy_j = 0;
+  long resets = 0;
+};
+
+ClosedLoop closed_loop_press(HandleModelKind model, int visual_every_ticks) {
   const Interaction press = stylus_press(stylus_scene(), 2.5);
-  struct Result {
-    double rms_force_n = 0, max_force_n = 0, energy_j = 0;
-    long resets = 0;
-  };
-  auto run = [&](HandleModelKind model, int visual_every_ticks) {
-    OfflineOptions options;
-    options.visual_every_ticks = visual_every_ticks;
-    options.model = model;
-    options.settle_s = press.settle_s;
-    OfflineLoops loops(press.scene, options);
-    const std::unique_ptr<OfflineDevice> device = press.device(loops);
-    const OfflineTrace trace = run_offline(loops, *device, 2500);
-    Result r{rms_force(trace), 0, dynamic_cast<const SimulatedStylus&>(*device).energy_j(), trace.resets};
-    for (const DeviceReply& reply : trace.replies) r.max_force_n = std::max(r.max_force_n, reply.wrench[0].f_D.norm());
-    std::printf(
-        "closed loop, every %d ticks, %-12s: RMS force %.3f N, max %.3f N, energy into the device %+.4f J, "
-        "%ld resets\n",
-        visual_every_ticks, to_string(model), r.rms_force_n, r.max_force_n, r.energy_j, r.resets);
-    return r;
-  };
-  // The world stepped at every tick, measured: RMS force 0.973 N, max 1.375 N, -0.004 J, no reset.
-  const Result lin = run(HandleModelKind::linearized, 33), zoh = run(HandleModelKind::zoh, 33),
-               coupled = run(HandleModelKind::zoh_coupling, 33);
+  OfflineOptions options;
+  options.visual_every_ticks = visual_every_ticks;
+  options.model = model;
+  options.settle_s = press.settle_s;
+  OfflineLoops loops(press.scene, options);
+  const std::unique_ptr<OfflineDevice> device = press.device(loops);
+  const OfflineTrace trace = run_offline(loops, *device, 2500);
+  ClosedLoop r{rms_force(trace), 0, dynamic_cast<const SimulatedStylus&>(*device).energy_j(), trace.resets};
+  for (const DeviceReply& reply : trace.replies) r.max_force_n = std::max(r.max_force_n, reply.wrench[0].f_D.norm());
+  std::printf(
+      "closed loop, every %d ticks, %-12s: RMS force %.3f N, max %.3f N, energy into the device %+.4f J, %ld resets\n",
+      visual_every_ticks, to_string(model), r.rms_force_n, r.max_force_n, r.energy_j, r.resets);
+  return r;
+}
+
+TEST(Multirate, At30HzOnlyTheLinearizedModelRendersTheStylusPressStablyInClosedLoop) {
+  // The linearized model at 30 Hz renders the press as the world stepped at every tick does (run
+  // here as the reference); holding the last visual force on the proxy puts energy in until resets
+  // stop it. (Whether the 30 Hz rendering is passive is Issue17KnownFault's below.)
+  const ClosedLoop reference = closed_loop_press(HandleModelKind::linearized, 1);
+  const ClosedLoop lin = closed_loop_press(HandleModelKind::linearized, 33);
+  const ClosedLoop zoh = closed_loop_press(HandleModelKind::zoh, 33);
+  ASSERT_EQ(reference.resets, 0);
+  ASSERT_GT(reference.rms_force_n, 0.5);  // the press is felt
   EXPECT_EQ(lin.resets, 0);
-  EXPECT_NEAR(lin.rms_force_n, 0.973, 0.1);  // measured 1.004 N
-  EXPECT_LT(lin.max_force_n, 2.0);           // measured 1.606 N
-  EXPECT_LT(lin.energy_j, 0.01);             // measured +0.003 J
+  EXPECT_NEAR(lin.rms_force_n, reference.rms_force_n, 0.1 * reference.rms_force_n);
+  EXPECT_LT(lin.max_force_n, 1.25 * reference.max_force_n);
   EXPECT_GT(zoh.resets, 100);
-  EXPECT_GT(coupled.energy_j, 1.0);
-  EXPECT_GT(coupled.max_force_n, 0.99 * 8.0);
+}
+
+TEST(Issue17KnownFault, At30HzTheLinearizedModelRendersTheStylusPressPassively) {
+  // The reference (the world at every tick) takes energy out of the device (-0.004 J); at 30 Hz the
+  // linearized model puts some in (+0.003 J): the contacts it holds bilaterally between visual steps.
+  const ClosedLoop reference = closed_loop_press(HandleModelKind::linearized, 1);
+  const ClosedLoop lin = closed_loop_press(HandleModelKind::linearized, 33);
+  ASSERT_LE(reference.energy_j, 0.0);
+  EXPECT_LE(lin.energy_j, 0.0) << "the rendering put energy into the device";
 }
 
 }  // namespace
