@@ -15,7 +15,7 @@
 // files may fail to build with the World's documented std::exception (a placeholder or unreadable
 // file, or a mass from a mesh's volume out of range).
 //
-// Cost: hands above 4 x kMinHandTets are built at kMinHandTets (the loader's own lower bound; the
+// Cost: only scenes of primitives with palm-handled hands are built (cheap_to_build); hands above 4 x kMinHandTets are built at kMinHandTets (the loader's own lower bound; the
 // count changes only the mesh's spacing), and the flesh distance grids are left out (hand-hand
 // contact, hand contact in scenes with deformable objects), so an input builds and steps within the
 // 10 s limit under the sanitizers.
@@ -99,8 +99,18 @@ void check_welcome(const hapticd::DeviceLink& link, hapticd::protocol::Encoder& 
                 std::to_string(link.limits.max_force_rate_n_s));
 }
 
+// Only scenes that build and step within the 10 s limit under the sanitizers on a loaded 2-core
+// machine: no mesh object (its distance grid alone took over 60 s for the shipped bunny) and only
+// palm-handled hands (a 16-handle glove's world took 56 s). The others are fuzzed through the loader.
+bool cheap_to_build(const hapticd::SceneDesc& scene) {
+  if (!must_build(scene)) return false;
+  for (const hapticd::HandDesc& h : scene.hands)
+    if (h.handles != hapticd::HandleSet::palm) return false;
+  return true;
+}
+
 void build_and_step(hapticd::SceneDesc scene) {
-  const bool strict = must_build(scene);
+  if (!cheap_to_build(scene)) return;
   for (hapticd::HandDesc& h : scene.hands)
     if (h.resolution_tets > 4 * hapticd::kMinHandTets) h.resolution_tets = hapticd::kMinHandTets;
   hapticd::WorldOptions options;
@@ -119,7 +129,7 @@ void build_and_step(hapticd::SceneDesc scene) {
     static hapticd::protocol::Encoder encoder;
     for (const hapticd::DeviceDesc& d : scene.devices) check_welcome(hapticd::make_device_link(world, d, 1000.0), encoder);
   } catch (const std::exception& e) {
-    if (strict) finding("a scene of primitives and fem hands did not build", e.what());
+    finding("a scene of primitives and fem hands did not build", e.what());
   }
 }
 
