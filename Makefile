@@ -40,7 +40,7 @@ asan: deps
 # Tests inside the gtest suites whose real-time bounds hold at Release speed only (RTT ratios,
 # passivity under faults, fade times, a relay keeping up with a burst): under ASan they missed by a
 # few percent. ctest -E regex; kept equal to the presets' "exclude name".
-SANITIZER_TIMING_TESTS = ^HapticServerChaos[.]|^HapticServerWatchdog[.]|^HapticServerBounds[.]AFlood|^ChaosRelay[.]EachReordered
+SANITIZER_TIMING_TESTS = ^HapticServerChaos[.]|^HapticServerWatchdog[.]|^HapticServerBounds[.]AFlood|^ChaosRelay[.]EachReordered|^VisualLoopThreads[.]
 
 # What CI runs under ASan + UBSan: the suites that face the network and run threads (protocol,
 # clients, haptic: the server, its loops and the hand and world under them) and the end-to-end runs.
