@@ -41,6 +41,7 @@
 //   theory_n_per_m                   number  the ideal wall's stability bound (above)
 //   colgate_passivity_bound_n_per_m  number  0.8 b / T (above)
 //   probes                           array   every stiffness tried: {"k_n_per_m", "energy_j", "resets", "passive"}
+#include "protocol/limits.hpp"
 #include "haptic_rate_bench.hpp"
 
 #include <chrono>
@@ -86,7 +87,7 @@ constexpr double kEnergyTolJ = 1e-3;
 // The sweep lifts the device's force slew limit (the scene's 1000 N/s): with it, no stiffness up to
 // 4 MN/m put energy in (measured: the limiter, not the spring, then shapes the force), and the
 // sweep would find the limiter's bound. The force clamp (8 N, a Phantom Premium 1.5's peak) stays.
-constexpr double kSweepSlewLimit_n_s = 1e9;
+constexpr double kSweepSlewLimit_n_s = protocol::kMaxForceRateNPerS;  // the most the wire carries (2500 N a tick at 4 kHz)
 // The bracket's ends: below a soft spring nothing is felt; above 4 MN/m is beyond any desktop device.
 constexpr double kMinStiffness = 50, kMaxStiffness = 4.1e6;
 

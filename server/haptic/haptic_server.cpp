@@ -91,7 +91,8 @@ HapticServer::HapticServer(std::vector<DeviceLink> links, const ServerOptions& o
 HapticServer::~HapticServer() = default;
 
 std::size_t HapticServer::memory_bytes() const {
-  return sizeof(*this) + sizeof(Io) + sizeof(Socket) + core_.memory_bytes() + sizeof(RxBatch) +
+  // The core sits inside *this: counted once, by its own memory_bytes().
+  return sizeof(*this) - sizeof(HapticCore) + core_.memory_bytes() + sizeof(Io) + sizeof(Socket) + sizeof(RxBatch) +
          sizeof(SourceRateLimiter);
 }
 

@@ -46,8 +46,12 @@ TEST(TripleBuffer, AWriterAndAReaderOnTwoThreadsNeverTearAValueNorGoBackInTime) 
     done = true;
   });
   std::uint64_t seen = 0, updates = 0, torn = 0, backwards = 0;
-  while (!done.load() || buffer.update()) {
-    if (!buffer.update()) continue;
+  for (;;) {
+    const bool finished = done.load();  // read before looking: a publish before it is seen below
+    if (!buffer.update()) {
+      if (finished) break;
+      continue;
+    }
     ++updates;
     const Stamped& v = buffer.front();
     torn += checksum_of(v) != v.checksum || v.payload[7] != v.sequence * 2654435761ull + 7;
