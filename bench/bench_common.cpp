@@ -43,16 +43,6 @@ nlohmann::json to_json(const Machine& m) {
   return {{"cpu", m.cpu}, {"cores", m.cores}, {"blas", m.blas}, {"git_revision", m.git_revision}};
 }
 
-double percentile(std::vector<double> v, double p) {
-  if (v.empty()) return std::numeric_limits<double>::quiet_NaN();
-  std::sort(v.begin(), v.end());
-  const double rank = p / 100.0 * static_cast<double>(v.size() - 1);
-  const size_t lo = static_cast<size_t>(std::floor(rank)), hi = std::min(lo + 1, v.size() - 1);
-  return v[lo] + (rank - static_cast<double>(lo)) * (v[hi] - v[lo]);
-}
-
-double median(const std::vector<double>& v) { return percentile(v, 50.0); }
-
 void write_json(const std::string& path, const nlohmann::json& doc) {
   std::ofstream out(path);
   if (!out) throw std::runtime_error("cannot write " + path);

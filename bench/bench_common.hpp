@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "protocol/messages.hpp"
+#include "protocol/percentile.hpp"
 
 namespace hapticd::bench {
 
@@ -18,9 +19,10 @@ struct Machine {
 Machine describe_machine();
 nlohmann::json to_json(const Machine& m);
 
-// p-th percentile (0..100) by linear interpolation; NaN for an empty sample.
-double percentile(std::vector<double> values, double p);
-double median(const std::vector<double>& values);
+// Percentiles by the one definition (protocol/percentile.hpp: linear interpolation between order
+// statistics); NaN for an empty sample.
+using stats::median;
+using stats::percentile;
 
 // Writes `doc` to `path` (pretty-printed); throws std::runtime_error on failure.
 void write_json(const std::string& path, const nlohmann::json& doc);

@@ -10,6 +10,7 @@
 
 #include "clients/sim/device_simulation.hpp"
 #include "protocol/clock.hpp"
+#include "protocol/percentile.hpp"
 
 namespace hapticd::sim {
 namespace {
@@ -182,16 +183,9 @@ ServoResult run_servo_loop(client::Client& client, ServoDevice& device, const Se
   return r;
 }
 
-double percentile_of_sorted(const std::vector<double>& v, double p) noexcept {
-  if (v.empty()) return std::numeric_limits<double>::quiet_NaN();
-  const double rank = std::clamp(p, 0.0, 100.0) / 100.0 * static_cast<double>(v.size() - 1);
-  const auto lo = static_cast<std::size_t>(std::floor(rank));
-  const std::size_t hi = std::min(lo + 1, v.size() - 1);
-  return v[lo] + (rank - static_cast<double>(lo)) * (v[hi] - v[lo]);
-}
-
 RttSummary summarize_rtt(std::vector<double> rtt_us) {
   std::sort(rtt_us.begin(), rtt_us.end());
+  using stats::percentile_of_sorted;
   return {percentile_of_sorted(rtt_us, 50.0), percentile_of_sorted(rtt_us, 90.0), percentile_of_sorted(rtt_us, 99.0),
           percentile_of_sorted(rtt_us, 99.9), percentile_of_sorted(rtt_us, 100.0)};
 }

@@ -106,7 +106,8 @@ ServoResult run_servo_loop(client::Client& client, ServoDevice& device, const Se
 // config.frame_id with the identity orientation.
 ServoResult run_servo_loop(client::Client& client, const Trajectory& trajectory, const ServoConfig& config);
 
-// Percentiles of round trips (linear interpolation between order statistics, as bench/ does).
+// Percentiles of round trips by the one definition (protocol/percentile.hpp: linear interpolation
+// between order statistics).
 struct RttSummary {
   double p50_us = 0.0;
   double p90_us = 0.0;
@@ -116,7 +117,5 @@ struct RttSummary {
 };
 // NaN everywhere for an empty sample.
 RttSummary summarize_rtt(std::vector<double> rtt_us);
-// p in [0, 100] of an ascending sample; NaN for an empty one.
-double percentile_of_sorted(const std::vector<double>& sorted, double p) noexcept;
 
 }  // namespace hapticd::sim

@@ -8,6 +8,8 @@
 
 #include <boost/asio/ip/address_v4.hpp>
 
+#include "protocol/percentile.hpp"
+
 namespace hapticd {
 namespace {
 
@@ -17,15 +19,9 @@ double elapsed_us(Clock::time_point from, Clock::time_point to) {
   return std::chrono::duration<double, std::micro>(to - from).count();
 }
 
-// p-th percentile (0..100) by linear interpolation; 0 for an empty sample.
-double percentile(std::vector<double> v, double p) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  const double rank = p / 100.0 * static_cast<double>(v.size() - 1);
-  const auto lo = static_cast<std::size_t>(rank);
-  const std::size_t hi = std::min(lo + 1, v.size() - 1);
-  return v[lo] + (rank - static_cast<double>(lo)) * (v[hi] - v[lo]);
-}
+// The p-th percentile (0..100) by the one definition (protocol/percentile.hpp); 0 for an empty sample
+// (no step timed), as OfflineTimings' defaults say.
+double timing_percentile(const std::vector<double>& v, double p) { return v.empty() ? 0.0 : stats::percentile(v, p); }
 
 Eigen::Vector3d to_eigen(sim::Vec3d v) { return {v.x, v.y, v.z}; }
 sim::Vec3d to_sim(const Eigen::Vector3d& v) { return {v.x(), v.y(), v.z()}; }
@@ -132,8 +128,8 @@ const ProxyHand& OfflineLoops::proxy() const { return *core_->proxy_of(session_)
 long OfflineLoops::resets() const { return proxy().resets() + world_->snapshot().resets; }
 
 OfflineTimings OfflineLoops::timings() const {
-  return {percentile(haptic_us_, 50), percentile(haptic_us_, 99), percentile(visual_ms_, 50),
-          percentile(visual_ms_, 99), static_cast<long>(visual_ms_.size())};
+  return {timing_percentile(haptic_us_, 50), timing_percentile(haptic_us_, 99), timing_percentile(visual_ms_, 50),
+          timing_percentile(visual_ms_, 99), static_cast<long>(visual_ms_.size())};
 }
 
 void OfflineLoops::tick(const DeviceFrames& sample, DeviceReply& reply) {

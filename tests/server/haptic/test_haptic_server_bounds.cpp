@@ -19,6 +19,7 @@
 #include <vector>
 
 #include "haptic_server_test_util.hpp"
+#include "protocol/percentile.hpp"
 
 namespace hapticd {
 namespace {
@@ -55,14 +56,6 @@ std::vector<double> paced_round_trips(TestClient& c, std::uint64_t& seq, int n, 
     }
   }
   return rtt_us;
-}
-
-double percentile(std::vector<double> v, double p) {
-  if (v.empty()) return NAN;
-  std::sort(v.begin(), v.end());
-  const auto i = static_cast<size_t>(
-      std::clamp(p / 100.0 * static_cast<double>(v.size()), 0.0, static_cast<double>(v.size() - 1)));
-  return v[i];
 }
 
 double thread_cpu_s() {
@@ -113,6 +106,7 @@ TEST(HapticServerBounds, AFloodOfMalformedDatagramsFromOneSourceNeitherLosesNorS
   pthread_setschedparam(pthread_self(), SCHED_OTHER, &param);
 
   const ServerStats& st = s.server.stats();
+  using stats::percentile;
   const double q50 = percentile(quiet, 50), q99 = percentile(quiet, 99), q999 = percentile(quiet, 99.9);
   const double f50 = percentile(flooded, 50), f99 = percentile(flooded, 99), f999 = percentile(flooded, 99.9);
   const auto limited = st.rejected[static_cast<int>(protocol::RejectReason::kRateLimited)];
