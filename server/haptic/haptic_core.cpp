@@ -12,6 +12,11 @@ using protocol::MessageType;
 
 namespace {
 
+// How far ahead of the tick (or, for a late model, behind it) a model's step end may lie for the
+// proxy's extrapolation to it, s: 100 ms (six visual steps at 60 Hz) bounds x + tau v and the late
+// anchor's drift when a model's time stamp is far off the haptic clock.
+constexpr double kMaxModelLookahead_s = 0.1;
+
 // A session's proxy counters, summed into the server's (when it closes, and at the end of a run).
 void add_proxy_counts(ServerStats& st, const ProxyHand& p) {
   st.clamps += static_cast<std::uint64_t>(p.clamps());
@@ -167,7 +172,9 @@ void HapticCore::tick(std::uint64_t now) {
     const HapticModel& model =
         snap.model[link.hand].resyncs == hand_resyncs_[link.hand] ? snap.model[link.hand] : no_model_;
     const double lookahead = 1e-9 * (static_cast<double>(model.t_end_ns) - static_cast<double>(now));
-    s.proxy.integrate(model, dt, model.t_end_ns ? std::clamp(lookahead, -0.1, 0.1) : 0.0, model_weight(link.hand));
+    const double lookahead_s =
+        model.t_end_ns ? std::clamp(lookahead, -kMaxModelLookahead_s, kMaxModelLookahead_s) : 0.0;
+    s.proxy.integrate(model, dt, lookahead_s, model_weight(link.hand));
     if (s.follower || !s.proxy.has_device_pose()) continue;
     out.driven[link.hand] = true;
     for (int j = 0; j < link.handles; ++j) {

@@ -20,6 +20,14 @@ constexpr double kVelocityFilter = 0.6;
 constexpr double kRefineTolerance = 1e-12;
 constexpr int kMaxRefinements = 6;
 
+// The time since the last reply the passivity controller divides by, s: from a tick at 10 kHz (the
+// fastest haptic rate hapticd accepts) to 100 ms (a reply after a pause is not a long tick).
+constexpr double kMinReplyInterval_s = 1e-4;
+constexpr double kMaxReplyInterval_s = 0.1;
+// Squared port speed below which the passivity controller adds no damping, m^2/s^2 (10 um/s: no
+// motion to damp, and the damping it would need grows without bound).
+constexpr double kMinPassivitySpeed2_m2_s2 = 1e-10;
+
 // Limits |v| to `limit`; true if it had to.
 bool clamp_norm(Eigen::Vector3d& v, double limit) {
   const double n = v.norm();
@@ -116,7 +124,7 @@ CouplingGains coupling_gains_for(double device_stiffness_n_m, double scale, doub
   CouplingGains g;
   const double s2 = scale * scale;
   g.k_n_m = device_stiffness_n_m / s2;
-  g.b_ns_m = std::max(1.5 * 0.5 * device_stiffness_n_m * period_s, 0.5) / s2;
+  g.b_ns_m = std::max(kCouplingDampingMargin * 0.5 * device_stiffness_n_m * period_s, kMinCouplingDamping_ns_m) / s2;
   return g;
 }
 
@@ -421,7 +429,7 @@ ReplyWrench ProxyHand::reply(int j, double output_scale, double dt_since_last_s)
     reset();
     return r;
   }
-  const double dt = std::clamp(dt_since_last_s, 1e-4, 0.1);
+  const double dt = std::clamp(dt_since_last_s, kMinReplyInterval_s, kMaxReplyInterval_s);
   // The port's power is f . v + tau . w with both about the handle; tau about
   // the frame's origin adds r x f, and v there lacks w x r: the same power.
   const Eigen::Vector3d v_D = R_DW * v_dev_[j] / map_.scale, w_D = R_DW * w_dev_[j];
@@ -429,7 +437,7 @@ ReplyWrench ProxyHand::reply(int j, double output_scale, double dt_since_last_s)
   // Passivity controller: the damping that brings the observer's deficit back to zero this tick,
   // shared by the two channels in proportion to what each can take.
   const double v2 = v_D.squaredNorm() + kPassivityRotationWeight_m2 * w_D.squaredNorm();
-  if (passivity_control_ && energy_in_[j] < 0 && v2 > 1e-10) {
+  if (passivity_control_ && energy_in_[j] < 0 && v2 > kMinPassivitySpeed2_m2_s2) {
     const double b = std::min(-energy_in_[j] / (dt * v2), kMaxPassivityDamping_ns_m);
     f -= b * v_D;  // at the handle, so about the frame's origin with its moment
     tau -= b * kPassivityRotationWeight_m2 * w_D + r_D.cross(b * v_D);

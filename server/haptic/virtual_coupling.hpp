@@ -123,6 +123,11 @@ struct DeviceMap {
 // limit, and the damping b > k T / 2 of a sampled spring (Colgate and Schenkel)
 // with a 1.5x margin at the haptic period T keeps the sampled coupling passive.
 CouplingGains coupling_gains_for(double device_stiffness_n_m, double scale, double haptic_period_s);
+// That margin: the coupling damping is this many times Colgate and Schenkel's bound k T / 2 (no unit).
+constexpr double kCouplingDampingMargin = 1.5;
+// The least coupling damping, device space, N s/m: where k T / 2 all but vanishes (a soft device,
+// a fast haptic rate) the coupling still damps.
+constexpr double kMinCouplingDamping_ns_m = 0.5;
 
 // Device-space damping the passivity controller may add, N s/m (a Phantom-class
 // device renders a few N s/m stably at 1 kHz).
