@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <spdlog/spdlog.h>
 
 #include "bench_common.hpp"
 #include "hand_models/handle_linearization.hpp"
@@ -36,8 +37,8 @@ HandPressRun run_hand_press(const HandPressOptions& o) {
   run.coupled_nodes_first_handle = static_cast<int>(model.handles()[0].nodes.size());
   run.dt_s = model.config().dt_s;
   if (o.progress)
-    std::fprintf(stderr, "hand: %d tets, %d nodes, %d handle(s) (%d coupled nodes in the first), solver %s, %d steps\n",
-                 run.tets, run.nodes, run.handles, run.coupled_nodes_first_handle, to_string(o.solver), o.steps);
+    spdlog::info("hand: {} tets, {} nodes, {} handle(s) ({} coupled nodes in the first), solver {}, {} steps", run.tets,
+                 run.nodes, run.handles, run.coupled_nodes_first_handle, to_string(o.solver), o.steps);
   for (auto* v : {&run.total, &run.assembly, &run.factor, &run.schur, &run.solve, &run.iterations})
     v->reserve(o.steps);
   if (o.record_force) run.f_H_N.reserve(o.steps);
@@ -70,7 +71,7 @@ HandPressRun run_hand_press(const HandPressOptions& o) {
         run.errors.push_back(relative_error(scene.state.v_h_next, scene.state.v_t_next, v_h, v_t));
     }
     if (o.progress && i > 0 && i % 50 == 0)
-      std::fprintf(stderr, "  step %d/%d, median %.2f ms\n", i, o.steps, median(run.total));
+      spdlog::info("  step {}/{}, median {:.2f} ms", i, o.steps, median(run.total));
   }
   run.resets = scene.state.resets;
   return run;

@@ -2,6 +2,8 @@
 #include <CLI/CLI.hpp>
 #include <cstdio>
 #include <exception>
+#include <spdlog/sinks/stdout_sinks.h>
+#include <spdlog/spdlog.h>
 
 #include "contact_bench.hpp"
 #include "hand_bench.hpp"
@@ -16,7 +18,10 @@
 
 int main(int argc, char** argv) {
   // As hapticd does: the benches measure the visual step the server runs.
-  if (!hapticd::keep_large_allocations_on_heap()) std::fprintf(stderr, "haptic-bench: heap settings refused\n");
+  // Diagnostics through spdlog to stderr, each naming its suite ("latency: ..."); stdout keeps the tables.
+  spdlog::set_default_logger(spdlog::stderr_logger_mt("haptic-bench"));
+  spdlog::set_pattern("%v");
+  if (!hapticd::keep_large_allocations_on_heap()) spdlog::warn("haptic-bench: heap settings refused");
   CLI::App app{"haptic-bench: hapticd benchmarks; every figure printed with its machine and baseline"};
   app.require_subcommand(1);
   hapticd::bench::add_hand_suite(app);
@@ -33,7 +38,7 @@ int main(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
   } catch (const std::exception& e) {
-    std::fprintf(stderr, "haptic-bench: %s\n", e.what());
+    spdlog::error("haptic-bench: {}", e.what());
     return 1;
   }
   return 0;

@@ -12,6 +12,7 @@
 #include <latch>
 #include <memory>
 #include <optional>
+#include <spdlog/spdlog.h>
 #include <stdexcept>
 #include <string>
 #include <thread>
@@ -77,7 +78,7 @@ Phase run_phase(const std::string& name, const std::string& binary, const std::v
     phase.error = binary + " not found or not executable (build its target, or pass its path)";
     return phase;
   }
-  std::fprintf(stderr, "latency: starting %s\n", binary.c_str());
+  spdlog::info("latency: starting {}", binary);
   sim::ChildProcess child(binary, args, "  [" + name + "] ");
   // A server loads its scene before it listens: allow it time.
   const sim::ListenAddress address =
@@ -125,7 +126,7 @@ Phase run_phase(const std::string& name, const std::string& binary, const std::v
         try {
           phase.server_stats = sim::to_json(client.request_stats(500ms));
         } catch (const client::ClientError& e) {
-          std::fprintf(stderr, "latency: %s: no stats: %s\n", name.c_str(), e.what());
+          spdlog::warn("latency: {}: no stats: {}", name, e.what());
         }
       }
       client.bye();
@@ -133,7 +134,7 @@ Phase run_phase(const std::string& name, const std::string& binary, const std::v
   for (std::thread& t : threads) t.join();
   phase.exit_status = child.stop(10s);
   if (phase.exit_status != 0)
-    std::fprintf(stderr, "latency: %s exited with status %d\n", name.c_str(), phase.exit_status);
+    spdlog::warn("latency: {} exited with status {}", name, phase.exit_status);
 
   for (std::size_t i = 0; i < k; ++i) {
     if (!phase.device_errors[i].empty()) {
@@ -207,8 +208,8 @@ void run_latency_bench(const LatencyBenchArgs& a) {
   std::string kinds;
   for (const std::string& m : a.mix) kinds += (kinds.empty() ? "" : ",") + m;
   if (kinds.empty()) kinds = "stylus";
-  std::fprintf(stderr, "latency: %d device(s) (%s) x %.1f s at %u Hz, stylus trajectory %s, busy-poll %s\n", devices,
-               kinds.c_str(), a.seconds, a.rate_hz, a.trajectory.c_str(), a.busy_poll ? "on" : "off");
+  spdlog::info("latency: {} device(s) ({}) x {:.1f} s at {} Hz, stylus trajectory {}, busy-poll {}", devices, kinds,
+               a.seconds, a.rate_hz, a.trajectory, a.busy_poll ? "on" : "off");
 
   const Phase echo = run_phase("echo", echo_binary, {"--bind", "127.0.0.1", "--port", "0", "--duration", lifetime}, a);
   if (!echo.ran()) throw std::runtime_error("the echo baseline failed: " + echo.error);

@@ -25,6 +25,7 @@
 #include <cmath>
 #include <cstdio>
 #include <memory>
+#include <spdlog/spdlog.h>
 #include <string>
 #include <vector>
 
@@ -96,7 +97,7 @@ void run_resolution_bench(const ResolutionArgs& a) {
     o.error_every = 0;
     o.record_force = true;
     o.progress = false;
-    std::fprintf(stderr, "resolution: %d tets target, %d steps\n", target, steps);
+    spdlog::info("resolution: {} tets target, {} steps", target, steps);
     runs.push_back(run_hand_press(o));
   }
   const HandPressRun& reference = runs.back();

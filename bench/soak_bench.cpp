@@ -13,6 +13,7 @@
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <spdlog/spdlog.h>
 #include <stdexcept>
 #include <string>
 #include <thread>
@@ -164,11 +165,11 @@ void run_soak_bench(const SoakBenchArgs& a) {
   const protocol::Key key = protocol::generate_key_file((work / "key").string());
   const std::string stats_path = (work / "server.json").string();
 
-  std::fprintf(stderr,
-               "soak: %d stylus device(s) x %.1f min in %zu windows of %.0f s at %u Hz through the chaos relay "
-               "(loss %.3g, duplicate %.3g, reorder %.3g, corrupt %.3g, jitter %.3g ms, seed %llu), authenticated\n",
+  spdlog::info("soak: {} stylus device(s) x {:.1f} min in {} windows of {:.0f} s at {} Hz through the chaos relay "
+               "(loss {:.3g}, duplicate {:.3g}, reorder {:.3g}, corrupt {:.3g}, jitter {:.3g} ms, seed {}), "
+               "authenticated",
                a.devices, total_s / 60.0, windows, a.window_s, a.rate_hz, a.chaos.loss, a.chaos.duplicate,
-               a.chaos.reorder, a.chaos.corrupt, a.chaos.jitter_ms, static_cast<unsigned long long>(a.chaos.seed));
+               a.chaos.reorder, a.chaos.corrupt, a.chaos.jitter_ms, a.chaos.seed);
   std::vector<std::string> args{"--port",     "0", "--key-file", (work / "key").string(), "--duration",
                                 std::to_string(static_cast<long long>(total_s) + 120), "--stats", stats_path};
   args.insert(args.end(), a.server_args.begin(), a.server_args.end());

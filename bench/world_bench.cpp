@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <memory>
 #include <numbers>
+#include <spdlog/spdlog.h>
 #include <string>
 #include <vector>
 
@@ -194,8 +195,8 @@ void run_world_bench(const WorldBenchArgs& a) {
   WorldOptions options;
   options.solver = parse_solver_kind(a.solver);
   const Machine machine = describe_machine();
-  std::fprintf(stderr, "world: %s, %zu objects, %zu hands, %d steps\n", scene.name.c_str(), scene.objects.size(),
-               scene.hands.size(), a.steps);
+  spdlog::info("world: {}, {} objects, {} hands, {} steps", scene.name, scene.objects.size(), scene.hands.size(),
+               a.steps);
   options.contact = ContactModel::penalty;
   const RunStats penalty = run(scene, options, a.steps);
   options.contact = ContactModel::constraint;

@@ -10,6 +10,8 @@
 #include <cstdio>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <spdlog/sinks/stdout_sinks.h>
+#include <spdlog/spdlog.h>
 #include <thread>
 
 #include "protocol/clock.hpp"
@@ -25,10 +27,19 @@ namespace {
 std::atomic<bool> g_stop{false};
 void on_signal(int) { g_stop.store(true); }
 
-enum class Level { error, warn, info, debug };
-Level g_level = Level::info;
-void say(Level level, const std::string& text) {
-  if (level <= g_level) std::fprintf(stderr, "hapticd: %s\n", text.c_str());
+// Diagnostics go to stderr through spdlog's default logger as "hapticd: <text>", filtered by
+// --log-level; stdout carries only what scripts read (the listening line, --generate-key's result).
+// The haptic thread never logs; the visual loop's fault callback does (the logger is thread-safe).
+void init_logger(const std::string& level) {
+  auto logger = spdlog::stderr_logger_mt("hapticd");
+  logger->set_pattern("%n: %v");
+  using spdlog::level::level_enum;
+  logger->set_level(level == "error"  ? level_enum::err
+                    : level == "warn" ? level_enum::warn
+                    : level == "debug" ? level_enum::debug
+                                       : level_enum::info);
+  logger->flush_on(spdlog::level::debug);
+  spdlog::set_default_logger(std::move(logger));
 }
 
 nlohmann::json histogram_json(const hapticd::MicrosecondHistogram& h) {
@@ -81,7 +92,7 @@ int main(int argc, char** argv) {
   app.add_option("--source-burst", options.source_burst, "datagrams a source may send at once (default 200)")
       ->check(CLI::Range(1.0, 1e6));
   CLI11_PARSE(app, argc, argv);
-  g_level = level == "error" ? Level::error : level == "warn" ? Level::warn : level == "debug" ? Level::debug : Level::info;
+  init_logger(level);
 
   if (!generate_key_path.empty()) {
     try {
@@ -90,7 +101,7 @@ int main(int argc, char** argv) {
                   generate_key_path.c_str(), protocol::key_fingerprint(key).c_str());
       return 0;
     } catch (const std::exception& e) {
-      say(Level::error, std::string("--generate-key ") + e.what());
+      spdlog::error(std::string("--generate-key ") + e.what());
       return 1;
     }
   }
@@ -98,7 +109,7 @@ int main(int argc, char** argv) {
     try {
       options.key = protocol::load_key_file(key_path);
     } catch (const std::exception& e) {
-      say(Level::error, std::string("--key-file ") + e.what());
+      spdlog::error(std::string("--key-file ") + e.what());
       return 1;
     }
   }
@@ -114,10 +125,10 @@ int main(int argc, char** argv) {
     std::vector<DeviceLink> links;
     for (const DeviceDesc& d : scene.devices) links.push_back(make_device_link(world, d, options.haptic_rate_hz));
     if (!keep_large_allocations_on_heap())
-      say(Level::warn, "the allocator refused the heap settings (a sanitizer's does): the visual step's large blocks are mapped anew each step");
+      spdlog::warn("the allocator refused the heap settings (a sanitizer's does): the visual step's large blocks are mapped anew each step");
     // Lock memory so a page fault never stalls the haptic thread (needs CAP_IPC_LOCK).
     if (mlockall(MCL_CURRENT | MCL_FUTURE) != 0)
-      say(Level::warn, "memory not locked (mlockall not permitted): page faults may delay the haptic loop");
+      spdlog::warn("memory not locked (mlockall not permitted): page faults may delay the haptic loop");
 
     auto snapshots = std::make_unique<TripleBuffer<HapticSnapshot>>();
     auto targets = std::make_unique<TripleBuffer<ProxyTargets>>();
@@ -130,7 +141,7 @@ int main(int argc, char** argv) {
     step.prepare_tick_solvers();
     step.publish();
     VisualLoop visual(step, visual_rate, &visual_report, [](const std::string& what) {
-      say(Level::error, "visual step failed (" + what + "): hands reset, models held until a step succeeds");
+      spdlog::error("visual step failed (" + what + "): hands reset, models held until a step succeeds");
     });
     std::signal(SIGINT, on_signal);
     std::signal(SIGTERM, on_signal);
@@ -140,15 +151,15 @@ int main(int argc, char** argv) {
     std::printf("hapticd listening on %s:%u\n", server.address().c_str(), static_cast<unsigned>(server.port()));
     std::fflush(stdout);
     if (options.key) {
-      say(Level::info, "sessions authenticated with the key of " + key_path + " (fingerprint " +
+      spdlog::info("sessions authenticated with the key of " + key_path + " (fingerprint " +
                            protocol::key_fingerprint(*options.key) + ")");
     } else if (options.insecure_bind && !boost::asio::ip::make_address(server.address()).is_loopback()) {
-      say(Level::warn, "no --key-file and --insecure-bind: sessions are NOT authenticated on " + server.address() +
+      spdlog::warn("no --key-file and --insecure-bind: sessions are NOT authenticated on " + server.address() +
                            "; anyone who can reach this port can drive the device");
     } else {
-      say(Level::info, "no --key-file: sessions are not authenticated; listening on loopback only");
+      spdlog::info("no --key-file: sessions are not authenticated; listening on loopback only");
     }
-    say(Level::info, "scene " + scene.name + ": " + std::to_string(world.num_hands()) + " hand(s), " +
+    spdlog::info("scene " + scene.name + ": " + std::to_string(world.num_hands()) + " hand(s), " +
                          std::to_string(links.size()) + " device(s); haptic " +
                          std::to_string(static_cast<int>(options.haptic_rate_hz)) + " Hz, visual " +
                          std::to_string(static_cast<int>(visual_rate)) + " Hz");
@@ -163,7 +174,7 @@ int main(int argc, char** argv) {
     const ServerStats& st = server.stats();
     const VisualStats& vs = visual.stats();
     if (!st.realtime && !options.busy_poll)
-      say(Level::warn, "haptic thread ran without real-time priority (SCHED_FIFO not permitted)");
+      spdlog::warn("haptic thread ran without real-time priority (SCHED_FIFO not permitted)");
     nlohmann::json rejected = nlohmann::json::object();
     for (std::size_t i = 0; i < protocol::kRejectReasonCount; ++i)
       if (st.rejected[i]) rejected[std::string(to_string(static_cast<protocol::RejectReason>(i)))] = st.rejected[i];
@@ -238,12 +249,12 @@ int main(int argc, char** argv) {
       if (!out) throw std::runtime_error("--stats " + stats_path + ": cannot write");
       out << doc.dump(2) << "\n";
     }
-    say(Level::info, "stopped after " + std::to_string(st.elapsed_s) + " s: " + std::to_string(st.replies) +
+    spdlog::info("stopped after " + std::to_string(st.elapsed_s) + " s: " + std::to_string(st.replies) +
                          " replies, " + std::to_string(st.overruns) + " overruns, visual " +
                          std::to_string(doc["visual"]["rate_hz_achieved"].get<double>()) + " Hz");
     return 0;
   } catch (const std::exception& e) {
-    say(Level::error, e.what());
+    spdlog::error(e.what());
     return 1;
   }
 }

@@ -9,6 +9,8 @@
 #include <csignal>
 #include <cstdio>
 #include <fstream>
+#include <spdlog/sinks/stdout_sinks.h>
+#include <spdlog/spdlog.h>
 #include <string>
 #include <thread>
 
@@ -22,6 +24,9 @@ void request_stop(int) { g_stop.store(true); }
 }  // namespace
 
 int main(int argc, char** argv) {
+  // Diagnostics through spdlog to stderr as "haptic-chaos: <text>"; stdout keeps what scripts read.
+  spdlog::set_default_logger(spdlog::stderr_logger_mt("haptic-chaos"));
+  spdlog::set_pattern("%n: %v");
   using namespace hapticd;
   CLI::App app{"haptic-chaos: a UDP relay that damages traffic between devices and hapticd (both directions)"};
   chaos::ChaosConfig config;
@@ -59,8 +64,7 @@ int main(int argc, char** argv) {
   if (host.empty() || port_text.empty() || port_text.size() > 5 ||
       port_text.find_first_not_of("0123456789") != std::string::npos || std::stoul(port_text) == 0 ||
       std::stoul(port_text) > 65535) {
-    std::fprintf(stderr, "haptic-chaos: --forward: expected HOST:PORT with PORT in 1..65535, got '%s'\n",
-                 forward.c_str());
+    spdlog::error("--forward: expected HOST:PORT with PORT in 1..65535, got '{}'", forward);
     return 2;
   }
   try {
@@ -84,13 +88,13 @@ int main(int argc, char** argv) {
       std::ofstream out(counts_path);
       out << doc << "\n";
       if (!out.flush()) {
-        std::fprintf(stderr, "haptic-chaos: --counts: cannot write '%s'\n", counts_path.c_str());
+        spdlog::error("--counts: cannot write '{}'", counts_path);
         return 1;
       }
     }
     return 0;
   } catch (const std::exception& e) {
-    std::fprintf(stderr, "haptic-chaos: %s\n", e.what());
+    spdlog::error(e.what());
     return 1;
   }
 }

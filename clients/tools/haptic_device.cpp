@@ -13,6 +13,8 @@
 #include <nlohmann/json.hpp>
 #include <numbers>
 #include <optional>
+#include <spdlog/sinks/stdout_sinks.h>
+#include <spdlog/spdlog.h>
 #include <string>
 #include <tuple>
 #include <vector>
@@ -131,6 +133,9 @@ nlohmann::json to_json(const sim::GloveParams& p) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  // Diagnostics through spdlog to stderr as "haptic-device: <text>"; stdout keeps what scripts read.
+  spdlog::set_default_logger(spdlog::stderr_logger_mt("haptic-device"));
+  spdlog::set_pattern("%n: %v");
   CLI::App app{
       "haptic-device: a simulated stylus (tip mass, damping and the user's arm impedance) or glove (the user's "
       "fingers on the standard hand skeleton, each joint an impedance about the commanded posture) streaming poses "
@@ -246,10 +251,10 @@ int main(int argc, char** argv) {
                                    "the Hello would be refused: " + std::string(protocol::to_string(r)));
     }
   } catch (const CLI::ValidationError& e) {
-    std::fprintf(stderr, "haptic-device: %s\n", e.what());
+    spdlog::error(e.what());
     return 2;
   } catch (const std::exception& e) {
-    std::fprintf(stderr, "haptic-device: --trajectory: %s\n", e.what());
+    spdlog::error("--trajectory: {}", e.what());
     return 2;
   }
   // Opened now, so a bad path fails before the run rather than after it.
@@ -258,7 +263,7 @@ int main(int argc, char** argv) {
     if (path->empty()) continue;
     stream->open(*path);
     if (!*stream) {
-      std::fprintf(stderr, "haptic-device: %s: cannot write '%s'\n", flag, path->c_str());
+      spdlog::error("{}: cannot write '{}'", flag, *path);
       return 2;
     }
   }
@@ -268,7 +273,7 @@ int main(int argc, char** argv) {
     try {
       client.set_key(protocol::load_key_file(key_path));
     } catch (const std::exception& e) {
-      std::fprintf(stderr, "haptic-device: --key-file %s\n", e.what());
+      spdlog::error("--key-file {}", e.what());
       return 2;
     }
   }
@@ -277,12 +282,12 @@ int main(int argc, char** argv) {
     welcome = client.connect(server.host, server.port, hello,
                              std::chrono::nanoseconds(static_cast<std::int64_t>(handshake_timeout_s * 1e9)));
   } catch (const client::ClientError& e) {
-    std::fprintf(stderr, "haptic-device: %s\n", e.what());
+    spdlog::error(e.what());
     return 1;
   }
   if (welcome.rate_hz != rate_hz)
-    std::fprintf(stderr, "haptic-device: asked for %u Hz, the server granted %u Hz: running at %u Hz\n", rate_hz,
-                 welcome.rate_hz, welcome.rate_hz);
+    spdlog::warn("asked for {} Hz, the server granted {} Hz: running at {} Hz", rate_hz, welcome.rate_hz,
+                 welcome.rate_hz);
 
   std::signal(SIGINT, request_stop);
   std::signal(SIGTERM, request_stop);
@@ -312,7 +317,7 @@ int main(int argc, char** argv) {
   try {
     server_stats = sim::to_json(client.request_stats(std::chrono::milliseconds(200)));
   } catch (const client::ClientError& e) {
-    std::fprintf(stderr, "haptic-device: no server stats: %s\n", e.what());
+    spdlog::warn("no server stats: {}", e.what());
   }
   client.bye();
 
@@ -350,7 +355,7 @@ int main(int argc, char** argv) {
       write_stylus_trace(trace, rows);
     }
     if (!trace.flush()) {
-      std::fprintf(stderr, "haptic-device: --trace: failed writing '%s'\n", trace_path.c_str());
+      spdlog::error("--trace: failed writing '{}'", trace_path);
       return 1;
     }
     std::printf("  trace: %s (%zu ticks)\n", trace_path.c_str(), glove ? glove_rows.size() : rows.size());
@@ -384,7 +389,7 @@ int main(int argc, char** argv) {
     doc["stopped_early"] = g_stop.load();
     report << doc.dump(2) << "\n";
     if (!report.flush()) {
-      std::fprintf(stderr, "haptic-device: --report: failed writing '%s'\n", report_path.c_str());
+      spdlog::error("--report: failed writing '{}'", report_path);
       return 1;
     }
     std::printf("  report: %s\n", report_path.c_str());

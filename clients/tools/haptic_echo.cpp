@@ -18,6 +18,8 @@
 #include <cstdio>
 #include <cstring>
 #include <string>
+#include <spdlog/sinks/stdout_sinks.h>
+#include <spdlog/spdlog.h>
 #include <thread>
 
 #include "protocol/clock.hpp"
@@ -51,7 +53,7 @@ void serve(int fd, const std::atomic<bool>& stopping, EchoCounters& counters) {
     if (stopping.load(std::memory_order_relaxed)) return;
     if (n < 0) {
       if (errno == EINTR) continue;
-      std::fprintf(stderr, "haptic-echo: recvfrom: %s\n", std::strerror(errno));
+      spdlog::error("recvfrom: {}", std::strerror(errno));  // the receive loop ends: not on its hot path
       return;
     }
     counters.packets_in.fetch_add(1, std::memory_order_relaxed);
@@ -111,6 +113,9 @@ void serve(int fd, const std::atomic<bool>& stopping, EchoCounters& counters) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  // Diagnostics through spdlog to stderr as "haptic-echo: <text>"; stdout keeps what scripts read.
+  spdlog::set_default_logger(spdlog::stderr_logger_mt("haptic-echo"));
+  spdlog::set_pattern("%n: %v");
   CLI::App app{"haptic-echo: raw UDP echo baseline for hapticd's latency (answers poses with zero forces)"};
   std::string bind_address = "127.0.0.1";
   int port = 0;
@@ -129,7 +134,7 @@ int main(int argc, char** argv) {
   boost::system::error_code ec;
   const asio::ip::address address = asio::ip::make_address(bind_address, ec);
   if (ec) {
-    std::fprintf(stderr, "haptic-echo: --bind '%s' is not a numeric IPv4 or IPv6 address\n", bind_address.c_str());
+    spdlog::error("--bind '{}' is not a numeric IPv4 or IPv6 address", bind_address);
     return 2;
   }
   asio::ip::udp::socket socket(io);
@@ -137,7 +142,7 @@ int main(int argc, char** argv) {
   socket.open(endpoint.protocol(), ec);
   if (!ec) socket.bind(endpoint, ec);
   if (ec) {
-    std::fprintf(stderr, "haptic-echo: cannot bind %s port %d: %s\n", bind_address.c_str(), port, ec.message().c_str());
+    spdlog::error("cannot bind {} port {}: {}", bind_address, port, ec.message());
     return 1;
   }
   const unsigned short bound_port = socket.local_endpoint().port();
@@ -173,9 +178,7 @@ int main(int argc, char** argv) {
   ::shutdown(fd, SHUT_RDWR);
   receiver.join();
   ::close(fd);
-  std::fprintf(stderr, "haptic-echo: %llu datagrams in, %llu out, %llu dropped\n",
-               static_cast<unsigned long long>(counters.packets_in.load()),
-               static_cast<unsigned long long>(counters.packets_out.load()),
-               static_cast<unsigned long long>(counters.dropped.load()));
+  spdlog::info("{} datagrams in, {} out, {} dropped", counters.packets_in.load(), counters.packets_out.load(),
+               counters.dropped.load());
   return 0;
 }
