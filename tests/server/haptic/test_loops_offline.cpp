@@ -3,7 +3,7 @@
 // (~60 Hz) with the proxy as the handle's target, the proxy integrated every
 // 1 ms under the last published model, and the simulated stylus of clients/sim
 // (0.1 kg tip held by the user's arm, 200 N/m, 5 N s/m) feeling the replies.
-// Free space must feel free and put (almost) no energy in.
+// Free space must feel free and put no net energy in.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -81,19 +81,18 @@ TEST(LoopsOffline, DeviceHeldStillInFreeSpaceFeelsNothing) {
   EXPECT_EQ(r.resets, 0);
 }
 
-TEST(LoopsOffline, DeviceSweptThroughFreeSpaceFeelsTheHandsInertiaAndPutsInAlmostNoEnergy) {
+TEST(LoopsOffline, DeviceSweptThroughFreeSpaceFeelsTheHandsInertiaAndIsPassive) {
   // A 2 cm, 1 Hz sweep along y for 6 s (4 cm in the world: the 0.4 kg hand at 1.6 m/s^2).
   const LoopRun r = run_loops(6.0, [](double t) { return Eigen::Vector3d(0, 0.02 * std::sin(2 * std::numbers::pi * t), 0); });
-  std::printf("swept: max force %.3f N, net energy %.2e J of %.2e J exchanged\n", r.max_force_n, r.energy_j,
+  std::printf("swept: max force %.3f N, net energy %.3e J of %.3e J exchanged\n", r.max_force_n, r.energy_j,
               r.gross_energy_j);
   EXPECT_GT(r.max_force_n, 0.5);  // the hand's inertia is felt (2 x 0.4 kg x 1.6 m/s^2 on the device side)...
   EXPECT_LT(r.max_force_n, 3.0);  // ...and nothing more
-  // Measured at this revision: net -0.23 J of 0.42 J exchanged (passive; the
-  // world stepped at every tick gives -0.22 J of 0.49 J). With the proxies taken
-  // one period stale, as hapticd's visual loop read them before ProxyTargets::t_ns
-  // (OfflineOptions::targets_one_tick_stale), the loops gain +6.8 %: the shortfall
-  // this test was written against (5.6 % then). A regression beyond 10 % fails here.
-  EXPECT_LT(r.energy_j, 0.10 * r.gross_energy_j);
+  // Free space is passive: no net energy into the device over the sweep. (With the proxies taken one
+  // period stale, OfflineOptions::targets_one_tick_stale, the loops put energy in: the fault this test
+  // was written against, which it let through up to 10 % of the work exchanged.)
+  ASSERT_GT(r.gross_energy_j, 0.0) << "no work exchanged: the sweep did not run";
+  EXPECT_LE(r.energy_j, 0.0);
   EXPECT_EQ(r.resets, 0);
 }
 

@@ -189,7 +189,9 @@ TEST(VirtualCoupling, PassivityControllerTakesBackWhatAnActiveModelGivesOut) {
               energy[1], actions[1]);
   EXPECT_GT(energy[0], 0.05);
   EXPECT_EQ(actions[0], 0);
-  EXPECT_LE(energy[1], 0.02 * energy[0]);
+  // Passive with the controller: the device gains nothing over the stroke (the controller's observer
+  // sums the same work, the reply held over each period).
+  EXPECT_LE(energy[1], 0.0);
   EXPECT_GT(actions[1], 0);
 }
 
