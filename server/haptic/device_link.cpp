@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <stdexcept>
 
-#include "hand_models/press_scenario.hpp"
 
 namespace hapticd {
 
@@ -13,25 +12,21 @@ DeviceLink make_device_link(const World& world, const DeviceDesc& d, double hapt
   link.kind = d.kind == DeviceKind::glove ? protocol::DeviceKind::kGlove : protocol::DeviceKind::kStylus;
   link.hand = world.find_hand(d.hand);
   if (link.hand < 0) throw std::runtime_error("devices." + d.name + ": no hand named " + d.hand);
-  const WorldHand& hand = world.hand(link.hand);
-  link.left = hand.left;
-  const HandModel& model = *hand.model;
-  link.handles = model.num_handles();
+  const Hand& hand = world.hand(link.hand);
+  link.left = hand.left();
+  link.handles = hand.num_handles();
   if (link.handles > kMaxHapticHandles)
     throw std::runtime_error("devices." + d.name + ": " + std::to_string(link.handles) + " handles, at most " +
                              std::to_string(kMaxHapticHandles));
-  for (int j = 0; j < link.handles; ++j) {
-    link.mass_kg[j] = model.handles()[j].mass_kg;
-    link.inertia_B[j] = model.handles()[j].inertia_B;
-  }
   link.map = DeviceMap(d.workspace.scale, d.workspace.offset_W, d.workspace.R_WD);
-  if (d.kind == DeviceKind::glove) {
-    const std::vector<HandFrame> frames = procedural_handle_frames(hand.shape, link.handles);
-    for (int j = 0; j < link.handles; ++j) {
-      const FrameToHandle o = frame_to_handle(frames[j].p, frames[j].R, model.handles()[j]);
-      link.map.handle_p_F[j] = o.p_F;
-      link.map.handle_q_F[j] = o.q_F;
-    }
+  // A glove tracks a frame per handle; a stylus, the palm's.
+  const int tracked = d.kind == DeviceKind::glove ? link.handles : 1;
+  for (int j = 0; j < link.handles; ++j) {
+    const HandleInfo info = hand.handle_info(j, tracked);
+    link.mass_kg[j] = info.mass_kg;
+    link.inertia_B[j] = info.inertia_B;
+    link.map.handle_p_F[j] = info.in_frame.p_F;
+    link.map.handle_q_F[j] = info.in_frame.q_F;
   }
   if (d.kind == DeviceKind::glove) {
     link.contact_gated = true;

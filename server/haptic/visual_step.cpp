@@ -26,25 +26,24 @@ const char* to_string(HandleModelKind kind) {
 
 void fill_contact_flags(const World& world, int h, HapticModel& out) {
   const WorldSnapshot& snap = world.snapshot();
-  const WorldHand& hand = world.hand(h);
+  const Hand& hand = world.hand(h);
   out.in_contact = false;
   std::fill(std::begin(out.handle_in_contact), std::end(out.handle_in_contact), false);
   for (const ContactRecord& c : snap.contacts) {
     if (c.hand != h || c.depth_m <= 0) continue;
     out.in_contact = true;
     // A contact without a skin point of this hand (another hand's skin inside its flesh) marks no handle.
-    if (c.point < 0 || c.point >= static_cast<int>(hand.skin_handle.size())) continue;
-    const int j = hand.skin_handle[c.point];
-    if (j < kMaxHapticHandles) out.handle_in_contact[j] = true;
+    const int j = c.point >= 0 ? hand.skin_handle(c.point) : -1;
+    if (j >= 0 && j < kMaxHapticHandles) out.handle_in_contact[j] = true;
   }
 }
 
 void fill_haptic_model(World& world, int h, HandleLinearization& lin, HapticModel& out) {
   out.handles = 0;
   out.solver.prepared = false;
-  WorldHand& hand = world.hand(h);
+  Hand& hand = world.hand(h);
   fill_contact_flags(world, h, out);
-  if (!linearize_next_step(*hand.model, hand.state, *hand.solver, lin)) return;
+  if (!hand.linearize_next_step(lin)) return;
   const int m = static_cast<int>(lin.x0.size());
   if (m > kMaxHapticHandles || lin.F0.size() != 6 * m) return;
   out.F0 = lin.F0;
@@ -65,18 +64,18 @@ void fill_held_model(World& world, int h, HapticModel& out) {
   out.handles = 0;
   out.solver.prepared = false;
   fill_contact_flags(world, h, out);
-  const WorldHand& hand = world.hand(h);
-  const HandState& s = hand.state;
-  const int m = std::min(hand.model->num_handles(), kMaxHapticHandles);
-  const Eigen::VectorXd F = coupling_wrench(*hand.model, s.x, s.v, s.handles);
+  const Hand& hand = world.hand(h);
+  const std::vector<HandleState>& handles = hand.handles();
+  const int m = std::min(hand.num_handles(), kMaxHapticHandles);
+  const Eigen::VectorXd F = hand.coupling_wrench();
   if (F.size() < 6 * m || !F.allFinite()) return;
   out.F0 = F.head(6 * m);
   out.K.setZero(6 * m, 6 * m);
   out.D.setZero(6 * m, 6 * m);
   for (int j = 0; j < m; ++j) {
-    out.x0[j] = {s.handles[j].p_WH, s.handles[j].q_WH};
-    out.v0[j] = s.handles[j].v_WH;
-    out.w0[j] = s.handles[j].w_WH;
+    out.x0[j] = {handles[j].p_WH, handles[j].q_WH};
+    out.v0[j] = handles[j].v_WH;
+    out.w0[j] = handles[j].w_WH;
   }
   out.handles = m;
 }
@@ -100,13 +99,13 @@ void VisualStep::advance_world(std::uint64_t publish_ns, double dt_s) {
   const ProxyTargets& targets = targets_.front();
   for (int h = 0; h < std::min(world_.num_hands(), kMaxHands); ++h) {
     if (!targets.driven[h]) continue;
-    WorldHand& hand = world_.hand(h);
+    Hand& hand = world_.hand(h);
     if (targets.resyncs[h] != resyncs_seen_[h]) {
       resyncs_seen_[h] = targets.resyncs[h];
-      place_hand(*hand.model, hand.state, targets.pose[h][0].p_W, targets.pose[h][0].q_W, 0);
+      hand.place(targets.pose[h][0].p_W, targets.pose[h][0].q_W);
     }
-    for (int j = 0; j < std::min(hand.model->num_handles(), kMaxHapticHandles); ++j)
-      set_target(hand.state, j, proxy_target(targets, h, j, publish_ns));
+    for (int j = 0; j < std::min(hand.num_handles(), kMaxHapticHandles); ++j)
+      hand.set_target(j, proxy_target(targets, h, j, publish_ns));
   }
   if (inject_) inject_();
   world_.step(dt_s);
@@ -116,7 +115,7 @@ void VisualStep::build_models(std::uint64_t publish_ns, double dt_s) {
   HapticSnapshot& out = snapshots_.back();
   out.hands = std::min(world_.num_hands(), kMaxHands);
   for (int h = 0; h < out.hands; ++h) {
-    world_.hand(h).state.dt_s = dt_s;
+    world_.hand(h).set_step_length(dt_s);
     if (kind_ == HandleModelKind::linearized) {
       fill_haptic_model(world_, h, scratch_, out.model[h]);
     } else {
@@ -136,31 +135,11 @@ void VisualStep::prepare_tick_solvers() {
 void VisualStep::recover() {
   const ProxyTargets& targets = targets_.front();
   for (int h = 0; h < world_.num_hands(); ++h) {
-    WorldHand& hand = world_.hand(h);
-    HandState& s = hand.state;
-    ++s.resets;
-    // A hand whose positions are whole keeps its shape and its contacts (placed rigidly at rest, a
-    // hand pressed into an object would overlap it by its compression, and the next step would push
-    // back with a jump); only its motion, which a step broken off may have left half-updated, stops.
-    bool whole = s.x.allFinite();
-    for (const HandleState& handle : s.handles) whole = whole && handle.p_WH.allFinite() && handle.q_WH.coeffs().allFinite();
-    if (whole) {
-      s.v.setZero();
-      for (HandleState& handle : s.handles) handle.v_WH.setZero(), handle.w_WH.setZero();
-      continue;
-    }
-    // Otherwise at its proxy, rigidly, at rest, without contacts (or at rest where it began).
-    s.contacts.clear();
-    s.reserve_contacts.clear();
-    s.bodies.clear();
-    s.supports.clear();
-    if (h < kMaxHands && targets.driven[h]) {
-      place_hand(*hand.model, s, targets.pose[h][0].p_W, targets.pose[h][0].q_W, 0);
-    } else {
-      const long resets = s.resets;
-      s = make_rest_state(*hand.model);
-      s.resets = resets;
-    }
+    Hand& hand = world_.hand(h);
+    // Where its proxy is if a device drives it, else where its first handle is.
+    const bool driven = h < kMaxHands && targets.driven[h];
+    const HandleState& first = hand.handles()[0];
+    hand.recover(driven ? targets.pose[h][0].p_W : first.p_WH, driven ? targets.pose[h][0].q_W : first.q_WH);
   }
 }
 

@@ -119,7 +119,7 @@ void OfflineLoops::send(const protocol::EncodeResult& encoded) {
 }
 
 void OfflineLoops::frame_pose_at_handle(int j, Eigen::Vector3d& p_D, Eigen::Quaterniond& q_D) const {
-  const HandleState& h = world_->hand(link_.hand).state.handles[j];
+  const HandleState& h = world_->hand(link_.hand).handles()[static_cast<std::size_t>(j)];
   link_.map.to_device(j, {h.p_WH, h.q_WH}, p_D, q_D);
 }
 

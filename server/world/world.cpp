@@ -72,7 +72,7 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
     ProceduralHandOptions shape_options;
     shape_options.target_tets = d.resolution_tets;
     shape_options.left = d.side == HandSide::left;
-    h->left = shape_options.left;
+    h->left_side = shape_options.left;
     // A hand driven by more than its palm (a glove) needs fingers that move on their own.
     shape_options.separate_fingers = d.handles != HandleSet::palm;
     h->shape = make_procedural_hand(shape_options);
@@ -92,7 +92,7 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
     config.drive = options.drive;
     h->friction = d.material.friction;
     h->model = std::make_unique<HandModel>(h->shape.mesh, config);
-    h->skin_handle = procedural_skin_handles(h->shape, handle_count(d.handles));
+    h->skin_handles = procedural_skin_handles(h->shape, handle_count(d.handles));
     h->state = make_rest_state(*h->model);
     // The hand frame's pose places the rest mesh: handle 0 goes where it sits in that frame.
     const Eigen::Vector3d p_handle = d.pose.p_W + d.pose.q_W * h->model->handles()[0].p_WH_rest;
@@ -522,7 +522,7 @@ void World::step(double dt_s) {
     } else if (hand.query) {
       anchor_hand_contacts(h, step_dt_);
     }
-    hapticd::step(*hand.model, hand.state, *hand.solver, options_.linearize ? &snapshot_.linear_models[h] : nullptr);
+    hand.step(options_.linearize ? &snapshot_.linear_models[h] : nullptr);
     snapshot_.linear_model_valid[h] = snapshot_.linear_models[h].K.size() > 0;
     timings.linearize_ms += hand.state.timings.linearize_ms;
     timings.contact_ms += hand.state.timings.contact_ms;

@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "hand_models/coupled_solver.hpp"
+#include "hand_models/fem_hand.hpp"
 #include "hand_models/handle_linearization.hpp"
 #include "hand_models/hand_model.hpp"
 #include "hand_models/press_scenario.hpp"
@@ -59,15 +60,9 @@ struct WorldOptions {
   BodyBounds body_bounds;
 };
 
-struct WorldHand {
-  std::string name;
-  bool left = false;  // the scene's side: a left hand (the mirror image)
-  ProceduralHand shape;  // mesh, skeleton and the skin used for contact
-  std::unique_ptr<HandModel> model;
-  std::vector<int> skin_handle;  // per skin vertex, the handle of its part (procedural_skin_handles)
-  HandState state;
-  std::unique_ptr<CoupledSolver> solver;
-  double friction = 0.5;
+// A hand of the world: the FEM hand (the only model built so far), and what the world keeps of it
+// for hand-hand contact.
+struct WorldHand : FemHand {
   // Hand-hand contact (a scene with two hands or more, hand contacts on): where
   // a point lies in this hand's deformed flesh and how deep it is inside its
   // skin; null otherwise (one hand builds nothing for it).

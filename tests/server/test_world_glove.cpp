@@ -140,7 +140,7 @@ struct HandForces {
 HandForces hand_forces(const World& w, int object) {
   HandForces out;
   for (Eigen::Vector3d& f : out.on_object) f.setZero();
-  const std::vector<int>& skin_handle = w.hand(0).skin_handle;  // procedural_skin_handles(shape, 16)
+  const std::vector<int>& skin_handle = w.hand(0).skin_handles;  // procedural_skin_handles(shape, 16)
   for (const ContactRecord& c : w.snapshot().contacts) {
     if (c.hand != 0 || c.object != object) continue;
     const int j = skin_handle[c.point];
