@@ -12,6 +12,7 @@
 
 #include "haptic_server_test_util.hpp"
 #include "server/haptic/visual_loop.hpp"
+#include "server/offline/offline_run.hpp"
 #include "server/world/scene_loader.hpp"
 
 namespace hapticd {
@@ -72,19 +73,29 @@ TEST(VisualLoopTargets, TheServerStampsItsProxiesWithTheEndOfTheTickThatWroteThe
   EXPECT_GT(checked, 20);
 }
 
+// The stylus scene with one static box under the hand (top face 1 cm below the hand's lowest point).
+SceneDesc box_scene() {
+  SceneDesc scene = load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json");
+  scene.objects.clear();
+  ObjectDesc box;
+  box.name = "box";
+  box.kind = BodyKind::static_body;
+  box.shape.type = ShapeType::box;
+  box.shape.size = {0.3, 0.3, 0.04};
+  box.pose.p_W = {0.08, 0.1, 0.847};
+  scene.objects.push_back(box);
+  return scene;
+}
+
+// How far below its start the pressing client holds the stylus at t (device space): at the handle
+// for 0.2 s, then 1.5 cm down (3 cm in the world, the palm into the box) over 0.5 s, then held.
+double press_depth_m(double t_s) { return 0.015 * std::clamp((t_s - 0.2) / 0.5, 0.0, 1.0); }
+
 // hapticd's two real-time runners on their threads (HapticServer, VisualLoop around a VisualStep), on
-// the stylus scene with one static box under the hand (top face 1 cm below the hand's lowest point).
+// box_scene().
 struct Threads {
   explicit Threads(double visual_hz = 60) {
-    SceneDesc scene = load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json");
-    scene.objects.clear();
-    ObjectDesc box;
-    box.name = "box";
-    box.kind = BodyKind::static_body;
-    box.shape.type = ShapeType::box;
-    box.shape.size = {0.3, 0.3, 0.04};
-    box.pose.p_W = {0.08, 0.1, 0.847};
-    scene.objects.push_back(box);
+    SceneDesc scene = box_scene();
     scene.visual_rate_hz = visual_hz;
     scene.dt_s = 1.0 / visual_hz;
     world = std::make_unique<World>(scene, served_world_options());
@@ -131,8 +142,7 @@ struct Reply {
   bool stale = false, answered = false;
 };
 
-// A stylus client at 1 kHz (paced by its round trips): at the handle for 0.2 s, then 1.5 cm down
-// (device space: 3 cm in the world, the palm into the box) over 0.5 s, held until `seconds`.
+// A stylus client at 1 kHz (paced by its round trips) pressing as press_depth_m says until `seconds`.
 std::vector<Reply> press_and_hold(Threads& t, double seconds) {
   test::TestClient c(t.server->port());
   EXPECT_NE(c.hello(), 0u);
@@ -142,7 +152,7 @@ std::vector<Reply> press_and_hold(Threads& t, double seconds) {
     const double now = 1e-9 * static_cast<double>(protocol::now_ns() - t0);
     if (now > seconds) break;
     protocol::PoseSample p = c.pose_at(0, seq);
-    const double down = 0.015 * std::clamp((now - 0.2) / 0.5, 0.0, 1.0);
+    const double down = press_depth_m(now);
     p.poses[0].position_m = {static_cast<float>(t.start_D.x()), static_cast<float>(t.start_D.y()),
                              static_cast<float>(t.start_D.z() - down)};
     c.send(p);
@@ -236,6 +246,62 @@ TEST(VisualLoopThreads, AThrowInTheWorldStepIsAFaultTheServerKeepsAnsweringAndFa
   EXPECT_GT(replies.back().f_z, 0.5 * f_before);
   EXPECT_FALSE(replies.back().stale);
   EXPECT_LT(f_after_max, 1.5 * f_before);
+}
+
+TEST(VisualLoopThreads, TheRealTimeAndTheLockstepRunnersRenderTheSamePress) {
+  // The same press, once through hapticd's threads on the wall clock and once through the lockstep
+  // runner on simulated time (the world every 17 ms, as 60 Hz). Both drive the same HapticCore and
+  // VisualStep, so they must render the same force; only the threads' timing (the visual loop's
+  // achieved rate and phase, the client's pacing) differs, so the traces agree to a tolerance: the
+  // held force within 2 %, the whole trace within 10 % RMS of the held force.
+  Threads t;
+  t.start();
+  const std::vector<Reply> threaded = press_and_hold(t, 2.0);
+  t.halt();
+
+  OfflineOptions options;
+  options.visual_every_ticks = 17;
+  OfflineLoops loops(box_scene(), options);
+  Eigen::Vector3d start_D;
+  Eigen::Quaterniond q_D;
+  loops.frame_pose_at_handle(0, start_D, q_D);
+  EXPECT_LT((start_D - t.start_D).norm(), 1e-12) << "the two runners' hands start apart";
+  std::vector<DeviceFrames> poses(2000);
+  for (std::size_t k = 0; k < poses.size(); ++k) {
+    poses[k].frames = 1;
+    poses[k].p_D[0] = start_D - Eigen::Vector3d(0, 0, press_depth_m(1e-3 * static_cast<double>(k)));
+    poses[k].q_D[0].setIdentity();
+  }
+  RecordedDevice device(poses);
+  const OfflineTrace lockstep = run_offline(loops, device, static_cast<long>(poses.size()));
+
+  auto held = [](auto time_of, auto force_of, std::size_t n) {
+    double sum = 0;
+    int count = 0;
+    for (std::size_t k = 0; k < n; ++k)
+      if (time_of(k) > 1.2) sum += force_of(k), ++count;
+    return sum / std::max(count, 1);
+  };
+  const double f_threaded = held([&](std::size_t k) { return threaded[k].t_s; },
+                                 [&](std::size_t k) { return threaded[k].f_z; }, threaded.size());
+  const double f_lockstep = held([](std::size_t k) { return 1e-3 * static_cast<double>(k); },
+                                 [&](std::size_t k) { return lockstep.replies[k].wrench[0].f_D.z(); },
+                                 lockstep.replies.size());
+  double sq = 0;
+  int n = 0;
+  for (const Reply& r : threaded) {
+    if (!r.answered || r.t_s >= 1.999) continue;
+    const auto k = static_cast<std::size_t>(std::lround(1e3 * r.t_s));
+    sq += std::pow(r.f_z - lockstep.replies[k].wrench[0].f_D.z(), 2);
+    ++n;
+  }
+  const double rms_diff = std::sqrt(sq / std::max(n, 1));
+  std::printf("held force: threaded %.4f N, lockstep %.4f N; RMS difference over the trace %.4f N (%d samples)\n",
+              f_threaded, f_lockstep, rms_diff, n);
+  ASSERT_GT(f_lockstep, 0.3) << "the box does not push back";
+  EXPECT_NEAR(f_threaded, f_lockstep, 0.02 * f_lockstep);
+  EXPECT_LT(rms_diff, 0.1 * f_lockstep);
+  EXPECT_EQ(lockstep.resets, 0);
 }
 
 }  // namespace
