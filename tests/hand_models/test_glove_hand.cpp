@@ -109,9 +109,27 @@ TEST(SeparateFingers, SameCellsTetsAndSkinAsTheDefaultMeshWithNodesSplit) {
     EXPECT_EQ(split.skin_vertices, plain.skin_vertices);
     EXPECT_EQ(split.skin_triangles, plain.skin_triangles);
   }
-  // Copies: 568 nodes instead of 501 at 1.7k tets.
-  EXPECT_EQ(split_hand(1700).mesh.num_nodes(), 568);
-  EXPECT_EQ(cached_hand(1700, false).mesh.num_nodes(), 501);
+  // Only copies: every split node sits on a node of the default mesh, and no two split nodes share
+  // both a place and a part (one copy per part that uses a grid node), while every default node is used.
+  for (int target : kTargets) {
+    SCOPED_TRACE(target);
+    const ProceduralHand& plain = cached_hand(target, false);
+    const ProceduralHand& split = split_hand(target);
+    std::map<std::array<double, 3>, int> plain_at;
+    for (int v = 0; v < plain.mesh.num_nodes(); ++v)
+      plain_at[{plain.mesh.X[v].x(), plain.mesh.X[v].y(), plain.mesh.X[v].z()}] = v;
+    ASSERT_EQ(static_cast<int>(plain_at.size()), plain.mesh.num_nodes());
+    std::map<std::pair<int, int>, int> copies;  // (default node, part) -> split nodes there
+    std::vector<char> used(plain.mesh.num_nodes(), 0);
+    for (int v = 0; v < split.mesh.num_nodes(); ++v) {
+      const auto it = plain_at.find({split.mesh.X[v].x(), split.mesh.X[v].y(), split.mesh.X[v].z()});
+      ASSERT_NE(it, plain_at.end()) << "split node " << v << " is on no default node";
+      used[it->second] = 1;
+      ++copies[{it->second, split.node_part[v]}];
+    }
+    EXPECT_EQ(static_cast<int>(copies.size()), split.mesh.num_nodes()) << "a node copied twice for one part";
+    EXPECT_EQ(std::count(used.begin(), used.end(), 1), plain.mesh.num_nodes());
+  }
 }
 
 TEST(SeparateFingers, FingersMeetOnlyThroughPalmFleshAndEachIsOnePieceOnThePalm) {
@@ -173,9 +191,6 @@ TEST(SeparateFingers, FingersMeetOnlyThroughPalmFleshAndEachIsOnePieceOnThePalm)
 // palm nodes, never a neighbouring finger's), with exact weights; where that part's cells stop
 // short of the vertex (a cell nearer the neighbour took the gap) the weights extrapolate a little.
 TEST(SeparateFingers, SkinVerticesFollowTheirOwnPart) {
-  // Largest extrapolation (most negative weight) and number of extrapolated vertices per size.
-  const std::map<int, std::pair<double, int>> reference = {
-      {350, {-0.085, 51}}, {1700, {-0.265, 111}}, {5000, {-0.326, 65}}, {20000, {-0.433, 28}}};
   for (int target : kTargets) {
     SCOPED_TRACE(target);
     const ProceduralHand& hand = split_hand(target);
@@ -195,8 +210,11 @@ TEST(SeparateFingers, SkinVerticesFollowTheirOwnPart) {
     }
     EXPECT_LT(worst_position, 1e-12);
     EXPECT_EQ(wrong_part, 0);
-    EXPECT_NEAR(lowest, reference.at(target).first, 1e-3);
-    EXPECT_EQ(extrapolated, reference.at(target).second);
+    // A little: the gap a neighbour's cell took is one cell, so a vertex lies less than a tet's height
+    // beyond its tet's face (weight > -1), and few vertices are in such gaps.
+    std::printf("[split skin] %d tets: %d of %zu skin vertices extrapolated, lowest weight %.3f\n", target,
+                extrapolated, hand.skin_vertices.size(), lowest);
+    EXPECT_GT(lowest, -1.0);
     EXPECT_LT(extrapolated, 0.02 * static_cast<double>(hand.skin_vertices.size()));
   }
 }
