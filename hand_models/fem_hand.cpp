@@ -1,6 +1,6 @@
 #include "hand_models/fem_hand.hpp"
 
-#include "hand_models/press_scenario.hpp"
+#include "hand_models/procedural_handles.hpp"
 
 namespace hapticd {
 
@@ -59,11 +59,8 @@ Eigen::VectorXd FemHand::coupling_wrench() const {
 }
 
 Eigen::Vector3d FemHand::skin_point(int i) const {
-  const Tet& nodes = model->mesh().tets[static_cast<std::size_t>(shape.skin_tet[static_cast<std::size_t>(i)])];
-  const Eigen::Vector4d& w = shape.skin_bary[static_cast<std::size_t>(i)];
-  Eigen::Vector3d p = Eigen::Vector3d::Zero();
-  for (int k = 0; k < 4; ++k) p += w[k] * state.x.segment<3>(3 * nodes[k]);
-  return p;
+  const auto k = static_cast<std::size_t>(i);
+  return embedded_value(model->mesh().tets[static_cast<std::size_t>(shape.skin_tet[k])], shape.skin_bary[k], state.x);
 }
 
 int FemHand::skin_handle(int i) const {

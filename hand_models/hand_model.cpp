@@ -6,6 +6,7 @@
 #include <stdexcept>
 
 #include "hand_models/contact_pgs.hpp"
+#include "hand_models/contact_solve.hpp"
 #include "hand_models/coupled_solver.hpp"
 #include "hand_models/handle_linearization.hpp"
 
@@ -49,13 +50,6 @@ Matrix6d handle_mass_matrix(const RigidHandle& h, const HandleState& s) {
   return M;
 }
 
-// Barycentric sum over a tet's nodes of a 3n vector: an embedded point's position or velocity.
-Eigen::Vector3d embedded(const Tet& t, const Eigen::Vector4d& w, const Eigen::VectorXd& v) {
-  Eigen::Vector3d u = Eigen::Vector3d::Zero();
-  for (int k = 0; k < 4; ++k) u += w[k] * v.segment<3>(3 * t[k]);
-  return u;
-}
-
 // Velocity of the other body at a contact: the known one, or for an implicit body
 // its current (or, with `next`, its just-solved) rigid velocity at the point.
 Eigen::Vector3d other_velocity(const PointContact& c, const Tet& t, const HandState& s, bool next) {
@@ -63,7 +57,7 @@ Eigen::Vector3d other_velocity(const PointContact& c, const Tet& t, const HandSt
   const ContactBody& b = s.bodies[c.body];
   Eigen::Vector3d v = b.v_W, w = b.w_W;
   if (next) v += b.dv_W, w += b.dw_W;
-  return v + w.cross(embedded(t, c.bary, s.x) - b.p_com_W);
+  return v + w.cross(embedded_value(t, c.bary, s.x) - b.p_com_W);
 }
 
 // The 3x3 block C = h D_c + h^2 K_c of a contact: what it adds to eq. 7 between
@@ -81,7 +75,7 @@ void assemble_contact(const HandModel& model, const PointContact& c, HandState& 
   const AssemblyMap& map = model.assembly_map();
   const Eigen::Vector3d& n = c.n_W;
   const Eigen::Matrix3d nn = n * n.transpose();
-  const Eigen::Vector3d u_rel = embedded(t, c.bary, s.v) - other_velocity(c, t, s, false);
+  const Eigen::Vector3d u_rel = embedded_value(t, c.bary, s.v) - other_velocity(c, t, s, false);
   const Eigen::Matrix3d C = contact_block(c, u_rel, h);
   // Velocity-independent part (C / h minus the stiffness part is the damping D_c); an implicit body's motion enters through the
   // coupling blocks instead of as a known velocity.
@@ -102,10 +96,10 @@ void assemble_body_contact(const HandModel& model, const PointContact& c, HandSt
                            std::vector<Eigen::Triplet<double>>& th, std::vector<Eigen::Triplet<double>>& ht) {
   const Tet& t = model.mesh().tets[c.tet];
   const ContactBody& B = s.bodies[c.body];
-  const Eigen::Vector3d p = embedded(t, c.bary, s.x);
+  const Eigen::Vector3d p = embedded_value(t, c.bary, s.x);
   Eigen::Matrix<double, 3, 6> J;
   J << Eigen::Matrix3d::Identity(), -skew(p - B.p_com_W);
-  const Eigen::Vector3d u_rel = embedded(t, c.bary, s.v) - other_velocity(c, t, s, false);
+  const Eigen::Vector3d u_rel = embedded_value(t, c.bary, s.v) - other_velocity(c, t, s, false);
   const Eigen::Matrix3d C = contact_block(c, u_rel, h);
   const Eigen::Vector3d f0 = c.stiffness_n_m * c.depth_m * c.n_W;
   s.system.A_h.block<6, 6>(col, col) += J.transpose() * C * J;
@@ -446,7 +440,7 @@ void record_contact_forces(const HandModel& model, HandState& s) {
     PointContact& c = s.active_contacts[i];
     const Eigen::Vector3d& n = c.n_W;
     const Tet& t = model.mesh().tets[c.tet];
-    const Eigen::Vector3d u_rel = embedded(t, c.bary, s.v) - other_velocity(c, t, s, true);
+    const Eigen::Vector3d u_rel = embedded_value(t, c.bary, s.v) - other_velocity(c, t, s, true);
     const double f_n = std::max(0.0, c.stiffness_n_m * (c.depth_m - h * n.dot(u_rel)) - c.damping_ns_m * n.dot(u_rel));
     const Eigen::Vector3d u_t = u_rel - n.dot(u_rel) * n;
     const double c_t = c.friction * c.stiffness_n_m * c.depth_m /
@@ -467,217 +461,6 @@ bool within_bounds(const HandState& s, double max_speed) {
 
 }  // namespace
 
-namespace {
-
-// An orthonormal contact frame (n, t1, t2).
-Eigen::Matrix3d contact_frame(const Eigen::Vector3d& n) {
-  const Eigen::Vector3d a = std::abs(n.x()) < 0.9 ? Eigen::Vector3d::UnitX() : Eigen::Vector3d::UnitY();
-  const Eigen::Vector3d t1 = n.cross(a).normalized();
-  Eigen::Matrix3d F;
-  F << n, t1, n.cross(t1);
-  return F;
-}
-
-bool valid_support(const HandState& s, const BodySupport& b) {
-  return b.body >= 0 && b.body < static_cast<int>(s.bodies.size()) && b.p_W.allFinite() && b.n_W.allFinite() &&
-         std::abs(b.n_W.norm() - 1) < 1e-6 && std::isfinite(b.depth_m) && b.v_other_W.allFinite() &&
-         finite_nonneg(b.friction);
-}
-
-// Constraint contacts on the solved free velocities: J (contact frames of the
-// relative velocity, sparse), A^-1 J^T by one block solve through the step's
-// factorization, W = J A^-1 J^T, projected Gauss-Seidel warm-started from each
-// contact's guess, V = V_free + A^-1 J^T lambda. The rows are the hand's
-// constraint contacts and the implicit bodies' supports. Reserve contacts the
-// solution would carry deeper than kReserveDepth_m then join as further rows
-// (appended to s.active_contacts; only their columns of A^-1 J^T are solved)
-// and Gauss-Seidel resumes, a few rounds at most. Hand impulses go to
-// `impulses` (world frame, per active contact); the pushing rows become s.held
-// for the linearization.
-bool solve_constraint_contacts(const HandModel& model, HandState& s, CoupledSolver& solver,
-                               std::vector<Eigen::Vector3d>& impulses) {
-  constexpr int kReserveRounds = 3;
-  struct Row {
-    int contact = -1, support = -1;  // index into s.active_contacts or s.supports
-  };
-  std::vector<Row> rows;
-  for (size_t i = 0; i < s.active_contacts.size(); ++i)
-    if (s.active_contacts[i].constraint) rows.push_back({static_cast<int>(i), -1});
-  for (size_t i = 0; i < s.supports.size(); ++i)
-    if (valid_support(s, s.supports[i])) rows.push_back({-1, static_cast<int>(i)});
-  std::vector<const PointContact*> reserves;
-  for (const PointContact& r : s.reserve_contacts)
-    if (r.constraint && valid_contact(model, s, r)) reserves.push_back(&r);
-  s.held = HeldContacts{};
-  const CoupledSystem& sys = s.system;
-  const int nh = sys.handle_dofs(), nt = sys.tool_dofs();
-  const int m = model.num_handles();
-  const double h = step_length(model, s);
-  const Eigen::VectorXd V_free = (Eigen::VectorXd(nh + nt) << s.v_h_next, s.v_t_next).finished();
-
-  // J^T, 3 columns per row, from triplets (row = DOF, column = contact direction).
-  std::vector<Eigen::Triplet<double>> entries;
-  std::vector<Eigen::Matrix3d> frames;
-  auto add = [&](int dof, int k, const Eigen::Matrix3d& block) {
-    for (int r = 0; r < 3; ++r)
-      for (int d = 0; d < 3; ++d) entries.emplace_back(dof + r, 3 * k + d, block(r, d));
-  };
-  // The relative velocity of the hand point (or body) against the other side, in frame (n, t1, t2).
-  auto add_body = [&](int body, const Eigen::Vector3d& p_W, int k, double sign) {
-    const Eigen::Vector3d rho = p_W - s.bodies[body].p_com_W;
-    add(6 * (m + body), k, sign * frames[k]);
-    add(6 * (m + body) + 3, k, sign * skew(rho) * frames[k]);  // (w x rho) . f = w . (rho x f)
-  };
-  auto add_point = [&](const PointContact& pc, int k) {
-    const Tet& t = model.mesh().tets[pc.tet];
-    frames[k] = contact_frame(pc.n_W);
-    for (int a = 0; a < 4; ++a)
-      if (pc.bary[a] != 0) add(nh + 3 * t[a], k, pc.bary[a] * frames[k]);
-    if (pc.body >= 0) add_body(pc.body, embedded(t, pc.bary, s.x), k, -1.0);
-  };
-  auto transposed_rows = [&](int count) {
-    Eigen::SparseMatrix<double> Jt(nh + nt, 3 * count);
-    Jt.setFromTriplets(entries.begin(), entries.end());
-    entries.clear();
-    return Jt;
-  };
-
-  // Rows [first, rows.size()) join the problem: their part of J^T, of A^-1 J^T and of the LCP.
-  ContactProblem problem;
-  Eigen::VectorXd lambda;  // the last solution, the next round's first guess
-  Eigen::SparseMatrix<double> Jt(nh + nt, 0);
-  // A^-1 J^T = [X_h; X_t - Y X_h] (CoupledSolver::solve_block_parts; Y the handle columns of *Y_tool).
-  Eigen::MatrixXd X_h(nh, 0), X_t(nt, 0);
-  const Eigen::MatrixXd* Y_tool = nullptr;
-  // V_free + A^-1 J^T l.
-  const auto velocities = [&](const Eigen::VectorXd& l) {
-    Eigen::VectorXd V = V_free;
-    const Eigen::VectorXd dv_h = X_h * l;
-    V.head(nh) += dv_h;
-    V.tail(nt) += X_t * l;
-    if (Y_tool) V.tail(nt).noalias() -= Y_tool->middleCols(1, nh) * dv_h;
-    return V;
-  };
-  auto append_rows = [&](int first) -> bool {
-    const int c = static_cast<int>(rows.size()), added = c - first;
-    frames.assign(added, Eigen::Matrix3d::Identity());
-    problem.u_free.conservativeResize(3 * c);
-    problem.bias.conservativeResize(c);
-    problem.mu.resize(c);
-    lambda.conservativeResize(3 * c);
-    for (int k = 0; k < added; ++k) {
-      const Row& row = rows[first + k];
-      Eigen::Vector3d v_known, warm = Eigen::Vector3d::Zero();
-      double depth, mu;
-      if (row.contact >= 0) {
-        const PointContact& pc = s.active_contacts[row.contact];
-        add_point(pc, k);
-        v_known = pc.body >= 0 ? Eigen::Vector3d::Zero() : pc.v_other_W;
-        depth = pc.depth_m, mu = pc.friction, warm = pc.warm_impulse_W;
-      } else {
-        const BodySupport& b = s.supports[row.support];
-        frames[k] = contact_frame(b.n_W);
-        add_body(b.body, b.p_W, k, 1.0);
-        v_known = b.v_other_W, depth = b.depth_m, mu = b.friction;
-      }
-      // A kinematic other side's known velocity is part of the free relative velocity.
-      problem.u_free.segment<3>(3 * (first + k)) = -frames[k].transpose() * v_known;
-      // Penetrating: push out a fraction of the depth; a gap (speculative contact) may close fully.
-      problem.bias[first + k] = depth > 0 ? kContactDepthRecovery * depth / h : depth / h;
-      problem.mu[first + k] = mu;
-      lambda.segment<3>(3 * (first + k)) = frames[k].transpose() * warm;
-    }
-    const Eigen::SparseMatrix<double> Jt_new = transposed_rows(added);
-    problem.u_free.tail(3 * added) += Jt_new.transpose() * V_free;
-    Eigen::MatrixXd X_h_new, X_t_new;
-    const Eigen::MatrixXd* Y_round = nullptr;
-    if (!solver.solve_block_parts(sys, Eigen::MatrixXd(Jt_new), X_h_new, X_t_new, Y_round)) return false;
-    if (first > 0 && Y_round != Y_tool) return false;  // every column of X must be in the same form
-    Y_tool = Y_round;
-    Eigen::SparseMatrix<double> joined(nh + nt, 3 * c);
-    joined.leftCols(3 * first) = Jt;
-    joined.rightCols(3 * added) = Jt_new;
-    Jt = std::move(joined);
-    X_h.conservativeResize(nh, 3 * c);
-    X_h.rightCols(3 * added) = X_h_new;
-    X_t.conservativeResize(nt, 3 * c);
-    X_t.rightCols(3 * added) = X_t_new;
-    // W = J A^-1 J^T = J_h X_h + J_t (X_t - Y X_h); J by rows, so its products run down X's columns.
-    const Eigen::SparseMatrix<double, Eigen::RowMajor> J_h = Jt.topRows(nh).transpose(),
-                                                      J_t = Jt.bottomRows(nt).transpose();
-    problem.W = J_h * X_h + J_t * X_t;
-    if (Y_tool) problem.W.noalias() -= (J_t * Y_tool->middleCols(1, nh)) * X_h;
-    return true;
-  };
-
-  Eigen::VectorXd V = V_free;
-  impulses.assign(s.active_contacts.size(), Eigen::Vector3d::Zero());
-  for (int round = 0, first = 0;; ++round) {
-    if (static_cast<int>(rows.size()) > first) {
-      if (!append_rows(first)) return false;
-      PgsOptions options;
-      options.max_iterations = 500;
-      options.tolerance = 1e-8;
-      const PgsResult r = solve_contacts_pgs(problem, options, &lambda);
-      if (!r.lambda.allFinite()) return false;
-      lambda = r.lambda;
-      s.timings.contact_iterations = r.iterations;
-      s.timings.contact_converged = r.converged;
-      V = velocities(lambda);
-    }
-    first = static_cast<int>(rows.size());
-    if (round == kReserveRounds || reserves.empty()) break;
-
-    // Reserves the solution carries deeper, and deeper than kReserveDepth_m, join the rows.
-    frames.assign(reserves.size(), Eigen::Matrix3d::Identity());
-    for (size_t k = 0; k < reserves.size(); ++k) add_point(*reserves[k], static_cast<int>(k));
-    const Eigen::VectorXd u = transposed_rows(static_cast<int>(reserves.size())).transpose() * V;
-    std::vector<const PointContact*> waiting;
-    for (size_t k = 0; k < reserves.size(); ++k) {
-      const PointContact& pc = *reserves[k];
-      const double u_n = u[3 * k] - (pc.body >= 0 ? 0.0 : pc.n_W.dot(pc.v_other_W));
-      const double end_depth = pc.depth_m - h * u_n;
-      if (end_depth <= std::max(kReserveDepth_m, pc.depth_m)) {  // shallow enough, or already coming out
-        waiting.push_back(&pc);
-        continue;
-      }
-      rows.push_back({static_cast<int>(s.active_contacts.size()), -1});
-      s.active_contacts.push_back(pc);
-      s.active_source.push_back(kReserveSource - static_cast<int>(&pc - s.reserve_contacts.data()));
-      impulses.emplace_back(Eigen::Vector3d::Zero());
-    }
-    if (static_cast<int>(rows.size()) == first) break;
-    reserves.swap(waiting);
-    ++s.timings.reserve_rounds;
-  }
-  s.v_h_next = V.head(nh);
-  s.v_t_next = V.tail(nt);
-  const int c = static_cast<int>(rows.size());
-  for (int k = 0; k < c; ++k)
-    if (rows[k].contact >= 0) impulses[rows[k].contact] = contact_frame(s.active_contacts[rows[k].contact].n_W) *
-                                                           lambda.segment<3>(3 * k);
-
-  // Held for the linearization: pushing rows' normals, and the tangents of those inside the cone.
-  std::vector<int> held_cols;
-  for (int k = 0; k < c; ++k) {
-    const Eigen::Vector3d l = lambda.segment<3>(3 * k);
-    if (l[0] <= 0) continue;
-    held_cols.push_back(3 * k);
-    const bool sticks = problem.mu[k] > 0 && l.tail<2>().norm() < (1 - 1e-6) * problem.mu[k] * l[0];
-    if (sticks) held_cols.push_back(3 * k + 1), held_cols.push_back(3 * k + 2);
-  }
-  s.held.J.resize(static_cast<int>(held_cols.size()), nh + nt);
-  std::vector<Eigen::Triplet<double>> held_entries;
-  for (size_t r_i = 0; r_i < held_cols.size(); ++r_i)
-    for (Eigen::SparseMatrix<double>::InnerIterator it(Jt, held_cols[r_i]); it; ++it)
-      held_entries.emplace_back(static_cast<int>(r_i), static_cast<int>(it.row()), it.value());
-  s.held.J.setFromTriplets(held_entries.begin(), held_entries.end());
-  s.held.u = s.held.J * V;
-  s.held.impulse = Jt * lambda;
-  return true;
-}
-
-}  // namespace
 
 StepStatus step(const HandModel& model, HandState& s, CoupledSolver& solver, HandleLinearization* linearization) {
   const auto t0 = Clock::now();

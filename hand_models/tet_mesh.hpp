@@ -44,4 +44,12 @@ std::vector<Triangle> extract_surface(const std::vector<Tet>& tets);
 // Sum of element volumes, m^3.
 double total_volume(const TetMesh& mesh);
 
+// A point embedded in tet t by barycentric weights w: the weighted sum of a 3n nodal vector v over
+// the tet's nodes (the point's position for node positions, its velocity for node velocities).
+inline Eigen::Vector3d embedded_value(const Tet& t, const Eigen::Vector4d& w, const Eigen::VectorXd& v) {
+  Eigen::Vector3d u = Eigen::Vector3d::Zero();
+  for (int k = 0; k < 4; ++k) u += w[k] * v.segment<3>(3 * t[k]);
+  return u;
+}
+
 }  // namespace hapticd
