@@ -1,0 +1,381 @@
+// World, collision (world.hpp): hand skin and deformable surfaces against static and rigid
+// geometry, hand skin against deformable objects and the other hands' flesh, clustered into
+// constraint rows with reserves and warm-start impulses, for the next step.
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <unordered_map>
+
+#include "server/world/world.hpp"
+
+namespace hapticd {
+namespace {
+
+constexpr double kSpeculativeMargin_m = 0.002;
+// A cell's constraint contact moves to another point only when that one is deeper by this much.
+constexpr double kClusterHysteresis_m = 1e-4;
+
+// The cluster cell of a contact: object and integer cell coordinates packed in 64 bits.
+// The cells sit uneven fractions of a cell off the origin: scenes are written
+// in round numbers, and a row of surface points on a cell boundary would change
+// cells (and contacts) with every micrometre of jitter.
+std::uint64_t cluster_key(int object, const Eigen::Vector3d& p_W, double cell_m) {
+  static constexpr double kCellShift[3] = {0.37, 0.21, 0.43};
+  std::uint64_t key = static_cast<std::uint64_t>(object) & 0xffff;
+  for (int k = 0; k < 3; ++k) {
+    const auto cell = static_cast<std::int64_t>(std::floor(p_W[k] / cell_m + kCellShift[k]));
+    key = (key << 16) | (static_cast<std::uint64_t>(cell) & 0xffff);
+  }
+  return key;
+}
+
+// A point embedded in a tet of `mesh` by barycentric weights w, at nodal values x (positions or velocities).
+Eigen::Vector3d embedded_at(const TetMesh& mesh, const Eigen::VectorXd& x, int tet, const Eigen::Vector4d& w) {
+  return embedded_value(mesh.tets[tet], w, x);
+}
+
+}  // namespace
+
+void World::collide_all() {
+  // Deformable objects first: a hand touching one takes the object's own contacts as its supports.
+  for (int d = 0; d < num_deformables(); ++d) {
+    DeformableObject& o = *deformables_[d];
+    if (o.query) o.query->update(o.state.x);
+    o.surface_bounds.setEmpty();
+    for (int v = 0; v < static_cast<int>(o.body.surface_tet.size()); ++v) o.surface_bounds.extend(surface_point(o, v));
+    collide(soft_[num_hands() + d]);
+  }
+  find_hand_hits();
+  for (int h = 0; h < num_hands(); ++h) collide(soft_[h]);
+  // The coming step's external forces as far as known now, for the model of the coming step.
+  if (!constraint_contact_)
+    for (int h = 0; h < num_hands(); ++h)
+      if (hands_[h]->query) anchor_hand_contacts(h, dt_);
+}
+
+void World::add_contact(SoftBody& b, const PointContact& c, int point, const Eigen::Vector3d& p_W, int other_key,
+                        const DeformableTouch& touch, std::unordered_map<std::uint64_t, int>& cluster) {
+  HandState& s = *b.state;
+  if (!constraint_contact_) {
+    s.contacts.push_back(c);
+    b.points.push_back(p_W);
+    b.touches.push_back(touch);
+    b.point_of.push_back(point);
+    return;
+  }
+  // Constraint contacts are reduced to the deepest point per other body and
+  // cluster cell: a patch of skin on a face needs a few non-penetration rows,
+  // not one per skin vertex (each row costs a column of A^-1 J^T). The other
+  // points of the cell stay in reserve: the step makes a row of any it would
+  // carry too deep (HandState::reserve_contacts). Against deformable objects
+  // and other hands the reaction must be handed over, so those points are not kept.
+  auto keep_in_reserve = [&](const PointContact& r, int r_point, const Eigen::Vector3d& r_p_W) {
+    if (!options_.contact_reserves || touch.object >= 0 || touch.hand >= 0) return;
+    s.reserve_contacts.push_back(r);
+    b.reserve_point.push_back(r_point);
+    b.reserve_p_W.push_back(r_p_W);
+  };
+  const std::uint64_t key = cluster_key(other_key, p_W, options_.contact_cluster_m);
+  PointContact warm_started = c;
+  const auto warm = b.warm_impulse.find(key);
+  if (warm != b.warm_impulse.end()) warm_started.warm_impulse_W = warm->second;
+  const auto [it, fresh] = cluster.try_emplace(key, static_cast<int>(s.contacts.size()));
+  if (!fresh) {
+    // The point the cell kept last step stays unless another is deeper by a
+    // margin: on a flat face the deepest point changes with every micrometre of
+    // jitter, and a contact that moves each step rocks a resting body.
+    const auto kept = b.kept_point.find(key);
+    const int current = b.point_of[it->second];
+    double advantage = c.depth_m - s.contacts[it->second].depth_m;
+    if (kept != b.kept_point.end() && kept->second == current) advantage -= kClusterHysteresis_m;
+    if (kept != b.kept_point.end() && kept->second == point) advantage += kClusterHysteresis_m;
+    if (advantage <= 0) {
+      keep_in_reserve(c, point, p_W);
+      return;
+    }
+    keep_in_reserve(s.contacts[it->second], current, b.points[it->second]);
+    s.contacts[it->second] = warm_started;
+    b.points[it->second] = p_W;
+    b.touches[it->second] = touch;
+    b.point_of[it->second] = point;
+    return;
+  }
+  s.contacts.push_back(warm_started);
+  b.points.push_back(p_W);
+  b.touches.push_back(touch);
+  b.point_of.push_back(point);
+  b.keys.push_back(key);
+}
+
+// The same for hands and deformable objects: the body's points against every
+// static and rigid object (then, for hands, against the deformable objects),
+// rigid bodies touched joining the body's implicit system with their supports.
+void World::collide(SoftBody& b) {
+  HandState& s = *b.state;
+  s.contacts.clear();
+  s.reserve_contacts.clear();
+  b.reserve_point.clear();
+  b.reserve_p_W.clear();
+  s.bodies.clear();
+  s.supports.clear();
+  b.kept_point.clear();
+  for (size_t k = 0; k < b.keys.size(); ++k) b.kept_point[b.keys[k]] = b.point_of[k];
+  b.keys.clear();
+  b.point_of.clear();
+  b.points.clear();
+  b.touches.clear();
+  std::unordered_map<std::uint64_t, int> cluster;
+  if (b.hand >= 0 && !options_.hand_contacts) return;
+  const TetMesh& mesh = b.model->mesh();
+  const std::vector<int>& point_tet = *b.point_tet;
+  const std::vector<Eigen::Vector4d>& point_bary = *b.point_bary;
+  // Constraint contacts also take points just outside (speculative: the step may not cross the gap).
+  const double margin = constraint_contact_ ? kSpeculativeMargin_m : 0.0;
+  std::vector<int> body_of_object(rigid_ ? rigid_->num_objects() : 0, -1);
+  for (int g = 0; rigid_ && g < rigid_->num_objects(); ++g) {
+    dGeomID geom = rigid_->geom(g);
+    dReal aabb[6];
+    const bool bounded = dGeomGetClass(geom) != dPlaneClass;
+    if (bounded) dGeomGetAABB(geom, aabb);
+    for (size_t v = 0; v < point_tet.size(); ++v) {
+      const Tet& t = mesh.tets[point_tet[v]];
+      const Eigen::Vector4d& w = point_bary[v];
+      Eigen::Vector3d p = Eigen::Vector3d::Zero();
+      for (int k = 0; k < 4; ++k) p += w[k] * s.x.segment<3>(3 * t[k]);
+      LastContact& last = b.last[v];
+      // The box grown by the margin: a point just above a face is a speculative contact.
+      if (bounded && (p.x() < aabb[0] - margin || p.x() > aabb[1] + margin || p.y() < aabb[2] - margin ||
+                      p.y() > aabb[3] + margin || p.z() < aabb[4] - margin || p.z() > aabb[5] + margin)) {
+        if (last.object == g) last = LastContact{};
+        continue;
+      }
+      double depth;
+      Eigen::Vector3d n;
+      const Eigen::Vector3d entry = last.object == g ? last.n_W : Eigen::Vector3d::Zero();
+      if (!rigid_->penetration(g, p, depth, n, entry, margin)) {
+        if (last.object == g) last = LastContact{};
+        continue;
+      }
+      if (depth > 0) last = LastContact{g, n};
+      PointContact c;
+      c.tet = point_tet[v];
+      c.bary = w;
+      c.n_W = n;
+      c.depth_m = depth;
+      c.v_other_W = rigid_->point_velocity(g, p);
+      if (rigid_->is_dynamic(g)) {
+        // Dynamic bodies join this body's implicit system for the step.
+        if (body_of_object[g] < 0) {
+          body_of_object[g] = static_cast<int>(s.bodies.size());
+          s.bodies.push_back(rigid_->contact_body(g));
+          s.bodies.back().gravity_W = gravity_m_s2_;
+        }
+        c.body = body_of_object[g];
+      }
+      c.stiffness_n_m = options_.contact_stiffness_n_m;
+      c.damping_ns_m = options_.contact_damping_ns_m;
+      c.friction = std::sqrt(b.friction * rigid_->friction(g));
+      c.other = g;
+      c.constraint = constraint_contact_;
+      add_contact(b, c, static_cast<int>(v), p, g, DeformableTouch{}, cluster);
+    }
+  }
+  if (b.hand >= 0) collide_with_deformables(b, cluster);
+  if (b.hand >= 0 && hands_[b.hand]->query) collide_with_hands(b, cluster);
+  // The bodies touched bring their own contacts (table, other bodies) as supports.
+  std::vector<RigidWorld::BodyContact> found;
+  for (int g = 0; rigid_ && g < rigid_->num_objects(); ++g) {
+    if (body_of_object[g] < 0) continue;
+    rigid_->supports_of(g, found, kSpeculativeMargin_m);
+    for (const RigidWorld::BodyContact& bc : found) {
+      BodySupport support;
+      support.body = body_of_object[g];
+      support.p_W = bc.p_W;
+      support.n_W = bc.n_W;
+      support.depth_m = bc.depth_m;
+      support.friction = bc.friction;
+      support.v_other_W = rigid_->point_velocity(bc.other, bc.p_W);
+      s.supports.push_back(support);
+    }
+  }
+}
+
+// Hand skin points inside a deformable object's deformed surface (DeformedMeshQuery).
+// How the two bodies share a contact is in step_deformables().
+void World::collide_with_deformables(SoftBody& b, std::unordered_map<std::uint64_t, int>& cluster) {
+  HandState& s = *b.state;
+  const TetMesh& mesh = b.model->mesh();
+  const double margin = constraint_contact_ ? kSpeculativeMargin_m : 0.0;
+  const int first_key = rigid_ ? rigid_->num_objects() : 0;
+  for (int d = 0; d < num_deformables(); ++d) {
+    const DeformableObject& o = *deformables_[d];
+    if (!o.query || o.query->empty() || o.surface_bounds.isEmpty()) continue;
+    const Eigen::Vector3d grow = Eigen::Vector3d::Constant(margin);
+    const Eigen::AlignedBox3d box(o.surface_bounds.min() - grow, o.surface_bounds.max() + grow);
+    int proxy = -1;  // constraint contacts: the object's index in s.bodies
+    for (size_t v = 0; v < b.point_tet->size(); ++v) {
+      const Tet& t = mesh.tets[(*b.point_tet)[v]];
+      const Eigen::Vector4d& w = (*b.point_bary)[v];
+      Eigen::Vector3d p = Eigen::Vector3d::Zero();
+      for (int k = 0; k < 4; ++k) p += w[k] * s.x.segment<3>(3 * t[k]);
+      MeshPenetration pen;
+      if (!box.contains(p) || !o.query->penetration(p, margin, pen)) continue;
+      PointContact c;
+      c.tet = (*b.point_tet)[v];
+      c.bary = w;
+      c.n_W = pen.n_W;
+      c.depth_m = pen.depth_m;
+      const Tet& ot = o.body.mesh.tets[pen.tet];
+      for (int k = 0; k < 4; ++k) c.v_other_W += pen.bary[k] * o.state.v.segment<3>(3 * ot[k]);
+      c.stiffness_n_m = options_.contact_stiffness_n_m;
+      c.damping_ns_m = options_.contact_damping_ns_m;
+      c.friction = std::sqrt(b.friction * o.friction);
+      c.constraint = constraint_contact_;
+      if (constraint_contact_) {
+        if (proxy < 0) proxy = add_rigid_proxy(s, d);
+        c.body = proxy;
+      }
+      add_contact(b, c, static_cast<int>(v), p, first_key + d, DeformableTouch{d, pen.tet, pen.bary}, cluster);
+    }
+  }
+}
+
+// Every pair of hands' skin points in the other's flesh, found once for both
+// hands (collide_with_hands() makes their contacts), against every hand's
+// flesh where it is now.
+void World::find_hand_hits() {
+  hand_hits_.clear();
+  for (int h = 0; h < num_hands(); ++h) {
+    WorldHand& hand = *hands_[h];
+    if (!hand.query) continue;
+    hand.query->update(hand.state.x);
+    hand.skin_bounds.setEmpty();
+    for (size_t v = 0; v < hand.shape.skin_tet.size(); ++v)
+      hand.skin_bounds.extend(
+          embedded_at(hand.model->mesh(), hand.state.x, hand.shape.skin_tet[v], hand.shape.skin_bary[v]));
+  }
+  const double margin = constraint_contact_ ? kSpeculativeMargin_m : 0.0;
+  const Eigen::Vector3d grow = Eigen::Vector3d::Constant(margin);
+  for (int a = 0; a < num_hands(); ++a)
+    for (int o = a + 1; o < num_hands(); ++o) {
+      const WorldHand& A = *hands_[a];
+      const WorldHand& O = *hands_[o];
+      if (!A.query || !O.query || A.query->empty() || O.query->empty()) continue;
+      // Only points in both skins' boxes (grown by the margin) can touch: none for hands apart.
+      const Eigen::AlignedBox3d box_a(A.skin_bounds.min() - grow, A.skin_bounds.max() + grow);
+      const Eigen::AlignedBox3d box_o(O.skin_bounds.min() - grow, O.skin_bounds.max() + grow);
+      if (!box_a.intersects(box_o)) continue;
+      const Eigen::AlignedBox3d both = box_a.intersection(box_o);
+      for (const bool reversed : {false, true}) {
+        const int skin = reversed ? o : a, flesh = reversed ? a : o;
+        const WorldHand& S = *hands_[skin];
+        for (size_t v = 0; v < S.shape.skin_tet.size(); ++v) {
+          HandHit hit;
+          hit.skin = skin, hit.flesh = flesh, hit.vertex = static_cast<int>(v);
+          hit.p_W = embedded_at(S.model->mesh(), S.state.x, S.shape.skin_tet[v], S.shape.skin_bary[v]);
+          if (both.contains(hit.p_W) && hands_[flesh]->query->penetration(hit.p_W, margin, hit.pen))
+            hand_hits_.push_back(hit);
+        }
+      }
+    }
+}
+
+// Hand-hand contact of hand a with another hand o, both ways: a's skin points
+// in o's deformed flesh, and o's skin points in a's flesh (each hand's
+// DeformedMeshQuery), the latter a contact of a's flesh where the point is (the
+// query's tet and weights in a), normal reversed: the two surfaces face each
+// other there. The reaction of the first lies at o's tet and weights of a's
+// skin point, that of the second at o's skin point.
+// a meets o as two bodies of like inertia at the point meet (the hands are
+// mirror images of one flesh): at the midpoint of the two points, moving at
+// their mean velocity at the start of the step (the pair's centre of mass for
+// equal masses, which their contact cannot move), half the depth deep. The
+// other hand as a kinematic body instead (infinite inertia, as deformable
+// objects' penalty contacts have it) stopped a dead against it: o, taking the
+// whole impulse, was thrown back, or, answering implicitly, barely moved while
+// a bounced off; momentum was lost either way.
+//  - penalty contacts: o holds the same pairs the other way round, with twice
+//    the stiffness and damping over the half depth (the same force k d, and,
+//    for equal inertia, the force of one implicit solve of both hands): each
+//    hand's step is implicit in its own motion, and o's forces are the
+//    reactions of a's when the pair's mean velocity stays as it was (equal
+//    inertia at the point; exactly at rest). Handed over to o as external
+//    forces instead, a's forces left o's answer explicit in o, any mismatch
+//    between the inertias amplified k h^2 / m >> 1 times: the contacts
+//    chattered and never settled. See also anchor_hand_contacts().
+//  - constraint contacts: the lower-numbered hand a holds both ways of the
+//    pair, each point stopped at the mean velocity, and o takes the impulses
+//    whole (take_hand_reactions()): momentum passes exactly, the meeting is
+//    inelastic for equal inertia at the point, and the interface settles
+//    where the two hands' pushes balance (o gives way where a's impulse is
+//    more than it answers). Held by both hands, each against the midpoint as
+//    a wall, it stays wherever it is, the forces unbalanced. A point twice as
+//    heavy on a's side as on o's throws o back as fast as a came.
+void World::collide_with_hands(SoftBody& b, std::unordered_map<std::uint64_t, int>& cluster) {
+  const int a = b.hand;
+  const int first_key = (rigid_ ? rigid_->num_objects() : 0) + num_deformables();
+  for (const HandHit& hit : hand_hits_) {
+    if (hit.skin != a && hit.flesh != a) continue;
+    const bool reversed = hit.flesh == a;  // the other hand's skin point, in a's flesh
+    const int o = reversed ? hit.skin : hit.flesh;
+    if (constraint_contact_ && o < a) continue;  // the lower-numbered hand holds them
+    const WorldHand& skin = *hands_[hit.skin];
+    const WorldHand& flesh = *hands_[hit.flesh];
+    const int tet = skin.shape.skin_tet[hit.vertex];
+    const Eigen::Vector4d& w = skin.shape.skin_bary[hit.vertex];
+    const MeshPenetration& pen = hit.pen;
+    PointContact c;
+    DeformableTouch touch;  // the reaction's point in o
+    touch.hand = o;
+    touch.reversed = reversed;
+    if (!reversed) {  // a's skin point in o's flesh
+      c.tet = tet, c.bary = w, c.n_W = pen.n_W;
+      touch.tet = pen.tet, touch.bary = pen.bary;
+    } else {  // o's skin point in a's flesh
+      c.tet = pen.tet, c.bary = pen.bary, c.n_W = -pen.n_W;
+      touch.tet = tet, touch.bary = w;
+    }
+    // The two points, one in each hand, meet at their midpoint: it moves at their mean velocity.
+    c.v_other_W = 0.5 * (embedded_at(skin.model->mesh(), skin.state.v, tet, w) +
+                         embedded_at(flesh.model->mesh(), flesh.state.v, pen.tet, pen.bary));
+    c.depth_m = 0.5 * pen.depth_m;
+    c.stiffness_n_m = 2 * options_.contact_stiffness_n_m;
+    c.damping_ns_m = 2 * options_.contact_damping_ns_m;
+    c.friction = std::sqrt(skin.friction * flesh.friction);
+    c.constraint = constraint_contact_;
+    add_contact(b, c, hit.vertex, hit.p_W, first_key + 2 * o + (reversed ? 1 : 0), touch, cluster);
+  }
+}
+
+// A deformable object as the hand's constraint solve sees it: one rigid body
+// (its mass, its inertia at its current shape, the velocities that carry its
+// momentum) supported by the object's own contacts with static and rigid
+// geometry, so an impulse from the hand is sized for the object's inertia and
+// its support, as for a rigid body. Its solved motion is not used: the object's
+// own step takes the hand's impulses (step_deformables()).
+int World::add_rigid_proxy(HandState& s, int d) {
+  const int index = static_cast<int>(s.bodies.size());
+  s.bodies.push_back(rigid_proxy(*deformables_[d]));
+  s.bodies.back().gravity_W = gravity_m_s2_;
+  const SoftBody& own = soft_[num_hands() + d];
+  for (size_t k = 0; k < own.state->contacts.size(); ++k) {
+    const PointContact& c = own.state->contacts[k];
+    BodySupport support;
+    support.body = index;
+    support.p_W = own.points[k];
+    support.n_W = c.n_W;  // out of the support, into the object
+    support.depth_m = c.depth_m;
+    support.friction = c.friction;
+    support.v_other_W = c.body >= 0 ? rigid_->point_velocity(c.other, own.points[k]) : c.v_other_W;
+    s.supports.push_back(support);
+  }
+  return index;
+}
+
+void World::remember_impulses(SoftBody& b) {
+  // This step's impulses warm-start the next step's contacts in the same cells.
+  b.warm_impulse.clear();
+  for (size_t k = 0; k < b.keys.size(); ++k) b.warm_impulse[b.keys[k]] = b.state->contacts[k].f_W * step_dt_;
+}
+
+}  // namespace hapticd
