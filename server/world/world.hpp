@@ -21,7 +21,7 @@
 #include "hand_models/fem_hand.hpp"
 #include "hand_models/handle_linearization.hpp"
 #include "hand_models/hand_model.hpp"
-#include "hand_models/press_scenario.hpp"
+#include "hand_models/procedural_handles.hpp"
 #include "hand_models/procedural_hand.hpp"
 #include "server/world/deformable_object.hpp"
 #include "server/world/rigid_world.hpp"
