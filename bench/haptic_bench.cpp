@@ -13,7 +13,7 @@
 #include "resolution_bench.hpp"
 #include "soak_bench.hpp"
 #include "solvers_bench.hpp"
-#include "server/world/heap.hpp"
+#include "server/process_heap.hpp"
 #include "world_bench.hpp"
 
 int main(int argc, char** argv) {

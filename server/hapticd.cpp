@@ -18,7 +18,7 @@
 #include "protocol/key_file.hpp"
 #include "server/haptic/haptic_server.hpp"
 #include "server/haptic/visual_loop.hpp"
-#include "server/world/heap.hpp"
+#include "server/process_heap.hpp"
 #include "server/world/scene_loader.hpp"
 #include "server/world/world.hpp"
 

@@ -1,4 +1,4 @@
-#include "server/world/heap.hpp"
+#include "server/process_heap.hpp"
 
 #include <malloc.h>
 

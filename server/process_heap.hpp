@@ -1,5 +1,6 @@
 #pragma once
-// The visual step's large temporaries (the Schur complement's and the linearization's dense
+// A process-level setting of the executables (hapticd, haptic-bench), not of the libraries: the
+// visual step's large temporaries (the Schur complement's and the linearization's dense
 // tool-by-handle blocks: 1.3 MB each for a 1700-tet hand with 16 handles) are allocated and freed
 // every step. Left to glibc's defaults, each is a fresh mmap whose pages the kernel faults in and
 // zeroes again every time (with mlockall(MCL_FUTURE), at the mmap itself): on the 16-frame glove
