@@ -11,6 +11,7 @@
 #include <numbers>
 #include <vector>
 
+#include "box_scene.hpp"
 #include "server/offline/offline_run.hpp"
 #include "server/world/scene_loader.hpp"
 
@@ -96,21 +97,6 @@ TEST(LoopsOffline, DeviceSweptThroughFreeSpaceFeelsTheHandsInertiaAndIsPassive) 
   EXPECT_EQ(r.resets, 0);
 }
 
-// The stylus scene with one static box under the hand instead of its objects
-// (top face 1 cm below the hand's lowest point).
-SceneDesc static_box_scene() {
-  SceneDesc scene = load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json");
-  scene.objects.clear();
-  ObjectDesc box;
-  box.name = "box";
-  box.kind = BodyKind::static_body;
-  box.shape.type = ShapeType::box;
-  box.shape.size = {0.3, 0.3, 0.04};
-  box.pose.p_W = {0.08, 0.1, 0.847};
-  scene.objects.push_back(box);
-  return scene;
-}
-
 TEST(LoopsOffline, StylusPressedOnAStaticBoxFeelsTheSeriesStiffnessOfCouplingAndHand) {
   // Pressed 1.2 cm (device space) and settled, then 1 mm deeper and settled: the
   // rendered stiffness is the device-side coupling in series with the hand on the
@@ -119,7 +105,7 @@ TEST(LoopsOffline, StylusPressedOnAStaticBoxFeelsTheSeriesStiffnessOfCouplingAnd
   const double scale = 2.0, k_dev = 1000.0;
   const LoopRun r = run_loops(
       6.0, [](double t) { return Eigen::Vector3d(0, 0, -0.012 * std::min(1.0, t) - 0.001 * std::clamp(2 * (t - 3), 0.0, 1.0)); },
-      0, static_box_scene(), {3.0, 5.99});
+      0, test::static_box_scene(), {3.0, 5.99});
   ASSERT_EQ(r.settled.size(), 2u);
   const Settled &a = r.settled[0], &b = r.settled[1];
   ASSERT_GT(a.f_D, 0.2) << "the stylus presses on the box";

@@ -10,6 +10,7 @@
 
 #include <new>
 
+#include "box_scene.hpp"
 #include "haptic_server_test_util.hpp"
 #include "server/haptic/visual_loop.hpp"
 #include "server/offline/offline_run.hpp"
@@ -73,29 +74,15 @@ TEST(VisualLoopTargets, TheServerStampsItsProxiesWithTheEndOfTheTickThatWroteThe
   EXPECT_GT(checked, 20);
 }
 
-// The stylus scene with one static box under the hand (top face 1 cm below the hand's lowest point).
-SceneDesc box_scene() {
-  SceneDesc scene = load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json");
-  scene.objects.clear();
-  ObjectDesc box;
-  box.name = "box";
-  box.kind = BodyKind::static_body;
-  box.shape.type = ShapeType::box;
-  box.shape.size = {0.3, 0.3, 0.04};
-  box.pose.p_W = {0.08, 0.1, 0.847};
-  scene.objects.push_back(box);
-  return scene;
-}
-
 // How far below its start the pressing client holds the stylus at t (device space): at the handle
 // for 0.2 s, then 1.5 cm down (3 cm in the world, the palm into the box) over 0.5 s, then held.
 double press_depth_m(double t_s) { return 0.015 * std::clamp((t_s - 0.2) / 0.5, 0.0, 1.0); }
 
 // hapticd's two real-time runners on their threads (HapticServer, VisualLoop around a VisualStep), on
-// box_scene().
+// test::static_box_scene().
 struct Threads {
   explicit Threads(double visual_hz = 60) {
-    SceneDesc scene = box_scene();
+    SceneDesc scene = test::static_box_scene();
     scene.visual_rate_hz = visual_hz;
     scene.dt_s = 1.0 / visual_hz;
     world = std::make_unique<World>(scene, served_world_options());
@@ -261,7 +248,7 @@ TEST(VisualLoopThreads, TheRealTimeAndTheLockstepRunnersRenderTheSamePress) {
 
   OfflineOptions options;
   options.visual_every_ticks = 17;
-  OfflineLoops loops(box_scene(), options);
+  OfflineLoops loops(test::static_box_scene(), options);
   Eigen::Vector3d start_D;
   Eigen::Quaterniond q_D;
   loops.frame_pose_at_handle(0, start_D, q_D);
