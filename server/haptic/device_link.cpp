@@ -41,6 +41,18 @@ DeviceLink make_device_link(const World& world, const DeviceDesc& d, double hapt
   return link;
 }
 
+void fill_welcome(const DeviceLink& link, std::uint64_t session_id, std::uint32_t rate_hz,
+                  std::span<const std::uint16_t> frame_ids, protocol::Welcome& out) {
+  out = protocol::Welcome{};
+  out.session_id = session_id;
+  out.rate_hz = rate_hz;
+  out.force_limit_n = static_cast<float>(link.limits.max_force_n);
+  out.torque_limit_nm = static_cast<float>(link.limits.max_torque_nm);
+  out.max_force_rate_n_per_s = static_cast<float>(link.limits.max_force_rate_n_s);
+  for (std::size_t j = 0; j < frame_ids.size(); ++j)
+    out.frame_map.push_back({frame_ids[j], static_cast<std::uint16_t>(j)});
+}
+
 int finger_of_frame(int frames, int j) {
   if (j <= 0 || j >= frames) return -1;
   return frames == 6 ? j - 1 : (j - 1) / 3;

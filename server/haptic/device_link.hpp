@@ -1,5 +1,7 @@
 #pragma once
 // A scene device bound to its world hand: what the haptic loop needs of it.
+#include <cstdint>
+#include <span>
 #include <string>
 
 #include "protocol/messages.hpp"
@@ -52,5 +54,10 @@ void project_onto_finger_lines(const DeviceLink& link, const HapticPose* device_
 // its handle's), the coupling gains and the output limits. Throws
 // std::runtime_error naming the device when its hand cannot be served.
 DeviceLink make_device_link(const World& world, const DeviceDesc& d, double haptic_rate_hz);
+
+// The Welcome that grants a session on `link`: its limits, the rate, and frame_ids[j] mapped to handle
+// j. Written in place, allocating nothing (the haptic thread's handshake calls it).
+void fill_welcome(const DeviceLink& link, std::uint64_t session_id, std::uint32_t rate_hz,
+                  std::span<const std::uint16_t> frame_ids, protocol::Welcome& out);
 
 }  // namespace hapticd

@@ -453,13 +453,8 @@ void HapticCore::on_hello(const protocol::Hello& hello, const protocol::Nonce* c
   s.last_seen_ns = now;
   ++stats_->sessions_opened;
   protocol::Welcome& w = reply_->welcome;
-  w = protocol::Welcome{};
-  w.session_id = s.id;
-  w.rate_hz = static_cast<std::uint32_t>(options_.haptic_rate_hz);
-  w.force_limit_n = static_cast<float>(link.limits.max_force_n);
-  w.torque_limit_nm = static_cast<float>(link.limits.max_torque_nm);
-  w.max_force_rate_n_per_s = static_cast<float>(link.limits.max_force_rate_n_s);
-  for (int j = 0; j < s.frames; ++j) w.frame_map.push_back({s.frame_id[j], static_cast<std::uint16_t>(j)});
+  fill_welcome(link, s.id, static_cast<std::uint32_t>(options_.haptic_rate_hz),
+               {s.frame_id, static_cast<std::size_t>(s.frames)}, w);
   if (auth_ && client_nonce) {
     const protocol::Nonce server_nonce = protocol::random_nonce();
     w.server_nonce.assign(std::span<const std::uint8_t>(server_nonce));

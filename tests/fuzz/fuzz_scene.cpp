@@ -80,17 +80,13 @@ void check_finite(const hapticd::World& world) {
       finding("non-finite body state", "step " + std::to_string(s.step));
 }
 
-// The Welcome the haptic server sends for this link (HapticServer's handshake), encoded.
+// The Welcome the haptic core sends for this link (fill_welcome, as its handshake), encoded.
 void check_welcome(const hapticd::DeviceLink& link, hapticd::protocol::Encoder& encoder) {
   namespace protocol = hapticd::protocol;
+  std::uint16_t ids[hapticd::kMaxHapticHandles];
+  for (int j = 0; j < link.handles; ++j) ids[j] = static_cast<std::uint16_t>(j);
   protocol::Welcome w;
-  w.session_id = 1;
-  w.rate_hz = 1000;
-  w.force_limit_n = static_cast<float>(link.limits.max_force_n);
-  w.torque_limit_nm = static_cast<float>(link.limits.max_torque_nm);
-  w.max_force_rate_n_per_s = static_cast<float>(link.limits.max_force_rate_n_s);
-  for (int j = 0; j < link.handles && j < static_cast<int>(protocol::kMaxFrames); ++j)
-    w.frame_map.push_back({static_cast<std::uint16_t>(j), static_cast<std::uint16_t>(j)});
+  hapticd::fill_welcome(link, 1, 1000, {ids, static_cast<std::size_t>(link.handles)}, w);
   const protocol::EncodeResult r = encoder.encode(w);
   if (!r.ok())
     finding("the Welcome of device " + link.name + " does not encode",

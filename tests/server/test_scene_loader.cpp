@@ -1014,15 +1014,11 @@ TEST_F(SceneLoaderTest, SceneAtTheEdgeOfEveryRangeBuildsStepsAndServes) {
   protocol::Encoder encoder;
   for (const DeviceDesc& d : scene.devices) {
     const DeviceLink link = make_device_link(world, d, 1000.0);
-    // As HapticServer's handshake fills it.
+    // As HapticCore's handshake fills it.
+    std::uint16_t ids[kMaxHapticHandles];
+    for (int j = 0; j < link.handles; ++j) ids[j] = static_cast<std::uint16_t>(j);
     protocol::Welcome w;
-    w.session_id = 1;
-    w.rate_hz = 1000;
-    w.force_limit_n = static_cast<float>(link.limits.max_force_n);
-    w.torque_limit_nm = static_cast<float>(link.limits.max_torque_nm);
-    w.max_force_rate_n_per_s = static_cast<float>(link.limits.max_force_rate_n_s);
-    for (int j = 0; j < link.handles; ++j)
-      w.frame_map.push_back({static_cast<std::uint16_t>(j), static_cast<std::uint16_t>(j)});
+    fill_welcome(link, 1, 1000, {ids, static_cast<std::size_t>(link.handles)}, w);
     const protocol::EncodeResult r = encoder.encode(w);
     EXPECT_TRUE(r.ok()) << d.name << ": " << protocol::to_string(r.reason);
   }
