@@ -61,7 +61,6 @@ void VisualLoop::run(const std::atomic<bool>& stop) {
       // Nothing of this step is published; the world restarts from the proxies at the clock.
       step_.recover();
       ++stats_.faults;
-      faults_.store(stats_.faults, std::memory_order_relaxed);
       dt = period;
       world_time_s = 1e-9 * static_cast<double>(protocol::now_ns() - start);
     }

@@ -41,9 +41,8 @@ class VisualLoop {
   VisualLoop(VisualStep& step, double rate_hz, VisualReport* report = nullptr,
              std::function<void(const std::string&)> on_fault = {});
   void run(const std::atomic<bool>& stop);
-  // Readable after run() returned; `faults` also while it runs.
+  // Readable after run() returned.
   const VisualStats& stats() const { return stats_; }
-  long faults() const { return faults_.load(std::memory_order_relaxed); }
 
  private:
   VisualStep& step_;
@@ -51,7 +50,6 @@ class VisualLoop {
   VisualReport* report_;
   std::function<void(const std::string&)> on_fault_;
   VisualStats stats_;
-  std::atomic<long> faults_{0};
 };
 
 }  // namespace hapticd

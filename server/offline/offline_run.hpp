@@ -106,7 +106,6 @@ class OfflineLoops {
   // The session's proxies (as the haptic tick left them).
   const ProxyHand& proxy() const;
   const OfflineOptions& options() const { return options_; }
-  const ServerStats& server_stats() const { return core_->stats(); }
   // Proxy resets plus world resets.
   long resets() const;
   // Timings so far (sorts copies of the samples: not for the hot path).
