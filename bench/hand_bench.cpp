@@ -30,10 +30,10 @@ void run_hand_bench(const HandBenchArgs& a) {
   HandPressOptions o;
   o.tets = a.tets;
   o.handles = a.handles;
-  o.solver = parse_solver_kind(a.solver);
+  o.solver = hand::parse_solver_kind(a.solver);
   o.solver_options.cg_tolerance = a.cg_tolerance;
   o.solver_options.lagged_tolerance = a.lagged_tolerance;
-  o.solver_options.ordering = parse_ordering(a.ordering);
+  o.solver_options.ordering = hand::parse_ordering(a.ordering);
   o.solver_options.supernodal = !a.simplicial;
   o.steps = a.steps;
   o.warmup = a.warmup;

@@ -21,14 +21,14 @@ double relative_error(const Eigen::VectorXd& h, const Eigen::VectorXd& t, const 
 }  // namespace
 
 HandPressRun run_hand_press(const HandPressOptions& o) {
-  PressScenarioOptions scenario_options;
+  hand::PressScenarioOptions scenario_options;
   scenario_options.target_tets = o.tets;
   scenario_options.handles = o.handles;
-  PressScenario scene = make_press_scenario(scenario_options, o.config);
-  const HandModel& model = *scene.model;
+  hand::PressScenario scene = make_press_scenario(scenario_options, o.config);
+  const hand::HandModel& model = *scene.model;
   auto solver = make_solver(o.solver, o.solver_options);
-  auto reference = make_solver(SolverKind::monolithic);
-  const bool compare = o.solver != SolverKind::monolithic && o.error_every > 0;
+  auto reference = make_solver(hand::SolverKind::monolithic);
+  const bool compare = o.solver != hand::SolverKind::monolithic && o.error_every > 0;
 
   HandPressRun run;
   run.tets = model.fem().num_tets();
@@ -45,16 +45,16 @@ HandPressRun run_hand_press(const HandPressOptions& o) {
 
   for (int k = 0; k < o.warmup + o.steps; ++k) {
     scene.drive((k + 1) * run.dt_s);
-    const StepStatus status = step(model, scene.state, *solver);
+    const hand::StepStatus status = step(model, scene.state, *solver);
     if (k < o.warmup) continue;
-    const StepTimings& t = scene.state.timings;
+    const hand::StepTimings& t = scene.state.timings;
     run.total.push_back(t.total_ms);
     run.assembly.push_back(t.assembly_ms);
     run.factor.push_back(t.factor_ms);
     run.schur.push_back(t.schur_ms);
     run.solve.push_back(t.solve_ms);
     run.iterations.push_back(static_cast<double>(t.iterations));
-    run.factorizations += t.factor_ms > 0 && o.solver != SolverKind::schur_cg;
+    run.factorizations += t.factor_ms > 0 && o.solver != hand::SolverKind::schur_cg;
     run.floor_contacts_max = std::max(run.floor_contacts_max, scene.state.floor_contacts);
     if (o.record_force) {
       const Eigen::VectorXd W = coupling_wrench(model, scene.state.x, scene.state.v, scene.state.handles);
@@ -63,10 +63,10 @@ HandPressRun run_hand_press(const HandPressOptions& o) {
       run.f_H_N.push_back(f);
     }
     const int i = k - o.warmup;
-    if (compare && status == StepStatus::ok && i % o.error_every == 0) {
+    if (compare && status == hand::StepStatus::ok && i % o.error_every == 0) {
       // Same system, solved by the reference: the solver's own error this step.
       Eigen::VectorXd v_h, v_t;
-      SolveReport r;
+      hand::SolveReport r;
       if (reference->solve(scene.state.system, v_h, v_t, r))
         run.errors.push_back(relative_error(scene.state.v_h_next, scene.state.v_t_next, v_h, v_t));
     }

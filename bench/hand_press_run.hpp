@@ -14,9 +14,9 @@ namespace hapticd::bench {
 struct HandPressOptions {
   int tets = 1700;  // target tet count of the procedural hand
   int handles = 1;
-  HandConfig config;  // make_press_scenario fills the handles, density and floor
-  SolverKind solver = SolverKind::schur_cholmod;
-  SolverOptions solver_options;
+  hand::HandConfig config;  // make_press_scenario fills the handles, density and floor
+  hand::SolverKind solver = hand::SolverKind::schur_cholmod;
+  hand::SolverOptions solver_options;
   int steps = 200;  // measured steps
   int warmup = 10;  // unmeasured steps first (not timed, not compared, no force recorded)
   // Compare with the monolithic solve every K measured steps (0: never; never for the monolithic solver).

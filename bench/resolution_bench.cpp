@@ -52,9 +52,9 @@ struct ResolutionArgs {
 // is the same material on the same floor: floor stiffness and damping per node times
 // (h / h_1700)^2, coupling times (h / h_1700)^3, h the grid spacing, h_1700 that of the 1700-tet
 // hand (where the defaults are used). --per-node-springs runs the hand suite's springs as they are.
-HandConfig scaled_config(int target_tets) {
-  HandConfig c;
-  const double s = hand_spacing_for_tets(target_tets) / hand_spacing_for_tets(1700);
+hand::HandConfig scaled_config(int target_tets) {
+  hand::HandConfig c;
+  const double s = hand::hand_spacing_for_tets(target_tets) / hand::hand_spacing_for_tets(1700);
   c.floor.stiffness_n_m *= s * s;
   c.floor.damping_ns_m *= s * s;
   c.coupling.stiffness_n_m *= s * s * s;
@@ -90,7 +90,7 @@ void run_resolution_bench(const ResolutionArgs& a) {
   for (int target : sizes) {
     HandPressOptions o;
     o.tets = target;
-    o.solver = parse_solver_kind(a.solver);
+    o.solver = hand::parse_solver_kind(a.solver);
     if (!a.per_node_springs) o.config = scaled_config(target);
     o.steps = steps;
     o.warmup = 0;  // the press from rest, every step recorded

@@ -61,16 +61,16 @@ int steps_for(const std::string& size, int tets) {
 }
 
 struct Variant {
-  SolverKind kind;
+  hand::SolverKind kind;
   double cg_tolerance;  // NaN: not CG
 };
 
 std::vector<Variant> variants() {
   constexpr double none = std::numeric_limits<double>::quiet_NaN();
-  std::vector<Variant> v = {{SolverKind::monolithic, none}};  // first: the baseline of the rows after it
-  for (double tol : {1e-2, 1e-4, 1e-6, 1e-8, 1e-10, 1e-12}) v.push_back({SolverKind::schur_cg, tol});
-  v.push_back({SolverKind::schur_cholmod, none});
-  v.push_back({SolverKind::schur_lagged, none});
+  std::vector<Variant> v = {{hand::SolverKind::monolithic, none}};  // first: the baseline of the rows after it
+  for (double tol : {1e-2, 1e-4, 1e-6, 1e-8, 1e-10, 1e-12}) v.push_back({hand::SolverKind::schur_cg, tol});
+  v.push_back({hand::SolverKind::schur_cholmod, none});
+  v.push_back({hand::SolverKind::schur_lagged, none});
   return v;
 }
 
@@ -82,7 +82,7 @@ constexpr const char* kErrorDefinition =
 void run_solvers_bench(const SolversArgs& a) {
   const Machine machine = describe_machine();
   const std::vector<int> sizes = a.tets.empty() ? sizes_of(a.size) : a.tets;
-  const SolverOptions defaults;
+  const hand::SolverOptions defaults;
   nlohmann::json rows = nlohmann::json::array();
   double dt_s = 0;
   std::printf("Hand pressed into a floor by its palm handle; error: max over steps of the step's relative error "
@@ -95,7 +95,7 @@ void run_solvers_bench(const SolversArgs& a) {
       HandPressOptions o;
       o.tets = target;
       o.solver = v.kind;
-      if (v.kind == SolverKind::schur_cg) o.solver_options.cg_tolerance = v.cg_tolerance;
+      if (v.kind == hand::SolverKind::schur_cg) o.solver_options.cg_tolerance = v.cg_tolerance;
       o.steps = a.steps > 0 ? a.steps : steps_for(a.size, target);
       o.warmup = a.warmup;
       o.error_every = 1;
@@ -103,13 +103,13 @@ void run_solvers_bench(const SolversArgs& a) {
       const HandPressRun run = run_hand_press(o);
       dt_s = run.dt_s;
       const double step_ms = median(run.total);
-      if (v.kind == SolverKind::monolithic) monolithic_ms = step_ms;
-      const double error = v.kind == SolverKind::monolithic ? 0.0
+      if (v.kind == hand::SolverKind::monolithic) monolithic_ms = step_ms;
+      const double error = v.kind == hand::SolverKind::monolithic ? 0.0
                            : run.errors.empty()              ? std::numeric_limits<double>::quiet_NaN()
                                                              : *std::max_element(run.errors.begin(), run.errors.end());
-      const double error_median = v.kind == SolverKind::monolithic ? 0.0 : median(run.errors);
+      const double error_median = v.kind == hand::SolverKind::monolithic ? 0.0 : median(run.errors);
       const double speedup = monolithic_ms / step_ms;
-      const bool cg = v.kind == SolverKind::schur_cg;
+      const bool cg = v.kind == hand::SolverKind::schur_cg;
       // JSON has no NaN: a run with no successful compared step stores null.
       auto number = [](double x) { return std::isfinite(x) ? nlohmann::json(x) : nlohmann::json(nullptr); };
       rows.push_back({{"tets", run.tets},

@@ -59,7 +59,7 @@ std::vector<GloveScript> glove_scripts(const SceneDesc& scene, const World& worl
     GloveScript g;
     g.hand = world.find_hand(d.hand);
     g.link = make_device_link(world, d, 1000.0);
-    const HandleState& palm = world.hand(g.hand).state.handles[0];
+    const hand::HandleState& palm = world.hand(g.hand).state.handles[0];
     Eigen::Vector3d palm_D;
     Eigen::Quaterniond q_D;
     g.link.map.to_device(0, {palm.p_WH, palm.q_WH}, palm_D, q_D);
@@ -70,13 +70,13 @@ std::vector<GloveScript> glove_scripts(const SceneDesc& scene, const World& worl
   return out;
 }
 
-void set_glove_targets(const GloveScript& g, double t, HandState& state) {
+void set_glove_targets(const GloveScript& g, double t, hand::HandState& state) {
   const sim::RigidPose palm{to_eigen(g.trajectory.palm_position(t)), g.trajectory.palm_orientation()};
-  const auto frames = sim::glove_frame_poses(skeleton_pose(HandJointAngles::from_vector(g.trajectory.angles(t)), g.link.left),
+  const auto frames = sim::glove_frame_poses(hand::skeleton_pose(hand::HandJointAngles::from_vector(g.trajectory.angles(t)), g.link.left),
                                         palm, g.link.handles);
   for (int j = 0; j < g.link.handles; ++j) {
     const HapticPose pose = g.link.map.to_world(j, frames[j].p_m, frames[j].q);
-    HandleTarget target;
+    hand::HandleTarget target;
     target.p_W = pose.p_W;
     target.q_W = pose.q_W;
     set_target(state, j, target);
@@ -91,8 +91,8 @@ RunStats run(const SceneDesc& scene, WorldOptions options, int steps) {
   options.linearize = false;  // the model is the coming step's, built after each step as the server does
   World world(scene, options);
   const std::vector<GloveScript> gloves = glove_scripts(scene, world);
-  HandleLinearization model;
-  std::vector<std::vector<HandleState>> start;
+  hand::HandleLinearization model;
+  std::vector<std::vector<hand::HandleState>> start;
   for (int h = 0; h < world.num_hands(); ++h) start.push_back(world.hand(h).state.handles);
   Eigen::Vector3d goal = start.empty() ? Eigen::Vector3d::Zero() : start[0][0].p_WH;
   for (const ObjectDesc& o : scene.objects) {
@@ -137,18 +137,18 @@ RunStats run(const SceneDesc& scene, WorldOptions options, int steps) {
         continue;
       }
       for (size_t j = 0; j < start[h].size(); ++j) {
-        HandleTarget target;
+        hand::HandleTarget target;
         target.p_W = start[h][j].p_WH + approach(t) + stroke;
         target.q_W = start[h][j].q_WH;
         set_target(world.hand(h).state, static_cast<int>(j), target);
       }
     }
-    const HandleLinearization previous = model;
+    const hand::HandleLinearization previous = model;
     world.step();
     const auto t_model = std::chrono::steady_clock::now();
     for (int h = 0; h < world.num_hands(); ++h) {
       WorldHand& hand = world.hand(h);
-      HandleLinearization lin;
+      hand::HandleLinearization lin;
       linearize_next_step(*hand.model, hand.state, *hand.solver, lin);
       if (h == 0) model = lin;
     }
@@ -156,7 +156,7 @@ RunStats run(const SceneDesc& scene, WorldOptions options, int steps) {
     const WorldSnapshot& s = world.snapshot();
     if (k < 10) continue;  // warm-up
     if (previous.K.size() > 0 && world.num_hands() > 0) {
-      const HandState& hs = world.hand(0).state;
+      const hand::HandState& hs = world.hand(0).state;
       const Eigen::VectorXd predicted = previous.evaluate(hs.handles),
                             actual = coupling_wrench(*world.hand(0).model, hs.x, hs.v, hs.handles);
       double err = 0;
@@ -193,7 +193,7 @@ nlohmann::json to_json(const RunStats& r) {
 void run_world_bench(const WorldBenchArgs& a) {
   const SceneDesc scene = load_scene(a.scene);
   WorldOptions options;
-  options.solver = parse_solver_kind(a.solver);
+  options.solver = hand::parse_solver_kind(a.solver);
   const Machine machine = describe_machine();
   spdlog::info("world: {}, {} objects, {} hands, {} steps", scene.name, scene.objects.size(), scene.hands.size(),
                a.steps);

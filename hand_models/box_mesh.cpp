@@ -2,7 +2,7 @@
 
 #include <stdexcept>
 
-namespace hapticd {
+namespace hapticd::hand {
 
 const std::array<Tet, 6>& kuhn_cube_tets() {
   // One tet per path 0 -> 7 along the cube's edges (one axis at a time).
@@ -33,4 +33,4 @@ TetMesh make_box_mesh(const Eigen::Vector3d& size, const std::array<int, 3>& cel
   return mesh;
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

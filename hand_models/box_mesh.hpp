@@ -5,7 +5,7 @@
 
 #include "hand_models/tet_mesh.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 
 // Box [origin, origin + size] with cells[i] cells along axis i (each >= 1).
 TetMesh make_box_mesh(const Eigen::Vector3d& size, const std::array<int, 3>& cells,
@@ -14,4 +14,4 @@ TetMesh make_box_mesh(const Eigen::Vector3d& size, const std::array<int, 3>& cel
 // The six tets of the unit cube with corner index bits (x | y << 1 | z << 2).
 const std::array<Tet, 6>& kuhn_cube_tets();
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

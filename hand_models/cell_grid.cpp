@@ -6,7 +6,7 @@
 #include <unordered_map>
 #include <unordered_set>
 
-namespace hapticd::detail {
+namespace hapticd::hand::detail {
 
 using Eigen::Vector3i;
 
@@ -158,4 +158,4 @@ double spacing_for_tets(int target_tets, double volume, double h_min, double h_m
   return best_h;
 }
 
-}  // namespace hapticd::detail
+}  // namespace hapticd::hand::detail

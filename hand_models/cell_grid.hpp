@@ -13,7 +13,7 @@
 
 #include "hand_models/tet_mesh.hpp"
 
-namespace hapticd::detail {
+namespace hapticd::hand::detail {
 
 // Cell (i, j, k) spans origin + h * [i, i+1] x [j, j+1] x [k, k+1].
 struct CellGrid {
@@ -92,4 +92,4 @@ inline int kept_tet_count(const std::vector<char>& keep) {
 double spacing_for_tets(int target_tets, double volume, double h_min, double h_max, bool scan_if_stalled,
                         const std::function<int(double)>& count_tets);
 
-}  // namespace hapticd::detail
+}  // namespace hapticd::hand::detail

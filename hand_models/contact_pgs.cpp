@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 // Projects an impulse onto the friction cone: normal >= 0, |tangent| <= mu normal.
@@ -81,4 +81,4 @@ double contact_residual(const ContactProblem& p, const Eigen::VectorXd& lambda) 
   return worst;
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -9,7 +9,7 @@
 #include <Eigen/Core>
 #include <vector>
 
-namespace hapticd {
+namespace hapticd::hand {
 
 struct ContactProblem {
   Eigen::MatrixXd W;        // 3c x 3c, symmetric positive semi-definite, contact frames (n, t1, t2)
@@ -37,4 +37,4 @@ PgsResult solve_contacts_pgs(const ContactProblem& problem, const PgsOptions& op
 // scaled by W's diagonal for impulses): 0 for an exact solution.
 double contact_residual(const ContactProblem& problem, const Eigen::VectorXd& lambda);
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

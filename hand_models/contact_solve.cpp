@@ -5,7 +5,7 @@
 
 #include "hand_models/contact_pgs.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 // An orthonormal contact frame (n, t1, t2).
@@ -218,4 +218,4 @@ bool solve_constraint_contacts(const HandModel& model, HandState& s, CoupledSolv
   return true;
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

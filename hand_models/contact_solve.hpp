@@ -7,7 +7,7 @@
 #include "hand_models/coupled_solver.hpp"
 #include "hand_models/hand_model.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 
 // Constraint contacts on the solved free velocities: J (contact frames of the relative velocity,
 // sparse), A^-1 J^T by one block solve through the step's factorization, W = J A^-1 J^T, projected
@@ -19,4 +19,4 @@ namespace hapticd {
 bool solve_constraint_contacts(const HandModel& model, HandState& s, CoupledSolver& solver,
                                std::vector<Eigen::Vector3d>& impulses);
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

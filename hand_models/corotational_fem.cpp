@@ -6,7 +6,7 @@
 #include <stdexcept>
 #include <string>
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 Eigen::Matrix3d skew(const Eigen::Vector3d& a) {
@@ -221,4 +221,4 @@ Matrix12d CorotationalFem::element_exact_tangent(int e, const Eigen::VectorXd& x
   return K;
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

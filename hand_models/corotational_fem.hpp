@@ -7,7 +7,7 @@
 
 #include "hand_models/tet_mesh.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 
 // Soft-tissue defaults (E, nu of skin and fat in the tens of kPa and ~0.45;
 // density of the hand ~1070 kg/m^3); Rayleigh damping D = alpha M + beta K.
@@ -91,4 +91,4 @@ class CorotationalFem {
 // Polar rotation of F that is always a proper rotation (see compute_rotations).
 Eigen::Matrix3d rotation_of(const Eigen::Matrix3d& F);
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

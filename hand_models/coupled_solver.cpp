@@ -13,7 +13,7 @@
 extern "C" void omp_set_max_active_levels(int levels);
 extern "C" void omp_set_num_threads(int threads);
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 using Clock = std::chrono::steady_clock;
@@ -649,4 +649,4 @@ double relative_residual(const CoupledSystem& s, const Eigen::VectorXd& v_h, con
   return std::sqrt(r_h.squaredNorm() + r_t.squaredNorm()) / (b > 0 ? b : 1.0);
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

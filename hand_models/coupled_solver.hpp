@@ -17,7 +17,7 @@
 
 #include "hand_models/coupled_system.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 
 enum class SolverKind { monolithic, schur_cg, schur_cholmod, schur_lagged };
 // Fill-reducing ordering for CHOLMOD; `automatic` lets CHOLMOD try AMD and METIS and keep the best.
@@ -91,4 +91,4 @@ const char* to_string(SolverKind kind);
 Ordering parse_ordering(const std::string& name);
 const char* to_string(Ordering ordering);
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -7,7 +7,7 @@
 #include <Eigen/Core>
 #include <Eigen/SparseCore>
 
-namespace hapticd {
+namespace hapticd::hand {
 
 struct CoupledSystem {
   Eigen::SparseMatrix<double> A_t;                    // both triangles stored
@@ -23,4 +23,4 @@ struct CoupledSystem {
 // Residual of eq. 7, ||A v - b|| / ||b||.
 double relative_residual(const CoupledSystem& s, const Eigen::VectorXd& v_h, const Eigen::VectorXd& v_t);
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

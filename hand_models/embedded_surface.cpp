@@ -21,7 +21,7 @@
 #include "hand_models/mesh_io.hpp"
 #include "hand_models/text_reader.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 using Eigen::Vector3d;
@@ -427,4 +427,4 @@ EmbeddedBody load_embedded_body(const std::string& obj_path, const std::string& 
   return load_embedding(embed_path, load_tet_mesh(mesh_path), load_obj(obj_path));
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -19,7 +19,7 @@
 
 #include "hand_models/tet_mesh.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 
 struct SurfaceMesh {
   std::vector<Eigen::Vector3d> vertices;  // m
@@ -83,4 +83,4 @@ EmbeddedBody load_embedding(const std::string& path, TetMesh mesh, SurfaceMesh s
 EmbeddedBody load_embedded_body(const std::string& obj_path, const std::string& mesh_path,
                                 const std::string& embed_path);
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -2,7 +2,7 @@
 
 #include "hand_models/procedural_handles.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 
 HandleInfo FemHand::handle_info(int j, int tracked_frames) const {
   const RigidHandle& h = model->handles()[static_cast<std::size_t>(j)];
@@ -17,13 +17,13 @@ HandleInfo FemHand::handle_info(int j, int tracked_frames) const {
   return info;
 }
 
-bool FemHand::set_target(int j, const HandleTarget& target) { return hapticd::set_target(state, j, target); }
+bool FemHand::set_target(int j, const HandleTarget& target) { return hand::set_target(state, j, target); }
 
 void FemHand::place(const Eigen::Vector3d& p_W, const Eigen::Quaterniond& q_W) {
   place_hand(*model, state, p_W, q_W, 0);
 }
 
-void FemHand::step(HandleLinearization* model_out) { hapticd::step(*model, state, *solver, model_out); }
+void FemHand::step(HandleLinearization* model_out) { hand::step(*model, state, *solver, model_out); }
 
 void FemHand::recover(const Eigen::Vector3d& fallback_p_W, const Eigen::Quaterniond& fallback_q_W) {
   ++state.resets;
@@ -51,11 +51,11 @@ void FemHand::recover(const Eigen::Vector3d& fallback_p_W, const Eigen::Quaterni
 }
 
 bool FemHand::linearize_next_step(HandleLinearization& out) {
-  return hapticd::linearize_next_step(*model, state, *solver, out);
+  return hand::linearize_next_step(*model, state, *solver, out);
 }
 
 Eigen::VectorXd FemHand::coupling_wrench() const {
-  return hapticd::coupling_wrench(*model, state.x, state.v, state.handles);
+  return hand::coupling_wrench(*model, state.x, state.v, state.handles);
 }
 
 Eigen::Vector3d FemHand::skin_point(int i) const {
@@ -67,4 +67,4 @@ int FemHand::skin_handle(int i) const {
   return i >= 0 && i < static_cast<int>(skin_handles.size()) ? skin_handles[static_cast<std::size_t>(i)] : -1;
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

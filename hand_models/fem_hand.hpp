@@ -11,7 +11,7 @@
 #include "hand_models/hand_model.hpp"
 #include "hand_models/procedural_hand.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 
 class FemHand : public Hand {
  public:
@@ -43,4 +43,4 @@ class FemHand : public Hand {
   double friction = 0.5;
 };
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

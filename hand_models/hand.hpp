@@ -18,7 +18,7 @@
 #include "hand_models/handle_linearization.hpp"
 #include "hand_models/rigid_handle.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 
 // A handle as a device link sees it: the rigid body a device frame drives.
 struct HandleInfo {
@@ -72,4 +72,4 @@ class Hand {
   virtual int skin_handle(int i) const = 0;
 };
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

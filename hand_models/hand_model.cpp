@@ -10,7 +10,7 @@
 #include "hand_models/coupled_solver.hpp"
 #include "hand_models/handle_linearization.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 using Clock = std::chrono::steady_clock;
@@ -586,4 +586,4 @@ Eigen::Vector3d linear_momentum(const HandModel& model, const HandState& s) {
   return p;
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -15,7 +15,7 @@
 #include "hand_models/rigid_handle.hpp"
 #include "hand_models/tet_mesh.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 
 class CoupledSolver;
 struct HandleLinearization;
@@ -287,4 +287,4 @@ double total_energy(const HandModel& model, const HandState& state);
 // Linear momentum of nodes and handles, kg m/s.
 Eigen::Vector3d linear_momentum(const HandModel& model, const HandState& state);
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -2,7 +2,7 @@
 
 #include <Eigen/Dense>
 
-namespace hapticd {
+namespace hapticd::hand {
 
 Eigen::VectorXd coupling_wrench(const HandModel& model, const Eigen::VectorXd& x_t, const Eigen::VectorXd& v_t,
                                 const std::vector<HandleState>& handles) {
@@ -181,4 +181,4 @@ bool linearize_next_step(const HandModel& model, HandState& s, CoupledSolver& so
   return ok;
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -14,7 +14,7 @@
 #include "hand_models/coupled_solver.hpp"
 #include "hand_models/hand_model.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 
 struct HandleLinearization {
   Eigen::VectorXd F0;  // 6m: force (N) and torque (N m) on each handle at (x0, v0)
@@ -49,4 +49,4 @@ bool linearize_next_step(const HandModel& model, HandState& state, CoupledSolver
 Eigen::VectorXd coupling_wrench(const HandModel& model, const Eigen::VectorXd& x_t, const Eigen::VectorXd& v_t,
                                 const std::vector<HandleState>& handles);
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -13,7 +13,7 @@
 
 #include "hand_models/text_reader.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 // Declared counts are untrusted until their lines have actually been read.
@@ -413,4 +413,4 @@ TetMesh load_tet_mesh(const std::string& path) {
               "extension (TetGen <name>.node + <name>.ele)");
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -4,7 +4,7 @@
 
 #include "hand_models/tet_mesh.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 
 // Every loader returns a finalized mesh (see finalize_mesh) without orphan nodes;
 // nodes keep their file order. Every failure is a MeshError whose message starts
@@ -24,4 +24,4 @@ TetMesh load_gmsh(const std::string& path);
 // "<base>.node" + "<base>.ele".
 TetMesh load_tet_mesh(const std::string& path);
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -7,7 +7,7 @@
 
 #include "hand_models/skeleton/hand_skeleton.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 
 PressScenario make_press_scenario(const PressScenarioOptions& options, HandConfig config) {
   PressScenario s;
@@ -37,4 +37,4 @@ void PressScenario::drive(double t) {
   }
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -9,7 +9,7 @@
 #include "hand_models/procedural_hand.hpp"
 #include "hand_models/skeleton/hand_skeleton.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 
 struct PressScenarioOptions {
   int target_tets = 1700;
@@ -31,4 +31,4 @@ struct PressScenario {
 
 PressScenario make_press_scenario(const PressScenarioOptions& options, HandConfig config = {});
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -13,7 +13,7 @@
 #include <unordered_map>
 #include <vector>
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 using Eigen::Vector3d;
@@ -635,4 +635,4 @@ double embedding_density(const ProceduralHand& hand, double density_kg_m3) {
   return density_kg_m3 * skin / total_volume(hand.mesh);
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -65,7 +65,7 @@
 #include <string>
 #include <vector>
 
-namespace hapticd {
+namespace hapticd::hand {
 
 struct ProceduralHandOptions {
   int target_tets = 1700;  // used when spacing <= 0: spacing chosen so the tet count is near this
@@ -135,4 +135,4 @@ double embedding_density(const ProceduralHand& hand, double density_kg_m3);
 // "thumb" = 0, "index" = 1, "middle" = 2, "ring" = 3, "little" = 4; -1 otherwise.
 int finger_index(const std::string& finger);
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

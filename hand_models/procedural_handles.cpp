@@ -5,7 +5,7 @@
 #include <numbers>
 #include <stdexcept>
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 // Phalanx indices of handles 1 .. m - 1.
@@ -179,4 +179,4 @@ std::vector<HandleSpec> procedural_handles(const ProceduralHand& hand, int m) {
   return specs;
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -8,7 +8,7 @@
 #include "hand_models/procedural_hand.hpp"
 #include "hand_models/skeleton/hand_skeleton.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 
 // Handle seeds for m tracked frames on a procedural hand: 1 = palm (a stylus),
 // 6 = palm + five distal phalanges, 16 = palm + 15 phalanges, otherwise palm +
@@ -45,4 +45,4 @@ std::vector<HandleTarget> posture_targets(const ProceduralHand& hand, const Hand
                                           const HandJointAngles& angles, const Eigen::Vector3d& p_W,
                                           const Eigen::Quaterniond& q_W, bool left);
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -3,7 +3,7 @@
 #include <cmath>
 #include <stdexcept>
 
-namespace hapticd {
+namespace hapticd::hand {
 
 Eigen::Matrix3d skew(const Eigen::Vector3d& a) {
   Eigen::Matrix3d m;
@@ -128,4 +128,4 @@ Eigen::Vector3d rotation_difference(const Eigen::Quaterniond& q_a, const Eigen::
   return aa.angle() * aa.axis();
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -13,7 +13,7 @@
 
 #include "hand_models/tet_mesh.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 
 using Vector6d = Eigen::Matrix<double, 6, 1>;
 using Matrix6d = Eigen::Matrix<double, 6, 6>;
@@ -81,4 +81,4 @@ Eigen::Quaterniond rotate_by(const Eigen::Quaterniond& q, const Eigen::Vector3d&
 // Rotation vector of q_a q_b^-1 (shortest way), rad.
 Eigen::Vector3d rotation_difference(const Eigen::Quaterniond& q_a, const Eigen::Quaterniond& q_b);
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

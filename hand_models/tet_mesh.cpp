@@ -7,7 +7,7 @@
 #include <map>
 #include <sstream>
 
-namespace hapticd {
+namespace hapticd::hand {
 
 double signed_volume(const Eigen::Vector3d& a, const Eigen::Vector3d& b,
                      const Eigen::Vector3d& c, const Eigen::Vector3d& d) {
@@ -79,4 +79,4 @@ double total_volume(const TetMesh& mesh) {
   return v;
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -7,7 +7,7 @@
 #include <string>
 #include <vector>
 
-namespace hapticd {
+namespace hapticd::hand {
 
 // Any problem with a mesh (file syntax, inconsistent counts, degenerate
 // elements). The message names the file and line where one applies.
@@ -52,4 +52,4 @@ inline Eigen::Vector3d embedded_value(const Tet& t, const Eigen::Vector4d& w, co
   return u;
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

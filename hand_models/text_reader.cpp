@@ -10,7 +10,7 @@
 
 #include "hand_models/tet_mesh.hpp"
 
-namespace hapticd::detail {
+namespace hapticd::hand::detail {
 
 void fail_at(const std::string& path, long long line, const std::string& msg) {
   throw MeshError(path + ":" + std::to_string(line) + ": " + msg);
@@ -103,4 +103,4 @@ double parse_real(const TextReader& r, std::string_view s, const std::string& wh
   return v;
 }
 
-}  // namespace hapticd::detail
+}  // namespace hapticd::hand::detail

@@ -8,7 +8,7 @@
 #include <string_view>
 #include <vector>
 
-namespace hapticd::detail {
+namespace hapticd::hand::detail {
 
 [[noreturn]] void fail_at(const std::string& path, long long line, const std::string& msg);
 
@@ -50,4 +50,4 @@ long long parse_int(const TextReader& r, std::string_view s, const std::string& 
 // The whole token as a double (a leading '+' allowed); finite: reject inf and nan.
 double parse_real(const TextReader& r, std::string_view s, const std::string& what, bool finite = true);
 
-}  // namespace hapticd::detail
+}  // namespace hapticd::hand::detail

@@ -12,16 +12,16 @@
 int main(int argc, char** argv) {
   using namespace hapticd;
   try {
-    PressScenarioOptions options;
+    hand::PressScenarioOptions options;
     options.target_tets = argc > 1 ? std::atoi(argv[1]) : 1700;
     if (options.target_tets < 50 || options.target_tets > 200000) {
       std::fprintf(stderr, "usage: hand-demo [target tets, 50..200000]\n");
       return 2;
     }
-    PressScenario scene = make_press_scenario(options);
-    const HandModel& model = *scene.model;
-    auto solver = make_solver(SolverKind::schur_cholmod);
-    auto reference = make_solver(SolverKind::monolithic);
+    hand::PressScenario scene = make_press_scenario(options);
+    const hand::HandModel& model = *scene.model;
+    auto solver = make_solver(hand::SolverKind::schur_cholmod);
+    auto reference = make_solver(hand::SolverKind::monolithic);
     std::printf("hand: %d tets, %d nodes, palm handle with %zu coupled nodes, dt %.1f ms; floor at z = %.3f m\n",
                 model.fem().num_tets(), model.num_nodes(), model.handles()[0].nodes.size(), 1e3 * model.config().dt_s,
                 model.config().floor.height_m);
@@ -34,7 +34,7 @@ int main(int argc, char** argv) {
       scene.drive(t);
       step(model, scene.state, *solver);
       Eigen::VectorXd v_h, v_t;
-      SolveReport r;
+      hand::SolveReport r;
       reference->solve(scene.state.system, v_h, v_t, r);
       const double err = std::sqrt((v_h - scene.state.v_h_next).squaredNorm() + (v_t - scene.state.v_t_next).squaredNorm()) /
                          std::sqrt(v_h.squaredNorm() + v_t.squaredNorm());

@@ -8,10 +8,10 @@ std::string glove_frame_name(int frames, int frame) {
   if (frame == 0) return "palm";
   const int phalanx = glove_frame_phalanx(frames, frame);
   if (phalanx < 0) return "?";
-  return std::string(finger_name(phalanx / 3)) + "_" + phalanx_name(phalanx % 3);
+  return std::string(hand::finger_name(phalanx / 3)) + "_" + hand::phalanx_name(phalanx % 3);
 }
 
-std::array<RigidPose, kMaxGloveFrames> glove_frame_poses(const SkeletonPose& skeleton, const RigidPose& palm,
+std::array<RigidPose, kMaxGloveFrames> glove_frame_poses(const hand::SkeletonPose& skeleton, const RigidPose& palm,
                                                          int frames) {
   std::array<RigidPose, kMaxGloveFrames> poses{};
   poses[0] = palm;
@@ -24,8 +24,8 @@ std::array<RigidPose, kMaxGloveFrames> glove_frame_poses(const SkeletonPose& ske
   return poses;
 }
 
-std::array<PhalanxJacobian, kHandPhalanges> phalanx_jacobians(const HandJointAngles& angles,
-                                                              const SkeletonPose& skeleton, bool left) {
+std::array<PhalanxJacobian, hand::kHandPhalanges> phalanx_jacobians(const hand::HandJointAngles& angles,
+                                                              const hand::SkeletonPose& skeleton, bool left) {
   // Every joint of the skeleton turns the segments distal to it rigidly (hand_skeleton.cpp):
   //   abduction: the bone yaw psi, a turn of the whole finger about -z through the base joint
   //              (increasing psi swings the bone from +y toward +x);
@@ -36,8 +36,8 @@ std::array<PhalanxJacobian, kHandPhalanges> phalanx_jacobians(const HandJointAng
   // angular velocities, axial vectors, by det(M) M = -M; then a_L x (M c - M o) = M (a x (c - o))
   // with a_L = -M a, so the same formula holds with the mirrored axes and the mirrored points.
   const Eigen::Vector3d mirror_axial(1.0, -1.0, -1.0);  // -M, diagonal
-  std::array<PhalanxJacobian, kHandPhalanges> J;
-  for (int f = 0; f < kHandFingers; ++f) {
+  std::array<PhalanxJacobian, hand::kHandPhalanges> J;
+  for (int f = 0; f < hand::kHandFingers; ++f) {
     const double psi = angles.finger[f][0];
     std::array<Eigen::Vector3d, 4> axis = {
         Eigen::Vector3d(0.0, 0.0, -1.0), Eigen::Vector3d(-std::cos(psi), std::sin(psi), 0.0),
@@ -60,17 +60,17 @@ std::array<PhalanxJacobian, kHandPhalanges> phalanx_jacobians(const HandJointAng
   return J;
 }
 
-JointVector joint_torques(const std::array<PhalanxJacobian, kHandPhalanges>& jacobians,
-                          const std::array<Wrench6, kHandPhalanges>& wrenches_H) {
+JointVector joint_torques(const std::array<PhalanxJacobian, hand::kHandPhalanges>& jacobians,
+                          const std::array<Wrench6, hand::kHandPhalanges>& wrenches_H) {
   JointVector tau = JointVector::Zero();
-  for (int i = 0; i < kHandPhalanges; ++i) tau.segment<4>(4 * (i / 3)) += jacobians[i].transpose() * wrenches_H[i];
+  for (int i = 0; i < hand::kHandPhalanges; ++i) tau.segment<4>(4 * (i / 3)) += jacobians[i].transpose() * wrenches_H[i];
   return tau;
 }
 
 double step_joints(const GloveParams& params, JointState& state, const JointVector& q_C_rad,
                    const JointVector& qd_C_rad_s, const JointVector& tau_ext_n_m, double dt_s) noexcept {
   double work = 0.0;
-  for (int j = 0; j < kHandJointDofs; ++j) {
+  for (int j = 0; j < hand::kHandJointDofs; ++j) {
     const JointImpedance& p = params.of_dof(j);
     const double I = p.inertia_kg_m2, k = p.stiffness_n_m_per_rad, b = p.damping_n_m_s_per_rad;
     // I (w1 - w0) = dt [k (q_C - q0 - dt w1) + b (w_C - w1) + tau], solved for w1.

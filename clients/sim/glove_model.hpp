@@ -61,12 +61,12 @@
 namespace hapticd::sim {
 
 // The 20 joint values in HandJointAngles::vector() order (abduction, flexion 1, 2, 3 per finger).
-using JointVector = Eigen::Matrix<double, kHandJointDofs, 1>;
+using JointVector = Eigen::Matrix<double, hand::kHandJointDofs, 1>;
 
 inline constexpr int kGloveFramesAll = 16;  // palm + 15 phalanges
 inline constexpr int kGloveFramesTips = 6;  // palm + 5 distal phalanges
 inline constexpr int kMaxGloveFrames = 16;
-inline constexpr int kPalmGroup = kHandFingers;  // the palm after the five fingers in per-group figures
+inline constexpr int kPalmGroup = hand::kHandFingers;  // the palm after the five fingers in per-group figures
 
 // --- Tracked frames ------------------------------------------------------------------------------
 
@@ -96,7 +96,7 @@ struct RigidPose {
 
 // The poses in D of frames 0 .. frames-1 (the rest of the array is left as the identity), for the
 // skeleton posture `skeleton` (skeleton_pose() of the joint angles) and the palm pose `palm`.
-std::array<RigidPose, kMaxGloveFrames> glove_frame_poses(const SkeletonPose& skeleton, const RigidPose& palm,
+std::array<RigidPose, kMaxGloveFrames> glove_frame_poses(const hand::SkeletonPose& skeleton, const RigidPose& palm,
                                                          int frames);
 
 // Geometric Jacobian of each phalanx frame's origin (its segment centre) with respect to its own
@@ -105,14 +105,14 @@ std::array<RigidPose, kMaxGloveFrames> glove_frame_poses(const SkeletonPose& ske
 // move with the other fingers' joints, nor with the joints distal to it (those columns are zero).
 // `skeleton` must be skeleton_pose(angles, left).
 using PhalanxJacobian = Eigen::Matrix<double, 6, 4>;
-std::array<PhalanxJacobian, kHandPhalanges> phalanx_jacobians(const HandJointAngles& angles,
-                                                              const SkeletonPose& skeleton, bool left);
+std::array<PhalanxJacobian, hand::kHandPhalanges> phalanx_jacobians(const hand::HandJointAngles& angles,
+                                                              const hand::SkeletonPose& skeleton, bool left);
 
 // Joint torques (N m) of wrenches on the phalanx frames: tau = sum_i J_i^T [f_i; t_i], each wrench
 // = force at the frame's origin (N) and torque (N m), both in the hand frame.
 using Wrench6 = Eigen::Matrix<double, 6, 1>;
-JointVector joint_torques(const std::array<PhalanxJacobian, kHandPhalanges>& jacobians,
-                          const std::array<Wrench6, kHandPhalanges>& wrenches_H);
+JointVector joint_torques(const std::array<PhalanxJacobian, hand::kHandPhalanges>& jacobians,
+                          const std::array<Wrench6, hand::kHandPhalanges>& wrenches_H);
 
 // --- Joint impedance -----------------------------------------------------------------------------
 

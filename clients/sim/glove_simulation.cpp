@@ -20,7 +20,7 @@ GloveSimulation::GloveSimulation(GloveTrajectory trajectory, const GloveParams& 
     throw std::invalid_argument("a glove tracks 16 or 6 frames, not " + std::to_string(frames));
   joints_.q_rad = trajectory_.angles(0.0);
   palm_.p_DT_m = trajectory_.palm_position(0.0);
-  skeleton_ = skeleton_pose(HandJointAngles::from_vector(joints_.q_rad), left_);
+  skeleton_ = skeleton_pose(hand::HandJointAngles::from_vector(joints_.q_rad), left_);
 }
 
 RigidPose GloveSimulation::palm_pose() const noexcept {
@@ -38,14 +38,14 @@ bool GloveSimulation::in_contact() const noexcept {
 JointVector GloveSimulation::external_joint_torques() const noexcept {
   // The wrenches arrive in D; the Jacobians are in the hand frame: rotate by the palm's R^T.
   const Eigen::Matrix3d R_T = trajectory_.palm_orientation().toRotationMatrix().transpose();
-  std::array<Wrench6, kHandPhalanges> wrenches_H;
+  std::array<Wrench6, hand::kHandPhalanges> wrenches_H;
   for (Wrench6& w : wrenches_H) w.setZero();
   for (int id = 1; id < frames_; ++id) {
     const int i = glove_frame_phalanx(frames_, id);
     wrenches_H[i].head<3>() = R_T * to_eigen(f_N_[id]);
     wrenches_H[i].tail<3>() = R_T * to_eigen(t_Nm_[id]);
   }
-  return joint_torques(phalanx_jacobians(HandJointAngles::from_vector(joints_.q_rad), skeleton_, left_), wrenches_H);
+  return joint_torques(phalanx_jacobians(hand::HandJointAngles::from_vector(joints_.q_rad), skeleton_, left_), wrenches_H);
 }
 
 void GloveSimulation::advance() noexcept {
@@ -62,7 +62,7 @@ void GloveSimulation::advance() noexcept {
   const JointVector tau = external_joint_torques();
   energy_j_ += step_joints(params_, joints_, trajectory_.angles(t), trajectory_.angle_rates(t), tau, dt_s_);
   energy_j_ += step(params_.palm, palm_, trajectory_.palm_position(t), trajectory_.palm_velocity(t), f_N_[0], dt_s_);
-  skeleton_ = skeleton_pose(HandJointAngles::from_vector(joints_.q_rad), left_);
+  skeleton_ = skeleton_pose(hand::HandJointAngles::from_vector(joints_.q_rad), left_);
 }
 
 void GloveSimulation::set_wrench(int frame, Vec3d f_N, Vec3d t_Nm, bool in_contact) noexcept {
@@ -75,7 +75,7 @@ void GloveSimulation::set_wrench(int frame, Vec3d f_N, Vec3d t_Nm, bool in_conta
 void GloveSimulation::record_tick() noexcept {
   ++recorded_ticks_;
   const JointVector q_C = commanded_angles();
-  for (int f = 0; f < kHandFingers; ++f)
+  for (int f = 0; f < hand::kHandFingers; ++f)
     group_lag_max_rad_[f] = std::max(group_lag_max_rad_[f],
                                      (q_C.segment<4>(4 * f) - joints_.q_rad.segment<4>(4 * f)).cwiseAbs().maxCoeff());
   std::array<bool, kGroups> group_contact{};
@@ -85,7 +85,7 @@ void GloveSimulation::record_tick() noexcept {
   ++contact_ticks_;
   // Where the frames in contact would be at the commanded posture and palm position.
   const RigidPose palm_C{to_eigen(trajectory_.palm_position(time_s())), trajectory_.palm_orientation()};
-  const auto commanded = glove_frame_poses(skeleton_pose(HandJointAngles::from_vector(q_C), left_), palm_C, frames_);
+  const auto commanded = glove_frame_poses(skeleton_pose(hand::HandJointAngles::from_vector(q_C), left_), palm_C, frames_);
   const auto actual = frame_poses();
   for (int id = 0; id < frames_; ++id)
     if (contact_[id]) penetration_max_m_ = std::max(penetration_max_m_, (commanded[id].p_m - actual[id].p_m).norm());

@@ -47,7 +47,7 @@ class GloveSimulation {
   [[nodiscard]] const GloveParams& params() const noexcept { return params_; }
   [[nodiscard]] const JointState& joints() const noexcept { return joints_; }
   [[nodiscard]] const DeviceState& palm() const noexcept { return palm_; }
-  [[nodiscard]] const SkeletonPose& skeleton() const noexcept { return skeleton_; }
+  [[nodiscard]] const hand::SkeletonPose& skeleton() const noexcept { return skeleton_; }
   [[nodiscard]] JointVector commanded_angles() const noexcept { return trajectory_.angles(time_s()); }
   [[nodiscard]] RigidPose palm_pose() const noexcept;
   // Poses of frames 0 .. frames()-1 in D, for the current state.
@@ -73,7 +73,7 @@ class GloveSimulation {
   [[nodiscard]] std::uint64_t contact_ticks() const noexcept { return contact_ticks_; }
 
  private:
-  static constexpr int kGroups = kHandFingers + 1;
+  static constexpr int kGroups = hand::kHandFingers + 1;
 
   GloveTrajectory trajectory_;
   GloveParams params_;
@@ -82,7 +82,7 @@ class GloveSimulation {
   double dt_s_;
   JointState joints_;
   DeviceState palm_;
-  SkeletonPose skeleton_;  // skeleton_pose(joints_.q_rad, left_)
+  hand::SkeletonPose skeleton_;  // skeleton_pose(joints_.q_rad, left_)
   std::array<Vec3d, kMaxGloveFrames> f_N_{};
   std::array<Vec3d, kMaxGloveFrames> t_Nm_{};
   std::array<bool, kMaxGloveFrames> contact_{};

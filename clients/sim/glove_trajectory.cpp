@@ -15,13 +15,13 @@ namespace {
 
 constexpr double kRadPerDeg = std::numbers::pi / 180.0;
 constexpr int kTimeColumns = 1;
-constexpr int kAngleColumns = kHandJointDofs;
+constexpr int kAngleColumns = hand::kHandJointDofs;
 constexpr int kPalmColumns = 3;
 constexpr double kMaxCsvAngleDeg = 180.0;
 
-HandJointAngles from_degrees(const std::array<std::array<double, 4>, kHandFingers>& deg) {
-  HandJointAngles a;
-  for (int f = 0; f < kHandFingers; ++f)
+hand::HandJointAngles from_degrees(const std::array<std::array<double, 4>, hand::kHandFingers>& deg) {
+  hand::HandJointAngles a;
+  for (int f = 0; f < hand::kHandFingers; ++f)
     for (int k = 0; k < 4; ++k) a.finger[f][k] = deg[f][k] * kRadPerDeg;
   return a;
 }
@@ -49,7 +49,7 @@ std::string_view trim(std::string_view s) {
 
 // The postures as joint vectors, built once.
 struct Postures {
-  JointVector rest = rest_joint_angles().vector();
+  JointVector rest = hand::rest_joint_angles().vector();
   JointVector grasp = power_grasp_posture().vector();
   JointVector pinch = pinch_posture().vector();
   JointVector fist = fist_posture().vector();
@@ -62,24 +62,24 @@ const Postures& postures() {
 
 }  // namespace
 
-HandJointAngles power_grasp_posture() {
+hand::HandJointAngles power_grasp_posture() {
   return from_degrees({{{-25, 30, 20, 15}, {-4, 55, 65, 35}, {0, 55, 65, 35}, {4, 55, 65, 35}, {8, 55, 65, 35}}});
 }
 
-HandJointAngles pinch_posture() {
-  HandJointAngles a = rest_joint_angles();
-  const HandJointAngles p =
+hand::HandJointAngles pinch_posture() {
+  hand::HandJointAngles a = hand::rest_joint_angles();
+  const hand::HandJointAngles p =
       from_degrees({{{-14, 31, 10, -8}, {-5, 50, 55, 30}, {0, 20, 30, 20}, {0, 20, 30, 20}, {0, 20, 30, 20}}});
-  for (int f = 0; f < kHandFingers; ++f)
+  for (int f = 0; f < hand::kHandFingers; ++f)
     for (int k = f < 2 ? 0 : 1; k < 4; ++k) a.finger[f][k] = p.finger[f][k];  // middle..little keep their abduction
   return a;
 }
 
-HandJointAngles fist_posture() {
+hand::HandJointAngles fist_posture() {
   return from_degrees({{{15, 10, 30, 60}, {-4, 90, 100, 70}, {0, 90, 100, 70}, {4, 90, 100, 70}, {8, 90, 100, 70}}});
 }
 
-HandJointAngles spread_posture() {
+hand::HandJointAngles spread_posture() {
   return from_degrees({{{-70, 0, 0, 0}, {-20, 0, 0, 0}, {0, 0, 0, 0}, {15, 0, 0, 0}, {30, 0, 0, 0}}});
 }
 
@@ -88,7 +88,7 @@ std::string glove_csv_column_name(int column) {
   static constexpr const char* kPalm[3] = {"palm_x_m", "palm_y_m", "palm_z_m"};
   if (column == 0) return "t_s";
   if (column >= 1 && column <= kAngleColumns)
-    return std::string(finger_name((column - 1) / 4)) + "_" + kJoint[(column - 1) % 4] + "_deg";
+    return std::string(hand::finger_name((column - 1) / 4)) + "_" + kJoint[(column - 1) % 4] + "_deg";
   if (column > kAngleColumns && column < kTimeColumns + kAngleColumns + kPalmColumns)
     return kPalm[column - kTimeColumns - kAngleColumns];
   return "?";

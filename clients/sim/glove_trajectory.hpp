@@ -52,10 +52,10 @@ inline constexpr double kGloveCycleS = 4.0;
 inline constexpr double kGloveTapFrequencyHz = 4.0;
 inline constexpr double kGloveTapFlexionDeg = 30.0;
 
-HandJointAngles power_grasp_posture();
-HandJointAngles pinch_posture();
-HandJointAngles fist_posture();
-HandJointAngles spread_posture();
+hand::HandJointAngles power_grasp_posture();
+hand::HandJointAngles pinch_posture();
+hand::HandJointAngles fist_posture();
+hand::HandJointAngles spread_posture();
 
 // Column c (0-based) of a glove CSV: "t_s", "thumb_abduction_deg", "thumb_flexion1_deg", ...,
 // "little_flexion3_deg", "palm_x_m", "palm_y_m", "palm_z_m"; "?" beyond 23.

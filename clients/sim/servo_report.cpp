@@ -40,9 +40,9 @@ nlohmann::json to_json(const ServoResult& r) {
 nlohmann::json glove_figures_to_json(const GloveSimulation& sim) {
   constexpr double kDegPerRad = 180.0 / std::numbers::pi;
   nlohmann::json fingers = nlohmann::json::object();
-  for (int f = 0; f < kHandFingers; ++f) {
+  for (int f = 0; f < hand::kHandFingers; ++f) {
     const GloveGroupFigures g = sim.group_figures(f);
-    fingers[finger_name(f)] = {{"force_n", {{"max", g.force_max_n}, {"rms", g.force_rms_n}}},
+    fingers[hand::finger_name(f)] = {{"force_n", {{"max", g.force_max_n}, {"rms", g.force_rms_n}}},
                                {"contact_fraction", g.contact_fraction},
                                {"joint_lag_deg_max", kDegPerRad * g.joint_lag_max_rad}};
   }

@@ -94,7 +94,7 @@ void write_glove_trace(std::ofstream& trace, const std::vector<sim::GloveTraceRo
   constexpr double kDegPerRad = 180.0 / std::numbers::pi;
   trace << "t_s";
   for (const char* prefix : {"qc_", "q_"})
-    for (int c = 1; c <= kHandJointDofs; ++c) trace << ',' << prefix << sim::glove_csv_column_name(c);
+    for (int c = 1; c <= hand::kHandJointDofs; ++c) trace << ',' << prefix << sim::glove_csv_column_name(c);
   trace << ",pc_palm_x_m,pc_palm_y_m,pc_palm_z_m,p_palm_x_m,p_palm_y_m,p_palm_z_m";
   for (int id = 0; id < frames; ++id)
     for (const char* axis : {"x", "y", "z"}) trace << ",f_" << sim::glove_frame_name(frames, id) << '_' << axis << "_n";
@@ -102,8 +102,8 @@ void write_glove_trace(std::ofstream& trace, const std::vector<sim::GloveTraceRo
   trace.precision(9);
   for (const sim::GloveTraceRow& t : rows) {
     trace << t.t_s;
-    for (int j = 0; j < kHandJointDofs; ++j) trace << ',' << kDegPerRad * t.q_C_rad[j];
-    for (int j = 0; j < kHandJointDofs; ++j) trace << ',' << kDegPerRad * t.q_rad[j];
+    for (int j = 0; j < hand::kHandJointDofs; ++j) trace << ',' << kDegPerRad * t.q_C_rad[j];
+    for (int j = 0; j < hand::kHandJointDofs; ++j) trace << ',' << kDegPerRad * t.q_rad[j];
     for (const sim::Vec3d& p : {t.p_palm_C_m, t.p_palm_m}) trace << ',' << p.x << ',' << p.y << ',' << p.z;
     for (int id = 0; id < frames; ++id) {
       const sim::Vec3d& f = t.f_N[static_cast<std::size_t>(id)];
@@ -342,8 +342,8 @@ int main(int argc, char** argv) {
     for (int g = 0; g <= sim::kPalmGroup; ++g) {
       const sim::GloveGroupFigures f = glove_sim->group_figures(g);
       std::printf("  %-6s force N: max %.3f rms %.3f; contact %.1f %% of ticks",
-                  g < kHandFingers ? finger_name(g) : "palm", f.force_max_n, f.force_rms_n, 100.0 * f.contact_fraction);
-      if (g < kHandFingers) std::printf("; joint lag max %.2f deg", f.joint_lag_max_rad * 180.0 / std::numbers::pi);
+                  g < hand::kHandFingers ? hand::finger_name(g) : "palm", f.force_max_n, f.force_rms_n, 100.0 * f.contact_fraction);
+      if (g < hand::kHandFingers) std::printf("; joint lag max %.2f deg", f.joint_lag_max_rad * 180.0 / std::numbers::pi);
       std::printf("\n");
     }
   }

@@ -5,7 +5,7 @@
 #include <cmath>
 #include <numbers>
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 constexpr double kCm = 0.01;
@@ -105,4 +105,4 @@ const char* phalanx_name(int phalanx) {
   return phalanx >= 0 && phalanx < 3 ? kNames[phalanx] : "?";
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -16,7 +16,7 @@
 #include <array>
 #include <string>
 
-namespace hapticd {
+namespace hapticd::hand {
 
 inline constexpr int kHandFingers = 5;
 inline constexpr int kHandPhalanges = 15;  // finger-major: thumb, index, middle, ring, little; proximal, middle, distal
@@ -56,4 +56,4 @@ SkeletonPose skeleton_pose(const HandJointAngles& angles, bool left = false);
 const char* finger_name(int finger);    // "thumb" ... "little"
 const char* phalanx_name(int phalanx);  // "proximal", "middle", "distal"
 
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -12,7 +12,7 @@ DeviceLink make_device_link(const World& world, const DeviceDesc& d, double hapt
   link.kind = d.kind == DeviceKind::glove ? protocol::DeviceKind::kGlove : protocol::DeviceKind::kStylus;
   link.hand = world.find_hand(d.hand);
   if (link.hand < 0) throw std::runtime_error("devices." + d.name + ": no hand named " + d.hand);
-  const Hand& hand = world.hand(link.hand);
+  const hand::Hand& hand = world.hand(link.hand);
   link.left = hand.left();
   link.handles = hand.num_handles();
   if (link.handles > kMaxHapticHandles)
@@ -22,7 +22,7 @@ DeviceLink make_device_link(const World& world, const DeviceDesc& d, double hapt
   // A glove tracks a frame per handle; a stylus, the palm's.
   const int tracked = d.kind == DeviceKind::glove ? link.handles : 1;
   for (int j = 0; j < link.handles; ++j) {
-    const HandleInfo info = hand.handle_info(j, tracked);
+    const hand::HandleInfo info = hand.handle_info(j, tracked);
     link.mass_kg[j] = info.mass_kg;
     link.inertia_B[j] = info.inertia_B;
     link.map.handle_p_F[j] = info.in_frame.p_F;

@@ -191,7 +191,7 @@ bool ProxyHand::commit_sample(double t_s, double resync_gap_s) {
   for (int j = 0; j < handles_; ++j) {
     if (!resync_now && dt > 0) {
       const Eigen::Vector3d v = (pending_[j].p_W - device_[j].p_W) / dt;
-      const Eigen::Vector3d w = rotation_difference(pending_[j].q_W, device_[j].q_W) / dt;
+      const Eigen::Vector3d w = hand::rotation_difference(pending_[j].q_W, device_[j].q_W) / dt;
       v_dev_[j] += kVelocityFilter * (v - v_dev_[j]);
       w_dev_[j] += kVelocityFilter * (w - w_dev_[j]);
     }
@@ -233,7 +233,7 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
     b_.segment<3>(6 * j) = mass_[j] * v_[j] + dt * (gains_.k_n_m * (device_[j].p_W - proxy_[j].p_W) +
                                                      gains_.b_ns_m * v_dev_[j]);
     b_.segment<3>(6 * j + 3) =
-        I_W * w_[j] + dt * (gains_.k_nm_rad * rotation_difference(device_[j].q_W, proxy_[j].q_W) +
+        I_W * w_[j] + dt * (gains_.k_nm_rad * hand::rotation_difference(device_[j].q_W, proxy_[j].q_W) +
                             gains_.b_nms_rad * w_dev_[j]);
     if (safe > 0) {
       // The safe model, implicit like the coupling: spring and damper toward the device.
@@ -242,11 +242,11 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
       a_lin_[j] += dt * b + dt * dt * k;
       a_rot_[j].diagonal().array() += dt * b_rot + dt * dt * k_rot;
       b_.segment<3>(6 * j) += dt * (k * (device_[j].p_W - proxy_[j].p_W) + b * v_dev_[j]);
-      b_.segment<3>(6 * j + 3) += dt * (k_rot * rotation_difference(device_[j].q_W, proxy_[j].q_W) + b_rot * w_dev_[j]);
+      b_.segment<3>(6 * j + 3) += dt * (k_rot * hand::rotation_difference(device_[j].q_W, proxy_[j].q_W) + b_rot * w_dev_[j]);
     }
     if (use_model) {
       x_rel_.segment<3>(6 * j) = proxy_[j].p_W - model.x0[j].p_W - late * model.v0[j];
-      x_rel_.segment<3>(6 * j + 3) = rotation_difference(proxy_[j].q_W, model.x0[j].q_W) - late * model.w0[j];
+      x_rel_.segment<3>(6 * j + 3) = hand::rotation_difference(proxy_[j].q_W, model.x0[j].q_W) - late * model.w0[j];
       v0_.segment<3>(6 * j) = model.v0[j];
       v0_.segment<3>(6 * j + 3) = model.w0[j];
     }
@@ -312,7 +312,7 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
     v_[j] = v_next_.segment<3>(6 * j);
     w_[j] = v_next_.segment<3>(6 * j + 3);
     proxy_[j].p_W += dt * v_[j];
-    proxy_[j].q_W = rotate_by(proxy_[j].q_W, dt * w_[j]);
+    proxy_[j].q_W = hand::rotate_by(proxy_[j].q_W, dt * w_[j]);
   }
 }
 
@@ -418,7 +418,7 @@ ReplyWrench ProxyHand::reply(int j, double output_scale, double dt_since_last_s)
   if (j < 0 || j >= handles_ || !have_device_) return r;
   // The coupling wrench on the proxy; the device feels it reversed (f_D = s R^T f_W keeps power equal).
   const Eigen::Vector3d f_W = gains_.k_n_m * (device_[j].p_W - proxy_[j].p_W) + gains_.b_ns_m * (v_dev_[j] - v_[j]);
-  const Eigen::Vector3d tau_W = gains_.k_nm_rad * rotation_difference(device_[j].q_W, proxy_[j].q_W) +
+  const Eigen::Vector3d tau_W = gains_.k_nm_rad * hand::rotation_difference(device_[j].q_W, proxy_[j].q_W) +
                                 gains_.b_nms_rad * (w_dev_[j] - w_[j]);
   const Eigen::Matrix3d R_DW = map_.R_WD.toRotationMatrix().transpose();
   // About the frame's origin: the handle sits at r = q_frame handle_p_F from it.

@@ -15,7 +15,7 @@ VisualLoop::VisualLoop(VisualStep& step, double rate_hz, VisualReport* report,
 
 void VisualLoop::run(const std::atomic<bool>& stop) {
   ensure_ode_for_this_thread();
-  single_threaded_cholmod();
+  hand::single_threaded_cholmod();
   World& world = step_.world();
   const double period = 1.0 / rate_hz_;
   const std::uint64_t start = protocol::now_ns();

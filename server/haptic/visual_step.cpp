@@ -26,7 +26,7 @@ const char* to_string(HandleModelKind kind) {
 
 void fill_contact_flags(const World& world, int h, HapticModel& out) {
   const WorldSnapshot& snap = world.snapshot();
-  const Hand& hand = world.hand(h);
+  const hand::Hand& hand = world.hand(h);
   out.in_contact = false;
   std::fill(std::begin(out.handle_in_contact), std::end(out.handle_in_contact), false);
   for (const ContactRecord& c : snap.contacts) {
@@ -38,10 +38,10 @@ void fill_contact_flags(const World& world, int h, HapticModel& out) {
   }
 }
 
-void fill_haptic_model(World& world, int h, HandleLinearization& lin, HapticModel& out) {
+void fill_haptic_model(World& world, int h, hand::HandleLinearization& lin, HapticModel& out) {
   out.handles = 0;
   out.solver.prepared = false;
-  Hand& hand = world.hand(h);
+  hand::Hand& hand = world.hand(h);
   fill_contact_flags(world, h, out);
   if (!hand.linearize_next_step(lin)) return;
   const int m = static_cast<int>(lin.x0.size());
@@ -64,8 +64,8 @@ void fill_held_model(World& world, int h, HapticModel& out) {
   out.handles = 0;
   out.solver.prepared = false;
   fill_contact_flags(world, h, out);
-  const Hand& hand = world.hand(h);
-  const std::vector<HandleState>& handles = hand.handles();
+  const hand::Hand& hand = world.hand(h);
+  const std::vector<hand::HandleState>& handles = hand.handles();
   const int m = std::min(hand.num_handles(), kMaxHapticHandles);
   const Eigen::VectorXd F = hand.coupling_wrench();
   if (F.size() < 6 * m || !F.allFinite()) return;
@@ -82,12 +82,12 @@ void fill_held_model(World& world, int h, HapticModel& out) {
 
 }  // namespace
 
-HandleTarget proxy_target(const ProxyTargets& targets, int h, int j, std::uint64_t until_ns) {
+hand::HandleTarget proxy_target(const ProxyTargets& targets, int h, int j, std::uint64_t until_ns) {
   const double ahead = std::clamp(1e-9 * (static_cast<double>(until_ns) - static_cast<double>(targets.t_ns)),
                                   -kMaxProxyExtrapolation_s, kMaxProxyExtrapolation_s);
   const HapticPose& p = targets.pose[h][j];
   const Eigen::Vector3d &v = targets.v_W[h][j], &w = targets.w_W[h][j];
-  return {p.p_W + ahead * v, rotate_by(p.q_W, ahead * w), v, w};
+  return {p.p_W + ahead * v, hand::rotate_by(p.q_W, ahead * w), v, w};
 }
 
 VisualStep::VisualStep(World& world, TripleBuffer<HapticSnapshot>& snapshots, TripleBuffer<ProxyTargets>& targets,
@@ -99,7 +99,7 @@ void VisualStep::advance_world(std::uint64_t publish_ns, double dt_s) {
   const ProxyTargets& targets = targets_.front();
   for (int h = 0; h < std::min(world_.num_hands(), kMaxHands); ++h) {
     if (!targets.driven[h]) continue;
-    Hand& hand = world_.hand(h);
+    hand::Hand& hand = world_.hand(h);
     if (targets.resyncs[h] != resyncs_seen_[h]) {
       resyncs_seen_[h] = targets.resyncs[h];
       hand.place(targets.pose[h][0].p_W, targets.pose[h][0].q_W);
@@ -135,10 +135,10 @@ void VisualStep::prepare_tick_solvers() {
 void VisualStep::recover() {
   const ProxyTargets& targets = targets_.front();
   for (int h = 0; h < world_.num_hands(); ++h) {
-    Hand& hand = world_.hand(h);
+    hand::Hand& hand = world_.hand(h);
     // Where its proxy is if a device drives it, else where its first handle is.
     const bool driven = h < kMaxHands && targets.driven[h];
-    const HandleState& first = hand.handles()[0];
+    const hand::HandleState& first = hand.handles()[0];
     hand.recover(driven ? targets.pose[h][0].p_W : first.p_WH, driven ? targets.pose[h][0].q_W : first.q_WH);
   }
 }

@@ -17,7 +17,7 @@ namespace hapticd {
 // How the visual loop's handles follow the haptic proxies: almost kinematically
 // (GO09: the visual loop's handle is the proxy's), so the handle-space model is
 // the flesh's answer to the proxy's own motion.
-constexpr DriveParams kProxyDrive{1e6, 1e3, 1e3, 10.0};
+constexpr hand::DriveParams kProxyDrive{1e6, 1e3, 1e3, 10.0};
 
 // The world a server steps: the scene's step is the visual period, hands are weightless (a device
 // in free space feels no virtual hand weight), their handles follow the proxies (kProxyDrive), and
@@ -39,7 +39,7 @@ const char* to_string(HandleModelKind kind);
 // Fills `out` with hand h's model for the coming interval (linearize_next_step:
 // the step about to be taken from the world's current state; `lin` is scratch),
 // in_contact from the hand's contacts; out.handles = 0 when it cannot.
-void fill_haptic_model(World& world, int h, HandleLinearization& lin, HapticModel& out);
+void fill_haptic_model(World& world, int h, hand::HandleLinearization& lin, HapticModel& out);
 // Only its contact flags (in_contact, handle_in_contact) from the world's last contacts.
 void fill_contact_flags(const World& world, int h, HapticModel& out);
 
@@ -47,7 +47,7 @@ void fill_contact_flags(const World& world, int h, HapticModel& out);
 // at its velocity from the time it is of (targets.t_ns) to then, by at most kMaxProxyExtrapolation_s
 // either way (a stalled haptic thread leaves old proxies).
 constexpr double kMaxProxyExtrapolation_s = 0.1;
-HandleTarget proxy_target(const ProxyTargets& targets, int h, int j, std::uint64_t until_ns);
+hand::HandleTarget proxy_target(const ProxyTargets& targets, int h, int j, std::uint64_t until_ns);
 
 class VisualStep {
  public:
@@ -84,7 +84,7 @@ class VisualStep {
   TripleBuffer<ProxyTargets>& targets_;
   const TickSolverPreparer* preparer_;
   HandleModelKind kind_;
-  HandleLinearization scratch_;
+  hand::HandleLinearization scratch_;
   std::uint32_t resyncs_seen_[kMaxHands]{};
   std::function<void()> inject_;
 };

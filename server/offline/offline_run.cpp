@@ -65,7 +65,7 @@ OfflineLoops::OfflineLoops(SceneDesc scene, const OfflineOptions& options)
   WorldOptions world_options = served_world_options();
   world_options.contact = options_.contact;
   // CHOLMOD's OpenMP regions: one thread, as the visual thread runs it.
-  single_threaded_cholmod();
+  hand::single_threaded_cholmod();
   world_ = std::make_unique<World>(scene, world_options);
   if (RigidWorld* rigid = world_->rigid())
     for (long i = 0; i < std::lround(options_.settle_s / options_.haptic_period_s); ++i)
@@ -119,7 +119,7 @@ void OfflineLoops::send(const protocol::EncodeResult& encoded) {
 }
 
 void OfflineLoops::frame_pose_at_handle(int j, Eigen::Vector3d& p_D, Eigen::Quaterniond& q_D) const {
-  const HandleState& h = world_->hand(link_.hand).handles()[static_cast<std::size_t>(j)];
+  const hand::HandleState& h = world_->hand(link_.hand).handles()[static_cast<std::size_t>(j)];
   link_.map.to_device(j, {h.p_WH, h.q_WH}, p_D, q_D);
 }
 

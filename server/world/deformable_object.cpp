@@ -23,7 +23,7 @@ constexpr double kSurfaceSpacing_m = 0.005;
 // The mesh's boundary faces as the body's surface, each split into s^2
 // triangles (s the same for every face, so neighbours share their edge points),
 // every vertex embedded in the tet that holds its face.
-EmbeddedBody boundary_body(TetMesh mesh) {
+hand::EmbeddedBody boundary_body(hand::TetMesh mesh) {
   std::map<std::array<int, 3>, int> face_tet;
   for (int e = 0; e < mesh.num_tets(); ++e)
     for (int skip = 0; skip < 4; ++skip) {
@@ -34,19 +34,19 @@ EmbeddedBody boundary_body(TetMesh mesh) {
       face_tet[key] = e;  // a boundary face has one tet
     }
   double longest = 0;
-  for (const Triangle& t : mesh.surface)
+  for (const hand::Triangle& t : mesh.surface)
     for (int k = 0; k < 3; ++k) longest = std::max(longest, (mesh.X[t[k]] - mesh.X[t[(k + 1) % 3]]).norm());
   const int s = std::clamp(static_cast<int>(std::ceil(longest / kSurfaceSpacing_m)), 1, 16);
-  EmbeddedBody body;
+  hand::EmbeddedBody body;
   // A point's identity: a node, a point on an edge (its end nodes, ordered, and
   // the step from the first), or a point inside a face.
   std::map<std::array<int, 4>, int> vertex_of;
   for (size_t f = 0; f < mesh.surface.size(); ++f) {
-    const Triangle& tri = mesh.surface[f];
+    const hand::Triangle& tri = mesh.surface[f];
     std::array<int, 3> key = tri;
     std::sort(key.begin(), key.end());
     const int e = face_tet.at(key);
-    const Tet& tet = mesh.tets[e];
+    const hand::Tet& tet = mesh.tets[e];
     int local[3];
     for (int k = 0; k < 3; ++k) local[k] = static_cast<int>(std::find(tet.begin(), tet.end(), tri[k]) - tet.begin());
     // Grid point (i, j) has weights ((s - i - j) / s, i / s, j / s) on the face's nodes.
@@ -89,15 +89,15 @@ EmbeddedBody boundary_body(TetMesh mesh) {
   return body;
 }
 
-EmbeddedBody load_body(const ShapeDesc& s) {
+hand::EmbeddedBody load_body(const ShapeDesc& s) {
   if (s.type == ShapeType::box) {
     const Eigen::Vector3d& size = s.size;
-    return boundary_body(make_box_mesh(size, deformable_box_cells(size), -0.5 * size));
+    return boundary_body(hand::make_box_mesh(size, deformable_box_cells(size), -0.5 * size));
   }
-  TetMesh mesh = load_tet_mesh(s.file);
+  hand::TetMesh mesh = hand::load_tet_mesh(s.file);
   for (Eigen::Vector3d& X : mesh.X) X *= s.scale;
   if (s.surface_file.empty()) return boundary_body(std::move(mesh));
-  SurfaceMesh surface = load_obj(s.surface_file);
+  hand::SurfaceMesh surface = hand::load_obj(s.surface_file);
   for (Eigen::Vector3d& v : surface.vertices) v *= s.scale;
   // Uniform scaling keeps every barycentric weight.
   return load_embedding(s.embedding_file, std::move(mesh), std::move(surface));
@@ -113,16 +113,16 @@ std::array<int, 3> deformable_box_cells(const Eigen::Vector3d& size) {
 }
 
 Eigen::Vector3d surface_point(const DeformableObject& o, int v) {
-  const Tet& t = o.body.mesh.tets[o.body.surface_tet[v]];
+  const hand::Tet& t = o.body.mesh.tets[o.body.surface_tet[v]];
   Eigen::Vector3d p = Eigen::Vector3d::Zero();
   for (int k = 0; k < 4; ++k) p += o.body.surface_bary[v][k] * o.state.x.segment<3>(3 * t[k]);
   return p;
 }
 
-ContactBody rigid_proxy(const DeformableObject& o) {
+hand::ContactBody rigid_proxy(const DeformableObject& o) {
   const Eigen::VectorXd& m = o.model->fem().lumped_mass();
   const int n = o.model->num_nodes();
-  ContactBody b;
+  hand::ContactBody b;
   b.mass_kg = m.sum();
   b.p_com_W.setZero();
   Eigen::Vector3d momentum = Eigen::Vector3d::Zero();
@@ -168,7 +168,7 @@ std::unique_ptr<DeformableObject> make_deformable_object(const ObjectDesc& desc,
     throw std::runtime_error("object '" + desc.name + "': mass " + std::to_string(mass_kg) + " kg from its volume is outside [" +
                              std::to_string(kMinMassKg) + ", " + std::to_string(kMaxMassKg) +
                              "] kg: give mass_kg or change the scale or density");
-  HandConfig config;
+  hand::HandConfig config;
   config.free_body = true;
   config.dt_s = build.dt_s;
   config.gravity_m_s2 = build.gravity_m_s2;
@@ -178,7 +178,7 @@ std::unique_ptr<DeformableObject> make_deformable_object(const ObjectDesc& desc,
   config.material.rayleigh_alpha_per_s = desc.material.rayleigh_alpha_per_s;
   config.material.rayleigh_beta_s = desc.material.rayleigh_beta_s;
   try {
-    o->model = std::make_unique<HandModel>(o->body.mesh, config);
+    o->model = std::make_unique<hand::HandModel>(o->body.mesh, config);
   } catch (const std::exception& e) {
     throw std::runtime_error("object '" + desc.name + "': " + e.what());
   }

@@ -22,10 +22,10 @@ struct DeformableObject {
   // closed surface and each surface vertex's tet and barycentric weights. A
   // tet_mesh without a surface file, and a box, use the mesh's own boundary,
   // subdivided so that surface points lie at most 5 mm apart.
-  EmbeddedBody body;
-  std::unique_ptr<HandModel> model;
-  HandState state;
-  std::unique_ptr<CoupledSolver> solver;
+  hand::EmbeddedBody body;
+  std::unique_ptr<hand::HandModel> model;
+  hand::HandState state;
+  std::unique_ptr<hand::CoupledSolver> solver;
   double friction = 0.5;
   // The hands' contact forces on the nodes over the last step, N, 3n (the
   // reactions of their contacts, see World::step_deformables): with the node
@@ -40,7 +40,7 @@ struct DeformableObject {
 struct DeformableBuild {
   Eigen::Vector3d gravity_m_s2{0, 0, -9.81};
   double dt_s = 1.0 / 60.0;
-  SolverKind solver = SolverKind::schur_cholmod;
+  hand::SolverKind solver = hand::SolverKind::schur_cholmod;
   bool touched_by_hands = true;  // build the hand-contact query
 };
 
@@ -61,6 +61,6 @@ Eigen::Vector3d surface_point(const DeformableObject& object, int v);
 // The object as one rigid body: its mass, centre of mass, inertia at its
 // current shape, and the velocity and angular velocity that carry its momentum
 // and angular momentum.
-ContactBody rigid_proxy(const DeformableObject& object);
+hand::ContactBody rigid_proxy(const DeformableObject& object);
 
 }  // namespace hapticd

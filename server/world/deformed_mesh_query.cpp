@@ -21,11 +21,11 @@ Eigen::Vector4d barycentric(const Eigen::Matrix3d& Ds_inv, const Eigen::Vector3d
 
 }  // namespace
 
-DeformedMeshQuery::DeformedMeshQuery(const TetMesh& mesh, const SurfaceMesh& surface, double sdf_cell_m,
+DeformedMeshQuery::DeformedMeshQuery(const hand::TetMesh& mesh, const hand::SurfaceMesh& surface, double sdf_cell_m,
                                      int sdf_band_cells)
     : tets_(mesh.tets), X_(mesh.X), sdf_(surface, sdf_cell_m, sdf_band_cells) {
   Dm_T_.reserve(tets_.size());
-  for (const Tet& t : tets_) {
+  for (const hand::Tet& t : tets_) {
     Eigen::Matrix3d Dm;
     Dm << X_[t[1]] - X_[t[0]], X_[t[2]] - X_[t[0]], X_[t[3]] - X_[t[0]];
     Dm_T_.push_back(Dm.transpose());
@@ -50,7 +50,7 @@ void DeformedMeshQuery::update(const Eigen::VectorXd& x) {
   // Each tet is filed under every cell its box, grown by the extrapolation slack, touches.
   double extent_sum = 0;
   for (size_t e = 0; e < tets_.size(); ++e) {
-    const Tet& t = tets_[e];
+    const hand::Tet& t = tets_[e];
     const Eigen::Vector3d x0 = x_.segment<3>(3 * t[0]);
     Eigen::Matrix3d Ds;
     Ds << x_.segment<3>(3 * t[1]) - x0, x_.segment<3>(3 * t[2]) - x0, x_.segment<3>(3 * t[3]) - x0;
@@ -113,7 +113,7 @@ bool DeformedMeshQuery::locate(const Eigen::Vector3d& p, int& tet, Eigen::Vector
 
 bool DeformedMeshQuery::penetration(const Eigen::Vector3d& p, double margin_m, MeshPenetration& out) const {
   if (!locate(p, out.tet, out.bary)) return false;
-  const Tet& t = tets_[out.tet];
+  const hand::Tet& t = tets_[out.tet];
   out.p_rest.setZero();
   for (int k = 0; k < 4; ++k) out.p_rest += out.bary[k] * X_[t[k]];
   double phi;

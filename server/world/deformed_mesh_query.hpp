@@ -39,7 +39,7 @@ class DeformedMeshQuery {
   // `surface`: closed and outward, in the coordinates of mesh.X (the rest shape).
   // Its signed distance grid has cells of `sdf_cell_m` and is exact within
   // `sdf_band_cells` cells of the surface (deeper points keep that depth).
-  DeformedMeshQuery(const TetMesh& mesh, const SurfaceMesh& surface, double sdf_cell_m, int sdf_band_cells = 6);
+  DeformedMeshQuery(const hand::TetMesh& mesh, const hand::SurfaceMesh& surface, double sdf_cell_m, int sdf_band_cells = 6);
 
   // Rebuilds the grid at deformed node positions x (3n); allocates only when the
   // grid outgrows its largest earlier size.
@@ -58,7 +58,7 @@ class DeformedMeshQuery {
  private:
   int cell_of(const Eigen::Vector3d& p, int axis) const;
 
-  std::vector<Tet> tets_;
+  std::vector<hand::Tet> tets_;
   std::vector<Eigen::Vector3d> X_;     // rest nodes
   std::vector<Eigen::Matrix3d> Dm_T_;  // per tet, Dm^T (rest edge matrix, transposed)
   MeshSdf sdf_;

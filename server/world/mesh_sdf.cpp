@@ -31,7 +31,7 @@ Eigen::Vector3d closest_on_triangle(const Eigen::Vector3d& p, const Eigen::Vecto
 
 }  // namespace
 
-MeshSdf::MeshSdf(const SurfaceMesh& mesh, double cell, int band) : cell_(cell) {
+MeshSdf::MeshSdf(const hand::SurfaceMesh& mesh, double cell, int band) : cell_(cell) {
   Eigen::Vector3d lo = Eigen::Vector3d::Constant(INFINITY), hi = -lo;
   for (const Eigen::Vector3d& v : mesh.vertices) lo = lo.cwiseMin(v), hi = hi.cwiseMax(v);
   if (mesh.vertices.empty() || !lo.allFinite() || !hi.allFinite()) return;  // no surface: every query misses
@@ -46,7 +46,7 @@ MeshSdf::MeshSdf(const SurfaceMesh& mesh, double cell, int band) : cell_(cell) {
   auto index = [&](int i, int j, int k) { return i + dims_[0] * (j + dims_[1] * k); };
   // Unsigned distance in a band around each triangle.
   std::vector<std::vector<double>> crossings(static_cast<size_t>(dims_[0]) * dims_[1]);
-  for (const Triangle& t : mesh.triangles) {
+  for (const hand::Triangle& t : mesh.triangles) {
     const Eigen::Vector3d &a = mesh.vertices[t[0]], &b = mesh.vertices[t[1]], &c = mesh.vertices[t[2]];
     const Eigen::Vector3d tlo = a.cwiseMin(b).cwiseMin(c), thi = a.cwiseMax(b).cwiseMax(c);
     int i0[3], i1[3];

@@ -17,7 +17,7 @@ class MeshSdf {
   static constexpr int kMaxCellsPerAxis = 128;
 
   MeshSdf() = default;
-  MeshSdf(const SurfaceMesh& mesh, double cell_m, int band_cells = 3);
+  MeshSdf(const hand::SurfaceMesh& mesh, double cell_m, int band_cells = 3);
 
   // Signed distance (m) and unit outward normal at p (mesh frame); false outside the grid.
   bool query(const Eigen::Vector3d& p, double& distance, Eigen::Vector3d& normal) const;

@@ -170,17 +170,17 @@ RigidWorld::RigidWorld(const SceneDesc& scene) : dt_(scene.dt_s) {
         obj.geom = dCreatePlane(space_, s.normal.x(), s.normal.y(), s.normal.z(), s.offset);
         break;
       case ShapeType::mesh: {
-        const SurfaceMesh surface = load_obj(s.file);
+        const hand::SurfaceMesh surface = hand::load_obj(s.file);
         for (const Eigen::Vector3d& v : surface.vertices)
           for (int k = 0; k < 3; ++k) obj.vertices.push_back(s.scale * v[k]);
-        for (const Triangle& t : surface.triangles)
+        for (const hand::Triangle& t : surface.triangles)
           for (int k = 0; k < 3; ++k) obj.indices.push_back(static_cast<dTriIndex>(t[k]));
         obj.trimesh = dGeomTriMeshDataCreate();
         dGeomTriMeshDataBuildDouble(obj.trimesh, obj.vertices.data(), 3 * sizeof(double),
                                     static_cast<int>(surface.vertices.size()), obj.indices.data(),
                                     static_cast<int>(obj.indices.size()), 3 * sizeof(dTriIndex));
         obj.geom = dCreateTriMesh(space_, obj.trimesh, nullptr, nullptr, nullptr);
-        SurfaceMesh scaled = surface;
+        hand::SurfaceMesh scaled = surface;
         for (Eigen::Vector3d& v : scaled.vertices) v *= s.scale;
         obj.sdf = MeshSdf(scaled, 0.003, 6);  // distances exact to 6 cells (1.8 cm, more for a mesh over 38 cm)
         break;
@@ -353,8 +353,8 @@ bool RigidWorld::penetration(int i, const Eigen::Vector3d& p, double& depth, Eig
   return true;
 }
 
-ContactBody RigidWorld::contact_body(int i) const {
-  ContactBody b;
+hand::ContactBody RigidWorld::contact_body(int i) const {
+  hand::ContactBody b;
   dBodyID body = objects_[i].body;
   dMass m;
   dBodyGetMass(body, &m);

@@ -72,7 +72,7 @@ class RigidWorld {
   void add_velocity(int i, const Eigen::Vector3d& dv_W, const Eigen::Vector3d& dw_W);
   // Mass, world inertia, centre of mass and velocity of rigid body i, for a hand
   // that solves its contacts with the body implicitly.
-  ContactBody contact_body(int i) const;
+  hand::ContactBody contact_body(int i) const;
 
   // Velocity of the material point of object i at world point p (zero for static geometry).
   Eigen::Vector3d point_velocity(int i, const Eigen::Vector3d& p_W) const;

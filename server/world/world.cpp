@@ -43,14 +43,14 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
       throw std::runtime_error("hands." + d.name + ": only the fem hand model is built so far");
     auto h = std::make_unique<WorldHand>();
     h->name = d.name;
-    ProceduralHandOptions shape_options;
+    hand::ProceduralHandOptions shape_options;
     shape_options.target_tets = d.resolution_tets;
     shape_options.left = d.side == HandSide::left;
     h->left_side = shape_options.left;
     // A hand driven by more than its palm (a glove) needs fingers that move on their own.
     shape_options.separate_fingers = d.handles != HandleSet::palm;
     h->shape = make_procedural_hand(shape_options);
-    HandConfig config;
+    hand::HandConfig config;
     config.dt_s = scene.dt_s;
     config.gravity_m_s2 = options.hand_gravity ? scene.gravity_m_s2 : Eigen::Vector3d::Zero();
     config.material.youngs_modulus_pa = d.material.youngs_modulus_pa;
@@ -62,10 +62,10 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
     config.coupling.damping_ns_m = d.coupling_damping_ns_m;
     config.handles = procedural_handles(h->shape, handle_count(d.handles));
     // A glove hand's joints are soft flesh between its bones: bending a finger costs little work.
-    config.element_stiffness = procedural_joint_stiffness(h->shape, handle_count(d.handles), kGloveJointStiffness);
+    config.element_stiffness = procedural_joint_stiffness(h->shape, handle_count(d.handles), hand::kGloveJointStiffness);
     config.drive = options.drive;
     h->friction = d.material.friction;
-    h->model = std::make_unique<HandModel>(h->shape.mesh, config);
+    h->model = std::make_unique<hand::HandModel>(h->shape.mesh, config);
     h->skin_handles = procedural_skin_handles(h->shape, handle_count(d.handles));
     h->state = make_rest_state(*h->model);
     // The hand frame's pose places the rest mesh: handle 0 goes where it sits in that frame.
@@ -86,7 +86,7 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
   if ((rigid_ ? rigid_->num_objects() : 0) + num_deformables() + 2 * num_hands() > 0xffff)
     throw std::runtime_error(scene.path + ": more than 65535 objects");
   // Hands collide with their skin points, deformable objects with their surface points.
-  auto add_soft = [&](const HandModel* model, HandState* state, const std::vector<int>* tets,
+  auto add_soft = [&](const hand::HandModel* model, hand::HandState* state, const std::vector<int>* tets,
                       const std::vector<Eigen::Vector4d>* barys, double friction, int hand, int deformable) {
     SoftBody b;
     b.model = model;
@@ -113,7 +113,7 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
   // objects; exact within 1.8 cm of the skin, deeper than half the palm is thick).
   if (num_hands() >= 2 && options.hand_contacts && options.hand_hand_contacts) {
     for (const std::unique_ptr<WorldHand>& h : hands_) {
-      const SurfaceMesh skin{h->shape.skin_vertices, h->shape.skin_triangles};
+      const hand::SurfaceMesh skin{h->shape.skin_vertices, h->shape.skin_triangles};
       Eigen::AlignedBox3d box;
       for (const Eigen::Vector3d& v : skin.vertices) box.extend(v);
       const double cell = std::clamp(box.sizes().maxCoeff() / 40, 0.001, 0.003);

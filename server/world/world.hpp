@@ -34,8 +34,8 @@ struct WorldOptions {
   double contact_damping_ns_m = 1.0;
   // Per-step CHOLMOD: the handle-space model needs A_t^-1 on 2 x 6m + 1 columns
   // every step, cheap with a current factorization and costly with a lagged one.
-  SolverKind solver = SolverKind::schur_cholmod;
-  DriveParams drive;  // how each handle is pulled toward its target (zero: the hand is let go)
+  hand::SolverKind solver = hand::SolverKind::schur_cholmod;
+  hand::DriveParams drive;  // how each handle is pulled toward its target (zero: the hand is let go)
   bool hand_contacts = true;  // false: hands pass through everything (a cost baseline for benches)
   // False: hands pass through each other, still touching everything else (a
   // cost baseline). Only scenes with two hands or more build hand-hand contact.
@@ -62,7 +62,7 @@ struct WorldOptions {
 
 // A hand of the world: the FEM hand (the only model built so far), and what the world keeps of it
 // for hand-hand contact.
-struct WorldHand : FemHand {
+struct WorldHand : hand::FemHand {
   // Hand-hand contact (a scene with two hands or more, hand contacts on): where
   // a point lies in this hand's deformed flesh and how deep it is inside its
   // skin; null otherwise (one hand builds nothing for it).
@@ -106,11 +106,11 @@ struct DeformableSnapshot {
 struct WorldSnapshot {
   long step = 0;
   double t_s = 0;
-  std::vector<std::vector<HandleState>> handles;  // per hand, per handle
+  std::vector<std::vector<hand::HandleState>> handles;  // per hand, per handle
   // Per hand: the time-implicit model of the coupling wrench on its handles,
   // F*(x, v) = F0 + K (x - x0) + D (v - v0) (all handles at once), from the last
   // step's system and anchored at its end state; empty before the first step.
-  std::vector<HandleLinearization> linear_models;
+  std::vector<hand::HandleLinearization> linear_models;
   std::vector<bool> linear_model_valid;
   std::vector<RigidBodyState> bodies;           // per RigidWorld object
   std::vector<DeformableSnapshot> deformables;  // per deformable object
@@ -166,8 +166,8 @@ class World {
   // What collision needs of a body of flesh (a hand, or a deformable object),
   // and what it keeps of its contacts between steps.
   struct SoftBody {
-    const HandModel* model = nullptr;
-    HandState* state = nullptr;
+    const hand::HandModel* model = nullptr;
+    hand::HandState* state = nullptr;
     // The points that collide: the skin or surface vertices, each in a tet.
     const std::vector<int>* point_tet = nullptr;
     const std::vector<Eigen::Vector4d>* point_bary = nullptr;
@@ -192,7 +192,7 @@ class World {
 
   void collide_all();
   void collide(SoftBody& body);
-  int add_rigid_proxy(HandState& state, int deformable);
+  int add_rigid_proxy(hand::HandState& state, int deformable);
   void collide_with_deformables(SoftBody& body, std::unordered_map<std::uint64_t, int>& cluster);
   void find_hand_hits();
   void collide_with_hands(SoftBody& body, std::unordered_map<std::uint64_t, int>& cluster);
@@ -204,7 +204,7 @@ class World {
   void sum_hand_forces(int h);
   void remember_impulses(SoftBody& body);
   // Adds a found contact to the body, clustered per other body and cell for constraint contacts.
-  void add_contact(SoftBody& body, const PointContact& c, int point, const Eigen::Vector3d& p_W, int other_key,
+  void add_contact(SoftBody& body, const hand::PointContact& c, int point, const Eigen::Vector3d& p_W, int other_key,
                    const DeformableTouch& touch, std::unordered_map<std::uint64_t, int>& cluster);
   void step_deformables();
   void apply_reactions();
@@ -221,7 +221,7 @@ class World {
   std::vector<std::unique_ptr<DeformableObject>> deformables_;
   std::unique_ptr<RigidWorld> rigid_;
   std::vector<SoftBody> soft_;          // the hands, then the deformable objects
-  std::vector<PointContact> mirrored_;  // workspace: hand contacts seen from a deformable object
+  std::vector<hand::PointContact> mirrored_;  // workspace: hand contacts seen from a deformable object
   // A hand's skin vertex in another hand's flesh, at the last collision.
   struct HandHit {
     int skin = -1, flesh = -1, vertex = -1;

@@ -30,8 +30,8 @@ std::uint64_t cluster_key(int object, const Eigen::Vector3d& p_W, double cell_m)
 }
 
 // A point embedded in a tet of `mesh` by barycentric weights w, at nodal values x (positions or velocities).
-Eigen::Vector3d embedded_at(const TetMesh& mesh, const Eigen::VectorXd& x, int tet, const Eigen::Vector4d& w) {
-  return embedded_value(mesh.tets[tet], w, x);
+Eigen::Vector3d embedded_at(const hand::TetMesh& mesh, const Eigen::VectorXd& x, int tet, const Eigen::Vector4d& w) {
+  return hand::embedded_value(mesh.tets[tet], w, x);
 }
 
 }  // namespace
@@ -53,9 +53,9 @@ void World::collide_all() {
       if (hands_[h]->query) anchor_hand_contacts(h, dt_);
 }
 
-void World::add_contact(SoftBody& b, const PointContact& c, int point, const Eigen::Vector3d& p_W, int other_key,
+void World::add_contact(SoftBody& b, const hand::PointContact& c, int point, const Eigen::Vector3d& p_W, int other_key,
                         const DeformableTouch& touch, std::unordered_map<std::uint64_t, int>& cluster) {
-  HandState& s = *b.state;
+  hand::HandState& s = *b.state;
   if (!constraint_contact_) {
     s.contacts.push_back(c);
     b.points.push_back(p_W);
@@ -69,14 +69,14 @@ void World::add_contact(SoftBody& b, const PointContact& c, int point, const Eig
   // points of the cell stay in reserve: the step makes a row of any it would
   // carry too deep (HandState::reserve_contacts). Against deformable objects
   // and other hands the reaction must be handed over, so those points are not kept.
-  auto keep_in_reserve = [&](const PointContact& r, int r_point, const Eigen::Vector3d& r_p_W) {
+  auto keep_in_reserve = [&](const hand::PointContact& r, int r_point, const Eigen::Vector3d& r_p_W) {
     if (!options_.contact_reserves || touch.object >= 0 || touch.hand >= 0) return;
     s.reserve_contacts.push_back(r);
     b.reserve_point.push_back(r_point);
     b.reserve_p_W.push_back(r_p_W);
   };
   const std::uint64_t key = cluster_key(other_key, p_W, options_.contact_cluster_m);
-  PointContact warm_started = c;
+  hand::PointContact warm_started = c;
   const auto warm = b.warm_impulse.find(key);
   if (warm != b.warm_impulse.end()) warm_started.warm_impulse_W = warm->second;
   const auto [it, fresh] = cluster.try_emplace(key, static_cast<int>(s.contacts.size()));
@@ -111,7 +111,7 @@ void World::add_contact(SoftBody& b, const PointContact& c, int point, const Eig
 // static and rigid object (then, for hands, against the deformable objects),
 // rigid bodies touched joining the body's implicit system with their supports.
 void World::collide(SoftBody& b) {
-  HandState& s = *b.state;
+  hand::HandState& s = *b.state;
   s.contacts.clear();
   s.reserve_contacts.clear();
   b.reserve_point.clear();
@@ -126,7 +126,7 @@ void World::collide(SoftBody& b) {
   b.touches.clear();
   std::unordered_map<std::uint64_t, int> cluster;
   if (b.hand >= 0 && !options_.hand_contacts) return;
-  const TetMesh& mesh = b.model->mesh();
+  const hand::TetMesh& mesh = b.model->mesh();
   const std::vector<int>& point_tet = *b.point_tet;
   const std::vector<Eigen::Vector4d>& point_bary = *b.point_bary;
   // Constraint contacts also take points just outside (speculative: the step may not cross the gap).
@@ -138,7 +138,7 @@ void World::collide(SoftBody& b) {
     const bool bounded = dGeomGetClass(geom) != dPlaneClass;
     if (bounded) dGeomGetAABB(geom, aabb);
     for (size_t v = 0; v < point_tet.size(); ++v) {
-      const Tet& t = mesh.tets[point_tet[v]];
+      const hand::Tet& t = mesh.tets[point_tet[v]];
       const Eigen::Vector4d& w = point_bary[v];
       Eigen::Vector3d p = Eigen::Vector3d::Zero();
       for (int k = 0; k < 4; ++k) p += w[k] * s.x.segment<3>(3 * t[k]);
@@ -157,7 +157,7 @@ void World::collide(SoftBody& b) {
         continue;
       }
       if (depth > 0) last = LastContact{g, n};
-      PointContact c;
+      hand::PointContact c;
       c.tet = point_tet[v];
       c.bary = w;
       c.n_W = n;
@@ -188,7 +188,7 @@ void World::collide(SoftBody& b) {
     if (body_of_object[g] < 0) continue;
     rigid_->supports_of(g, found, kSpeculativeMargin_m);
     for (const RigidWorld::BodyContact& bc : found) {
-      BodySupport support;
+      hand::BodySupport support;
       support.body = body_of_object[g];
       support.p_W = bc.p_W;
       support.n_W = bc.n_W;
@@ -203,8 +203,8 @@ void World::collide(SoftBody& b) {
 // Hand skin points inside a deformable object's deformed surface (DeformedMeshQuery).
 // How the two bodies share a contact is in step_deformables().
 void World::collide_with_deformables(SoftBody& b, std::unordered_map<std::uint64_t, int>& cluster) {
-  HandState& s = *b.state;
-  const TetMesh& mesh = b.model->mesh();
+  hand::HandState& s = *b.state;
+  const hand::TetMesh& mesh = b.model->mesh();
   const double margin = constraint_contact_ ? kSpeculativeMargin_m : 0.0;
   const int first_key = rigid_ ? rigid_->num_objects() : 0;
   for (int d = 0; d < num_deformables(); ++d) {
@@ -214,18 +214,18 @@ void World::collide_with_deformables(SoftBody& b, std::unordered_map<std::uint64
     const Eigen::AlignedBox3d box(o.surface_bounds.min() - grow, o.surface_bounds.max() + grow);
     int proxy = -1;  // constraint contacts: the object's index in s.bodies
     for (size_t v = 0; v < b.point_tet->size(); ++v) {
-      const Tet& t = mesh.tets[(*b.point_tet)[v]];
+      const hand::Tet& t = mesh.tets[(*b.point_tet)[v]];
       const Eigen::Vector4d& w = (*b.point_bary)[v];
       Eigen::Vector3d p = Eigen::Vector3d::Zero();
       for (int k = 0; k < 4; ++k) p += w[k] * s.x.segment<3>(3 * t[k]);
       MeshPenetration pen;
       if (!box.contains(p) || !o.query->penetration(p, margin, pen)) continue;
-      PointContact c;
+      hand::PointContact c;
       c.tet = (*b.point_tet)[v];
       c.bary = w;
       c.n_W = pen.n_W;
       c.depth_m = pen.depth_m;
-      const Tet& ot = o.body.mesh.tets[pen.tet];
+      const hand::Tet& ot = o.body.mesh.tets[pen.tet];
       for (int k = 0; k < 4; ++k) c.v_other_W += pen.bary[k] * o.state.v.segment<3>(3 * ot[k]);
       c.stiffness_n_m = options_.contact_stiffness_n_m;
       c.damping_ns_m = options_.contact_damping_ns_m;
@@ -324,7 +324,7 @@ void World::collide_with_hands(SoftBody& b, std::unordered_map<std::uint64_t, in
     const int tet = skin.shape.skin_tet[hit.vertex];
     const Eigen::Vector4d& w = skin.shape.skin_bary[hit.vertex];
     const MeshPenetration& pen = hit.pen;
-    PointContact c;
+    hand::PointContact c;
     DeformableTouch touch;  // the reaction's point in o
     touch.hand = o;
     touch.reversed = reversed;
@@ -353,14 +353,14 @@ void World::collide_with_hands(SoftBody& b, std::unordered_map<std::uint64_t, in
 // geometry, so an impulse from the hand is sized for the object's inertia and
 // its support, as for a rigid body. Its solved motion is not used: the object's
 // own step takes the hand's impulses (step_deformables()).
-int World::add_rigid_proxy(HandState& s, int d) {
+int World::add_rigid_proxy(hand::HandState& s, int d) {
   const int index = static_cast<int>(s.bodies.size());
   s.bodies.push_back(rigid_proxy(*deformables_[d]));
   s.bodies.back().gravity_W = gravity_m_s2_;
   const SoftBody& own = soft_[num_hands() + d];
   for (size_t k = 0; k < own.state->contacts.size(); ++k) {
-    const PointContact& c = own.state->contacts[k];
-    BodySupport support;
+    const hand::PointContact& c = own.state->contacts[k];
+    hand::BodySupport support;
     support.body = index;
     support.p_W = own.points[k];
     support.n_W = c.n_W;  // out of the support, into the object

@@ -44,18 +44,18 @@ void World::step_deformables() {
       for (size_t k = 0; k < b.touches.size(); ++k) {
         const DeformableTouch& touch = b.touches[k];
         if (touch.object != d) continue;
-        const PointContact& c = b.state->contacts[k];
-        const Tet& t = o.body.mesh.tets[touch.tet];
+        const hand::PointContact& c = b.state->contacts[k];
+        const hand::Tet& t = o.body.mesh.tets[touch.tet];
         if (c.constraint) {
           for (int a = 0; a < 4; ++a) o.state.f_ext.segment<3>(3 * t[a]) -= touch.bary[a] * c.f_W;
           continue;
         }
-        PointContact mirror = c;
+        hand::PointContact mirror = c;
         mirror.tet = touch.tet;
         mirror.bary = touch.bary;
         mirror.n_W = -c.n_W;
         mirror.v_other_W.setZero();
-        const Tet& ht = b.model->mesh().tets[c.tet];
+        const hand::Tet& ht = b.model->mesh().tets[c.tet];
         for (int a = 0; a < 4; ++a) mirror.v_other_W += c.bary[a] * b.state->v.segment<3>(3 * ht[a]);
         mirror.body = -1;
         mirror.other = -1;
@@ -63,14 +63,14 @@ void World::step_deformables() {
       }
     }
     // The mirrored contacts join the object's own for this step only.
-    HandState& s = o.state;
+    hand::HandState& s = o.state;
     const size_t own = s.contacts.size();
     s.contacts.insert(s.contacts.end(), mirrored_.begin(), mirrored_.end());
-    hapticd::step(*o.model, s, *o.solver);
+    hand::step(*o.model, s, *o.solver);
     // What the hands did to the object over the step, per node.
     o.f_hands_W = s.f_ext;
     for (size_t k = own; k < s.contacts.size(); ++k) {
-      const Tet& t = o.body.mesh.tets[s.contacts[k].tet];
+      const hand::Tet& t = o.body.mesh.tets[s.contacts[k].tet];
       for (int a = 0; a < 4; ++a) o.f_hands_W.segment<3>(3 * t[a]) += s.contacts[k].bary[a] * s.contacts[k].f_W;
     }
     s.contacts.resize(own);
@@ -84,15 +84,15 @@ void World::step_deformables() {
 // visual loop's linearize_next_step) predicts them unchanged: as a force,
 // without the contacts' stiffness.
 void World::take_hand_reactions(int h) {
-  HandState& s = hands_[h]->state;
-  const TetMesh& mesh = hands_[h]->model->mesh();
+  hand::HandState& s = hands_[h]->state;
+  const hand::TetMesh& mesh = hands_[h]->model->mesh();
   s.f_ext.setZero();
   for (int g = 0; g < h; ++g) {
     const SoftBody& from = soft_[g];
     for (size_t k = 0; k < from.touches.size(); ++k) {
       const DeformableTouch& touch = from.touches[k];
       if (touch.hand != h) continue;
-      const Tet& t = mesh.tets[touch.tet];
+      const hand::Tet& t = mesh.tets[touch.tet];
       for (int a = 0; a < 4; ++a) s.f_ext.segment<3>(3 * t[a]) -= touch.bary[a] * from.state->contacts[k].f_W;
     }
   }
@@ -107,15 +107,15 @@ void World::take_hand_reactions(int h) {
 // at 0.3 m/s lost nearly all their momentum within five steps. The recorded contact
 // forces (f_W) have it: they take the relative velocity.
 void World::anchor_hand_contacts(int h, double dt) {
-  HandState& s = hands_[h]->state;
+  hand::HandState& s = hands_[h]->state;
   const SoftBody& b = soft_[h];
-  const TetMesh& mesh = hands_[h]->model->mesh();
+  const hand::TetMesh& mesh = hands_[h]->model->mesh();
   s.f_ext.setZero();
   for (size_t k = 0; k < b.touches.size(); ++k) {
-    const PointContact& c = s.contacts[k];
+    const hand::PointContact& c = s.contacts[k];
     if (b.touches[k].hand < 0 || c.constraint) continue;
     const Eigen::Vector3d f = c.stiffness_n_m * dt * c.n_W.dot(c.v_other_W) * c.n_W;
-    const Tet& t = mesh.tets[c.tet];
+    const hand::Tet& t = mesh.tets[c.tet];
     for (int a = 0; a < 4; ++a) s.f_ext.segment<3>(3 * t[a]) += c.bary[a] * f;
   }
 }
@@ -125,7 +125,7 @@ void World::anchor_hand_contacts(int h, double dt) {
 void World::sum_hand_forces(int h) {
   WorldHand& hand = *hands_[h];
   const SoftBody& b = soft_[h];
-  const TetMesh& mesh = hand.model->mesh();
+  const hand::TetMesh& mesh = hand.model->mesh();
   if (constraint_contact_) {
     hand.f_hands_W = hand.state.f_ext;  // the impulses taken
   } else {
@@ -133,8 +133,8 @@ void World::sum_hand_forces(int h) {
   }
   for (size_t k = 0; k < b.touches.size(); ++k) {
     if (b.touches[k].hand < 0) continue;
-    const PointContact& c = hand.state.contacts[k];
-    const Tet& t = mesh.tets[c.tet];
+    const hand::PointContact& c = hand.state.contacts[k];
+    const hand::Tet& t = mesh.tets[c.tet];
     for (int a = 0; a < 4; ++a) hand.f_hands_W.segment<3>(3 * t[a]) += c.bary[a] * c.f_W;
   }
 }
@@ -145,13 +145,13 @@ void World::apply_reactions() {
   // handed to ODE less the gravity ODE adds again (ODE's own contacts then find
   // nothing to correct where the soft body's solve already satisfied them).
   for (const SoftBody& b : soft_) {
-    const HandState& s = *b.state;
+    const hand::HandState& s = *b.state;
     std::vector<int> object_of_body(s.bodies.size(), -1);
-    for (const PointContact& c : s.contacts)
+    for (const hand::PointContact& c : s.contacts)
       if (c.body >= 0) object_of_body[c.body] = c.other;
     for (size_t i = 0; i < s.bodies.size(); ++i) {
       if (object_of_body[i] < 0) continue;
-      const ContactBody& B = s.bodies[i];
+      const hand::ContactBody& B = s.bodies[i];
       rigid_->add_velocity(object_of_body[i], B.dv_W - step_dt_ * gravity_m_s2_, B.dw_W);
     }
   }

@@ -14,9 +14,9 @@ void World::record_contacts() {
   snapshot_.contacts.clear();
   snapshot_.max_penetration_m = 0;
   for (const SoftBody& b : soft_) {
-    const HandState& s = *b.state;
+    const hand::HandState& s = *b.state;
     for (size_t k = 0; k < s.contacts.size(); ++k) {
-      const PointContact& c = s.contacts[k];
+      const hand::PointContact& c = s.contacts[k];
       const DeformableTouch& touch = b.touches[k];
       ContactRecord r;
       r.hand = b.hand;
@@ -45,7 +45,7 @@ void World::record_contacts() {
     }
     // Reserve points the step made rows of (the others carry no force).
     for (size_t k = 0; k < s.reserve_contacts.size(); ++k) {
-      const PointContact& c = s.reserve_contacts[k];
+      const hand::PointContact& c = s.reserve_contacts[k];
       if (c.f_W.isZero()) continue;
       ContactRecord r;
       r.hand = b.hand;

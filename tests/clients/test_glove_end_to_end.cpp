@@ -88,7 +88,7 @@ void run_glove(int frames, bool left) {
   // Every sample carries every frame in id order; the first is the rest posture (grasp at t = 0)
   // with the palm at --origin.
   std::size_t samples = 0;
-  const auto rest = glove_frame_poses(skeleton_pose(rest_joint_angles(), left),
+  const auto rest = glove_frame_poses(hand::skeleton_pose(hand::rest_joint_angles(), left),
                                       {Eigen::Vector3d(0.1, 0.2, 0.3), Eigen::Quaterniond::Identity()}, frames);
   for (const protocol::Message& m : received) {
     if (m.type != protocol::MessageType::kPoseSample) continue;

@@ -27,9 +27,9 @@ constexpr double kDeg = std::numbers::pi / 180.0;
 const GloveParams kParams;  // the documented defaults
 
 // A posture drawn around rest: +-40 degrees on every joint.
-HandJointAngles random_posture(std::mt19937& rng) {
+hand::HandJointAngles random_posture(std::mt19937& rng) {
   std::uniform_real_distribution<double> u(-40.0 * kDeg, 40.0 * kDeg);
-  HandJointAngles a = rest_joint_angles();
+  hand::HandJointAngles a = hand::rest_joint_angles();
   for (auto& finger : a.finger)
     for (double& q : finger) q += u(rng);
   return a;
@@ -39,16 +39,16 @@ Eigen::Vector3d vee(const Eigen::Matrix3d& S) { return {S(2, 1), S(0, 2), S(1, 0
 
 // The 6 x 20 Jacobian of phalanx i by central differences of skeleton_pose: linear rows from the
 // segment centre, angular rows from vee(dR/dq R^T).
-Eigen::Matrix<double, 6, kHandJointDofs> finite_difference_jacobian(const HandJointAngles& a, bool left, int i,
+Eigen::Matrix<double, 6, hand::kHandJointDofs> finite_difference_jacobian(const hand::HandJointAngles& a, bool left, int i,
                                                                     double h = 1e-6) {
-  Eigen::Matrix<double, 6, kHandJointDofs> J;
-  const SkeletonPose at = skeleton_pose(a, left);
-  for (int j = 0; j < kHandJointDofs; ++j) {
+  Eigen::Matrix<double, 6, hand::kHandJointDofs> J;
+  const hand::SkeletonPose at = hand::skeleton_pose(a, left);
+  for (int j = 0; j < hand::kHandJointDofs; ++j) {
     JointVector plus = a.vector(), minus = a.vector();
     plus[j] += h;
     minus[j] -= h;
-    const SkeletonPose p = skeleton_pose(HandJointAngles::from_vector(plus), left);
-    const SkeletonPose m = skeleton_pose(HandJointAngles::from_vector(minus), left);
+    const hand::SkeletonPose p = hand::skeleton_pose(hand::HandJointAngles::from_vector(plus), left);
+    const hand::SkeletonPose m = hand::skeleton_pose(hand::HandJointAngles::from_vector(minus), left);
     J.block<3, 1>(0, j) = (p.centre[i] - m.centre[i]) / (2.0 * h);
     J.block<3, 1>(3, j) = vee((p.R[i] - m.R[i]) / (2.0 * h) * at.R[i].transpose());
   }
@@ -102,8 +102,8 @@ TEST(GloveKinematics, FramePosesAreTheSkeletonsSegmentFramesComposedWithThePalmP
   const Eigen::Matrix3d R_palm = palm.q.toRotationMatrix();
   for (bool left : {false, true})
     for (int frames : {16, 6}) {
-      const HandJointAngles a = random_posture(rng);
-      const SkeletonPose s = skeleton_pose(a, left);
+      const hand::HandJointAngles a = random_posture(rng);
+      const hand::SkeletonPose s = hand::skeleton_pose(a, left);
       const auto poses = glove_frame_poses(s, palm, frames);
       EXPECT_EQ(poses[0].p_m, palm.p_m);
       EXPECT_EQ(poses[0].q.coeffs(), palm.q.coeffs());
@@ -114,7 +114,7 @@ TEST(GloveKinematics, FramePosesAreTheSkeletonsSegmentFramesComposedWithThePalmP
         // The segment's far joint lies half a bone length along the frame's y axis.
         const int f = i / 3, k = i % 3;
         const Eigen::Vector3d far_joint =
-            poses[id].p_m + poses[id].q * Eigen::Vector3d(0.0, 0.5 * finger_geometry()[f].length[k], 0.0);
+            poses[id].p_m + poses[id].q * Eigen::Vector3d(0.0, 0.5 * hand::finger_geometry()[f].length[k], 0.0);
         EXPECT_LT((far_joint - (palm.p_m + R_palm * s.joints[f][k + 1])).norm(), 1e-15) << id;
       }
       for (int id = frames; id < kMaxGloveFrames; ++id) EXPECT_EQ(poses[id].p_m, Eigen::Vector3d::Zero());
@@ -123,9 +123,9 @@ TEST(GloveKinematics, FramePosesAreTheSkeletonsSegmentFramesComposedWithThePalmP
 
 TEST(GloveKinematics, ALeftHandsFramesAreTheMirrorImageOfTheRightHands) {
   std::mt19937 rng(8);
-  const HandJointAngles a = random_posture(rng);
-  const auto right = glove_frame_poses(skeleton_pose(a, false), {}, 16);
-  const auto left = glove_frame_poses(skeleton_pose(a, true), {}, 16);
+  const hand::HandJointAngles a = random_posture(rng);
+  const auto right = glove_frame_poses(hand::skeleton_pose(a, false), {}, 16);
+  const auto left = glove_frame_poses(hand::skeleton_pose(a, true), {}, 16);
   const Eigen::Matrix3d M = Eigen::Vector3d(-1.0, 1.0, 1.0).asDiagonal();
   for (int id = 1; id < 16; ++id) {
     EXPECT_EQ(left[id].p_m, M * right[id].p_m) << id;
@@ -140,11 +140,11 @@ TEST(GloveJacobian, MatchesFiniteDifferencesOfTheSkeletonForBothHands) {
   double worst = 0.0;
   for (int trial = 0; trial < 6; ++trial)
     for (bool left : {false, true}) {
-      const HandJointAngles a = trial == 0 ? rest_joint_angles() : random_posture(rng);
-      const auto J = phalanx_jacobians(a, skeleton_pose(a, left), left);
-      for (int i = 0; i < kHandPhalanges; ++i) {
-        const Eigen::Matrix<double, 6, kHandJointDofs> fd = finite_difference_jacobian(a, left, i);
-        Eigen::Matrix<double, 6, kHandJointDofs> analytic = Eigen::Matrix<double, 6, kHandJointDofs>::Zero();
+      const hand::HandJointAngles a = trial == 0 ? hand::rest_joint_angles() : random_posture(rng);
+      const auto J = phalanx_jacobians(a, hand::skeleton_pose(a, left), left);
+      for (int i = 0; i < hand::kHandPhalanges; ++i) {
+        const Eigen::Matrix<double, 6, hand::kHandJointDofs> fd = finite_difference_jacobian(a, left, i);
+        Eigen::Matrix<double, 6, hand::kHandJointDofs> analytic = Eigen::Matrix<double, 6, hand::kHandJointDofs>::Zero();
         analytic.block<6, 4>(0, 4 * (i / 3)) = J[i];
         // Central differences of h = 1e-6 rad: O(h^2) truncation, ~1e-10 round-off.
         const double error = (analytic - fd).cwiseAbs().maxCoeff();
@@ -162,17 +162,17 @@ TEST(GloveJacobian, TorquesAreTheTransposeTimesTheWrenchesAndMatchVirtualWork) {
   // wrenches' work.
   std::mt19937 rng(12);
   std::normal_distribution<double> n(0.0, 1.0);
-  const HandJointAngles a = random_posture(rng);
-  const SkeletonPose s = skeleton_pose(a);
-  std::array<Wrench6, kHandPhalanges> w;
+  const hand::HandJointAngles a = random_posture(rng);
+  const hand::SkeletonPose s = hand::skeleton_pose(a);
+  std::array<Wrench6, hand::kHandPhalanges> w;
   for (Wrench6& x : w) x << n(rng), n(rng), n(rng), 0.01 * n(rng), 0.01 * n(rng), 0.01 * n(rng);
   const JointVector tau = joint_torques(phalanx_jacobians(a, s, false), w);
   JointVector dq;
-  for (int j = 0; j < kHandJointDofs; ++j) dq[j] = 1e-7 * n(rng);
-  const SkeletonPose plus = skeleton_pose(HandJointAngles::from_vector(a.vector() + dq));
-  const SkeletonPose minus = skeleton_pose(HandJointAngles::from_vector(a.vector() - dq));
+  for (int j = 0; j < hand::kHandJointDofs; ++j) dq[j] = 1e-7 * n(rng);
+  const hand::SkeletonPose plus = hand::skeleton_pose(hand::HandJointAngles::from_vector(a.vector() + dq));
+  const hand::SkeletonPose minus = hand::skeleton_pose(hand::HandJointAngles::from_vector(a.vector() - dq));
   double work = 0.0;
-  for (int i = 0; i < kHandPhalanges; ++i) {
+  for (int i = 0; i < hand::kHandPhalanges; ++i) {
     const Eigen::Vector3d dp = 0.5 * (plus.centre[i] - minus.centre[i]);
     const Eigen::Vector3d dtheta = vee(0.5 * (plus.R[i] - minus.R[i]) * s.R[i].transpose());
     work += w[i].head<3>().dot(dp) + w[i].tail<3>().dot(dtheta);
@@ -184,12 +184,12 @@ TEST(GloveJacobian, TorquesAreTheTransposeTimesTheWrenchesAndMatchVirtualWork) {
 
 TEST(GloveImpedance, AConstantJointTorqueDeflectsEachJointByTorqueOverStiffness) {
   JointState s;
-  const JointVector q_C = rest_joint_angles().vector();
+  const JointVector q_C = hand::rest_joint_angles().vector();
   s.q_rad = q_C;
   JointVector tau;
-  for (int j = 0; j < kHandJointDofs; ++j) tau[j] = 0.01 * (j % 7 - 3);  // -0.03 .. 0.03 N m
+  for (int j = 0; j < hand::kHandJointDofs; ++j) tau[j] = 0.01 * (j % 7 - 3);  // -0.03 .. 0.03 N m
   for (int n = 0; n < 3000; ++n) step_joints(kParams, s, q_C, JointVector::Zero(), tau, 1e-3);
-  for (int j = 0; j < kHandJointDofs; ++j) {
+  for (int j = 0; j < hand::kHandJointDofs; ++j) {
     const double expected = tau[j] / kParams.of_dof(j).stiffness_n_m_per_rad;
     EXPECT_NEAR(s.q_rad[j] - q_C[j], expected, 1e-12) << "joint " << j;
     EXPECT_NEAR(s.qd_rad_s[j], 0.0, 1e-12);
@@ -301,13 +301,13 @@ class GloveHold : public ::testing::Test {
  protected:
   void TearDown() override { std::filesystem::remove_all(dir_); }
   // A trajectory holding `a` (one CSV row).
-  GloveTrajectory hold(const HandJointAngles& a) {
+  GloveTrajectory hold(const hand::HandJointAngles& a) {
     std::filesystem::create_directories(dir_);
     const std::string path = (dir_ / "hold.csv").string();
     std::ofstream out(path);
     out.precision(17);
     out << 0.0;
-    for (int j = 0; j < kHandJointDofs; ++j) out << ',' << a.vector()[j] / kDeg;
+    for (int j = 0; j < hand::kHandJointDofs; ++j) out << ',' << a.vector()[j] / kDeg;
     out << '\n';
     out.close();
     return GloveTrajectory::from_csv(path);
@@ -323,7 +323,7 @@ TEST_F(GloveHold, AnOpposingFingertipForceReducesTheFlexionByWhatTheJacobianAndS
   // solved here by fixed-point iteration with the Jacobian from finite differences of the skeleton
   // (independent of phalanx_jacobians), with the force fixed in D as the simulation holds it.
   for (bool left : {false, true}) {
-    const HandJointAngles grasp = power_grasp_posture();
+    const hand::HandJointAngles grasp = power_grasp_posture();
     GloveTrajectory trajectory = hold(grasp);
     const Eigen::Quaterniond q_palm(Eigen::AngleAxisd(0.4, Eigen::Vector3d(0.3, -1.0, 0.2).normalized()));
     trajectory.set_palm_orientation(q_palm);
@@ -340,9 +340,9 @@ TEST_F(GloveHold, AnOpposingFingertipForceReducesTheFlexionByWhatTheJacobianAndS
     const Eigen::Vector3d f_H = q_palm.conjugate() * f_D;
     JointVector q = grasp.vector();
     for (int iteration = 0; iteration < 50; ++iteration) {
-      const auto J = finite_difference_jacobian(HandJointAngles::from_vector(q), left, 5);
+      const auto J = finite_difference_jacobian(hand::HandJointAngles::from_vector(q), left, 5);
       const JointVector tau = J.topRows<3>().transpose() * f_H;
-      for (int j = 0; j < kHandJointDofs; ++j)
+      for (int j = 0; j < hand::kHandJointDofs; ++j)
         q[j] = grasp.vector()[j] + tau[j] / kParams.of_dof(j).stiffness_n_m_per_rad;
     }
     const JointVector deflection = sim.joints().q_rad - grasp.vector();
@@ -355,7 +355,7 @@ TEST_F(GloveHold, AnOpposingFingertipForceReducesTheFlexionByWhatTheJacobianAndS
       EXPECT_LT(deflection[4 + k], -1e-3) << "index flexion " << k;
       EXPECT_GT(deflection[4 + k], -0.1) << "index flexion " << k;
     }
-    for (int j = 0; j < kHandJointDofs; ++j)
+    for (int j = 0; j < hand::kHandJointDofs; ++j)
       if (j / 4 != 1) {
         EXPECT_EQ(deflection[j], 0.0) << j;
       }
@@ -377,7 +377,7 @@ TEST_F(GloveHold, AnOpposingFingertipForceReducesTheFlexionByWhatTheJacobianAndS
     EXPECT_EQ(sim.group_figures(kPalmGroup).contact_fraction, 0.0);
     EXPECT_NEAR(sim.force_max_n(), (f_D + Eigen::Vector3d(0.0, 0.0, 2.0)).norm(), 1e-12);
     // Penetration: the distal frame's distance from where the commanded posture puts it.
-    const auto commanded = glove_frame_poses(skeleton_pose(grasp, left), {Eigen::Vector3d::Zero(), q_palm}, 16);
+    const auto commanded = glove_frame_poses(hand::skeleton_pose(grasp, left), {Eigen::Vector3d::Zero(), q_palm}, 16);
     const auto actual = sim.frame_poses();
     // The palm's 1 cm (2 N / 200 N/m along z) is part of it; over the run the palm overshoots by
     // exp(-pi zeta / sqrt(1 - zeta^2)) = 12 % (zeta 0.56) and the finger by < 6 %.
@@ -417,7 +417,7 @@ TEST(GloveSimulation, StartsAtTheCommandAndSendsThePosesOfItsFrames) {
   const Eigen::Quaterniond q(Eigen::AngleAxisd(-0.3, Eigen::Vector3d::UnitX()));
   trajectory.set_palm_orientation(q);
   GloveSimulation sim(trajectory, kParams, 6, true, 1e-3);
-  const auto expected = glove_frame_poses(skeleton_pose(rest_joint_angles(), true),
+  const auto expected = glove_frame_poses(hand::skeleton_pose(hand::rest_joint_angles(), true),
                                           {Eigen::Vector3d(0.01, 0.02, 0.03), trajectory.palm_orientation()}, 6);
   const auto poses = sim.frame_poses();
   for (int id = 0; id < 6; ++id) {

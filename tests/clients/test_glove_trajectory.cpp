@@ -23,7 +23,7 @@ constexpr double kTol = 1e-12;  // a few ulps of an angle
 // Joint j of finger f in degrees.
 double deg(const JointVector& q, int f, int k) { return q[4 * f + k] / kDeg; }
 
-void expect_posture(const JointVector& q, const HandJointAngles& expected, const std::string& what) {
+void expect_posture(const JointVector& q, const hand::HandJointAngles& expected, const std::string& what) {
   EXPECT_LT((q - expected.vector()).cwiseAbs().maxCoeff(), kTol) << what;
 }
 
@@ -66,14 +66,14 @@ TEST(GlovePostures, AreTheDocumentedAngles) {
 
 TEST(GlovePostures, ThePinchBringsTheThumbAndIndexTipsTogether) {
   for (bool left : {false, true}) {
-    const SkeletonPose p = skeleton_pose(pinch_posture(), left);
+    const hand::SkeletonPose p = hand::skeleton_pose(pinch_posture(), left);
     const double gap = (p.joints[0][3] - p.joints[1][3]).norm();
     EXPECT_NEAR(gap, 0.0163, 0.0001) << "bone ends 1.63 cm apart: the pads' flesh radii in contact";
-    const SkeletonPose rest = skeleton_pose(rest_joint_angles(), left);
+    const hand::SkeletonPose rest = hand::skeleton_pose(hand::rest_joint_angles(), left);
     EXPECT_GT((rest.joints[0][3] - rest.joints[1][3]).norm(), 0.1) << "11 cm apart at rest";
   }
   // The other fingers keep their rest abduction, slightly flexed.
-  const JointVector pinch = pinch_posture().vector(), rest = rest_joint_angles().vector();
+  const JointVector pinch = pinch_posture().vector(), rest = hand::rest_joint_angles().vector();
   for (int f = 2; f < 5; ++f) {
     EXPECT_EQ(pinch[4 * f], rest[4 * f]);
     EXPECT_NEAR(deg(pinch, f, 1), 20.0, kTol);
@@ -84,19 +84,19 @@ TEST(GlovePostures, TheGraspAndFistCurlTheFingertipsToThePalmarSide) {
   // Fingertips (bone ends) in the hand frame: palmar is -z. Power grasp: the long fingertips 5-7 cm
   // below the palm plane, wrapped back to within 4 cm of the knuckles (y 3-4 cm). Fist: the tips
   // back at the palm (z -1.2..-1.7 cm, y 1.1..1.7 cm), the thumb tip under the middle phalanges.
-  const SkeletonPose g = skeleton_pose(power_grasp_posture());
+  const hand::SkeletonPose g = hand::skeleton_pose(power_grasp_posture());
   for (int f = 1; f < 5; ++f) {
-    EXPECT_LT(g.joints[f][3].z(), -0.05) << finger_name(f);
-    EXPECT_GT(g.joints[f][3].z(), -0.075) << finger_name(f);
-    EXPECT_NEAR(g.joints[f][3].y(), 0.035, 0.005) << finger_name(f);
+    EXPECT_LT(g.joints[f][3].z(), -0.05) << hand::finger_name(f);
+    EXPECT_GT(g.joints[f][3].z(), -0.075) << hand::finger_name(f);
+    EXPECT_NEAR(g.joints[f][3].y(), 0.035, 0.005) << hand::finger_name(f);
   }
-  const SkeletonPose fist = skeleton_pose(fist_posture());
+  const hand::SkeletonPose fist = hand::skeleton_pose(fist_posture());
   for (int f = 1; f < 5; ++f) {
-    EXPECT_NEAR(fist.joints[f][3].z(), -0.0145, 0.003) << finger_name(f);
-    EXPECT_NEAR(fist.joints[f][3].y(), 0.014, 0.003) << finger_name(f);
+    EXPECT_NEAR(fist.joints[f][3].z(), -0.0145, 0.003) << hand::finger_name(f);
+    EXPECT_NEAR(fist.joints[f][3].y(), 0.014, 0.003) << hand::finger_name(f);
   }
   const Eigen::Vector3d thumb_tip = fist.joints[0][3];
-  for (int f : {1, 2}) EXPECT_LT(thumb_tip.z(), fist.centre[3 * f + 1].z() - 0.01) << "below " << finger_name(f);
+  for (int f : {1, 2}) EXPECT_LT(thumb_tip.z(), fist.centre[3 * f + 1].z() - 0.01) << "below " << hand::finger_name(f);
   EXPECT_GT(thumb_tip.x(), fist.centre[3 * 1 + 1].x()) << "across, past the index";
   EXPECT_LT(thumb_tip.x(), fist.centre[3 * 2 + 1].x() + 0.01) << "short of the middle finger's far side";
 }
@@ -104,11 +104,11 @@ TEST(GlovePostures, TheGraspAndFistCurlTheFingertipsToThePalmarSide) {
 TEST(GloveTrajectory, GraspPinchAndReleaseMoveBetweenTheirPosturesOverASecondAndHold) {
   struct Case {
     GloveTrajectory trajectory;
-    HandJointAngles from, to;
+    hand::HandJointAngles from, to;
   };
-  const Case cases[] = {{GloveTrajectory::grasp(), rest_joint_angles(), power_grasp_posture()},
-                        {GloveTrajectory::pinch(), rest_joint_angles(), pinch_posture()},
-                        {GloveTrajectory::release(), power_grasp_posture(), rest_joint_angles()}};
+  const Case cases[] = {{GloveTrajectory::grasp(), hand::rest_joint_angles(), power_grasp_posture()},
+                        {GloveTrajectory::pinch(), hand::rest_joint_angles(), pinch_posture()},
+                        {GloveTrajectory::release(), power_grasp_posture(), hand::rest_joint_angles()}};
   for (const Case& c : cases) {
     const GloveTrajectory& t = c.trajectory;
     const std::string& name = t.name();
@@ -130,12 +130,12 @@ TEST(GloveTrajectory, GraspPinchAndReleaseMoveBetweenTheirPosturesOverASecondAnd
 TEST(GloveTrajectory, FistAndSpreadCycleEveryFourSeconds) {
   const GloveTrajectory fist = GloveTrajectory::fist(), spread = GloveTrajectory::spread();
   for (double cycle : {0.0, 4.0, 8.0}) {
-    expect_posture(fist.angles(cycle + 0.2), rest_joint_angles(), "fist: rest before closing");
+    expect_posture(fist.angles(cycle + 0.2), hand::rest_joint_angles(), "fist: rest before closing");
     expect_posture(fist.angles(cycle + 2.0), fist_posture(), "fist: held closed 1.5..2.5 s");
     expect_posture(fist.angles(cycle + 2.5), fist_posture(), "fist: still closed at 2.5 s");
-    expect_posture(fist.angles(cycle + 3.6), rest_joint_angles(), "fist: open again from 3.5 s");
+    expect_posture(fist.angles(cycle + 3.6), hand::rest_joint_angles(), "fist: open again from 3.5 s");
     expect_posture(spread.angles(cycle + 2.0), spread_posture(), "spread: held 1.5..2.5 s");
-    expect_posture(spread.angles(cycle + 3.9), rest_joint_angles(), "spread: back at rest");
+    expect_posture(spread.angles(cycle + 3.9), hand::rest_joint_angles(), "spread: back at rest");
   }
   EXPECT_NEAR(deg(fist.angles(2.0), 1, 1), 90.0, kTol) << "index MCP 90 degrees";
   EXPECT_NEAR(deg(fist.angles(3.0), 1, 2), 0.5 * (100.0 + 6.0), 1e-10) << "PIP half-way open at 3 s (rest 6)";
@@ -145,8 +145,8 @@ TEST(GloveTrajectory, FistAndSpreadCycleEveryFourSeconds) {
 
 TEST(GloveTrajectory, TapFlexesTheIndexMcpThirtyDegreesFourTimesASecond) {
   const GloveTrajectory t = GloveTrajectory::tap();
-  const JointVector rest = rest_joint_angles().vector();
-  expect_posture(t.angles(0.4), rest_joint_angles(), "at rest first");
+  const JointVector rest = hand::rest_joint_angles().vector();
+  expect_posture(t.angles(0.4), hand::rest_joint_angles(), "at rest first");
   EXPECT_NEAR(deg(t.angles(0.5 + 0.125), 1, 1), 30.0, 1e-9) << "top of the first tap";
   EXPECT_NEAR(deg(t.angles(0.5 + 0.25), 1, 1), 0.0, 1e-9) << "back at rest after 0.25 s";
   int taps = 0;

@@ -8,9 +8,9 @@
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   const std::string path = hapticd::fuzz::scratch().write("mesh.msh", hapticd::fuzz::as_text(data, size));
   try {
-    const hapticd::TetMesh mesh = hapticd::load_gmsh(path);
+    const hapticd::hand::TetMesh mesh = hapticd::hand::load_gmsh(path);
     (void)mesh;
-  } catch (const hapticd::MeshError&) {
+  } catch (const hapticd::hand::MeshError&) {
   }
   return 0;
 }

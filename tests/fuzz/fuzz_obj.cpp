@@ -8,9 +8,9 @@
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   const std::string path = hapticd::fuzz::scratch().write("surface.obj", hapticd::fuzz::as_text(data, size));
   try {
-    const hapticd::SurfaceMesh surface = hapticd::load_obj(path);
-    (void)hapticd::enclosed_volume(surface);
-  } catch (const hapticd::MeshError&) {
+    const hapticd::hand::SurfaceMesh surface = hapticd::hand::load_obj(path);
+    (void)hapticd::hand::enclosed_volume(surface);
+  } catch (const hapticd::hand::MeshError&) {
   }
   return 0;
 }

@@ -72,7 +72,7 @@ bool must_build(const hapticd::SceneDesc& scene) {
 void check_finite(const hapticd::World& world) {
   const hapticd::WorldSnapshot& s = world.snapshot();
   for (const auto& hand : s.handles)
-    for (const hapticd::HandleState& h : hand)
+    for (const hapticd::hand::HandleState& h : hand)
       if (!h.p_WH.allFinite() || !h.q_WH.coeffs().allFinite())
         finding("non-finite handle pose", "step " + std::to_string(s.step));
   for (const hapticd::RigidBodyState& b : s.bodies)

@@ -16,9 +16,9 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   const std::string node_path = dir.write("mesh.node", node);
   const std::string ele_path = dir.write("mesh.ele", ele);
   try {
-    const hapticd::TetMesh mesh = hapticd::load_tetgen(node_path, ele_path);
+    const hapticd::hand::TetMesh mesh = hapticd::hand::load_tetgen(node_path, ele_path);
     (void)mesh;
-  } catch (const hapticd::MeshError&) {
+  } catch (const hapticd::hand::MeshError&) {
   }
   return 0;
 }

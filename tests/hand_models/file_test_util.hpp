@@ -42,7 +42,7 @@ inline ::testing::AssertionResult throws_mesh_error(const std::function<void()>&
                                                     long long line, const std::string& phrase) {
   try {
     load();
-  } catch (const MeshError& e) {
+  } catch (const hand::MeshError& e) {
     const std::string msg = e.what();
     const std::string prefix = path + ":" + std::to_string(line) + ": ";
     if (msg.rfind(prefix, 0) != 0)

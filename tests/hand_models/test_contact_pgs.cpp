@@ -8,7 +8,7 @@
 
 #include "hand_models/contact_pgs.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 constexpr double kG = 9.81, kH = 1.0 / 60.0;
@@ -136,4 +136,4 @@ TEST(ContactPgs, RandomProblemsConvergeToTheContactConditions) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::hand

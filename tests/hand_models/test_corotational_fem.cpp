@@ -10,7 +10,7 @@
 #include "hand_models/box_mesh.hpp"
 #include "hand_models/corotational_fem.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 Eigen::VectorXd rest_positions(const TetMesh& mesh) {
@@ -287,4 +287,4 @@ TEST(CorotationalFemCantilever, TipDeflectionConvergesToEulerBernoulli) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::hand

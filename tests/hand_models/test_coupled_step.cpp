@@ -5,7 +5,7 @@
 #include "hand_models/press_scenario.hpp"
 #include "hand_test_util.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 using testing_util::offset_target;
@@ -160,4 +160,4 @@ TEST(CoupledStep, ImplicitEulerConvergesAtFirstOrderInTheTimeStep) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -19,7 +19,7 @@
 #include "hand_models/embedded_surface.hpp"
 #include "hand_models/mesh_io.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 namespace fs = std::filesystem;
@@ -430,4 +430,4 @@ TEST_F(EmbeddedFilesTest, EmbeddingErrorsNameFileLineAndProblem) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -12,7 +12,7 @@
 #include "hand_models/coupled_solver.hpp"
 #include "hand_models/hand_model.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 constexpr SolverKind kAllSolvers[] = {SolverKind::monolithic, SolverKind::schur_cg, SolverKind::schur_cholmod,
@@ -172,4 +172,4 @@ TEST(FreeBody, ANonFiniteStateResetsTheBodyWhereItWasAtRest) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -25,7 +25,7 @@
 #include "hand_models/procedural_hand.hpp"
 #include "hand_models/skeleton/hand_skeleton.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 constexpr double kDeg = std::numbers::pi / 180.0;
@@ -589,4 +589,4 @@ TEST(GloveHand, SixHandlesReachAFistWithTheFingertips) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -10,7 +10,7 @@
 #include "hand_models/coupled_solver.hpp"
 #include "hand_models/hand_model.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 constexpr double kHalf = 0.015;  // the box: a 3 cm cube of 100 g
@@ -136,4 +136,4 @@ TEST(Grasp, TheSameSqueezeWithMu005LetsTheBoxSlipOut) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -12,7 +12,7 @@
 #include "hand_models/procedural_hand.hpp"
 #include "hand_models/skeleton/hand_skeleton.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 TEST(HandSkeleton, RestPostureGivesTheProceduralHandsBonesAndFrames) {
@@ -155,4 +155,4 @@ TEST(HandSkeleton, SkinVerticesBelongToTheirPartsHandle) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -10,7 +10,7 @@
 #include "hand_models/procedural_hand.hpp"
 #include "hand_test_util.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 using testing_util::offset_target;
@@ -253,9 +253,9 @@ TEST(HandleLinearization, EqualsTheSchurComplementOfTheCouplingOverOneStep) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::hand
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 // The Schur solver hands the linearization its own A_t^-1 [b_t, A_th] and only
@@ -294,4 +294,4 @@ TEST(HandleLinearization, ReusingTheSchurSolvesGivesTheFullSolvesModel) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -7,7 +7,7 @@
 
 #include "hand_test_util.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 using testing_util::min_det_F;
@@ -202,4 +202,4 @@ TEST(HardCases, NanTargetIsRefusedAndNanStateResetsInsteadOfPropagating) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -16,7 +16,7 @@
 #include "hand_models/press_scenario.hpp"
 #include "hand_test_util.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 using testing_util::offset_target;
@@ -301,4 +301,4 @@ TEST(LaggedSolver, CountedWorkAloneRefactorsWithinTwoSolvesOfAStiffContact) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::hand

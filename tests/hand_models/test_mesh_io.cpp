@@ -12,7 +12,7 @@
 
 #include "hand_models/mesh_io.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 namespace fs = std::filesystem;
@@ -411,4 +411,4 @@ TEST_F(MeshIoTest, LoadTetMeshRejectsUnknownExtensionAndMissingFiles) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::hand

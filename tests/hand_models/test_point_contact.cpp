@@ -6,7 +6,7 @@
 
 #include "hand_test_util.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 using testing_util::offset_target;
@@ -242,4 +242,4 @@ TEST(ConstraintContact, PushingAnImplicitBodyConservesMomentum) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::hand

@@ -13,7 +13,7 @@
 #include <stdexcept>
 #include <string>
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 constexpr double kCm = 0.01;
@@ -457,4 +457,4 @@ TEST(ProceduralHand, EmbeddingDensityGivesTheMeshTheMassOfTheHand) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::hand

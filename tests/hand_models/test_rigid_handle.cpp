@@ -8,7 +8,7 @@
 #include "hand_models/corotational_fem.hpp"
 #include "hand_models/rigid_handle.hpp"
 
-namespace hapticd {
+namespace hapticd::hand {
 namespace {
 
 struct SpringCase {
@@ -154,4 +154,4 @@ TEST(RigidHandle, MassAndInertiaComeFromTheLumpedMassesOfNodesInTheSphere) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::hand

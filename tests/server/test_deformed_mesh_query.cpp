@@ -16,13 +16,13 @@ namespace {
 
 constexpr double kHalf = 0.02;  // the cube is [-2 cm, 2 cm]^3
 
-TetMesh cube_mesh() {
-  return make_box_mesh({2 * kHalf, 2 * kHalf, 2 * kHalf}, {4, 4, 4}, -Eigen::Vector3d::Constant(kHalf));
+hand::TetMesh cube_mesh() {
+  return hand::make_box_mesh({2 * kHalf, 2 * kHalf, 2 * kHalf}, {4, 4, 4}, -Eigen::Vector3d::Constant(kHalf));
 }
 
-SurfaceMesh boundary(const TetMesh& mesh) { return SurfaceMesh{mesh.X, mesh.surface}; }
+hand::SurfaceMesh boundary(const hand::TetMesh& mesh) { return hand::SurfaceMesh{mesh.X, mesh.surface}; }
 
-Eigen::VectorXd deformed(const TetMesh& mesh, const Eigen::Matrix3d& A, const Eigen::Vector3d& b) {
+Eigen::VectorXd deformed(const hand::TetMesh& mesh, const Eigen::Matrix3d& A, const Eigen::Vector3d& b) {
   Eigen::VectorXd x(3 * mesh.num_nodes());
   for (int i = 0; i < mesh.num_nodes(); ++i) x.segment<3>(3 * i) = A * mesh.X[i] + b;
   return x;
@@ -52,7 +52,7 @@ std::vector<Probe> probes() {
 }
 
 void expect_closed_form(const Eigen::Matrix3d& A, const Eigen::Vector3d& b) {
-  const TetMesh mesh = cube_mesh();
+  const hand::TetMesh mesh = cube_mesh();
   // 1 mm cells, exact within 6 mm of the surface.
   DeformedMeshQuery query(mesh, boundary(mesh), 0.001, 6);
   query.update(deformed(mesh, A, b));
@@ -69,7 +69,7 @@ void expect_closed_form(const Eigen::Matrix3d& A, const Eigen::Vector3d& b) {
     EXPECT_LT((pen.n_W - n.normalized()).norm(), 1e-9) << "rest point " << probe.X.transpose();
     EXPECT_LT((pen.p_rest - probe.X).norm(), 1e-12);
     Eigen::Vector3d back = Eigen::Vector3d::Zero();
-    const Tet& t = mesh.tets[pen.tet];
+    const hand::Tet& t = mesh.tets[pen.tet];
     for (int k = 0; k < 4; ++k) back += pen.bary[k] * (A * mesh.X[t[k]] + b);
     EXPECT_LT((back - p).norm(), 1e-12);
   }
@@ -94,7 +94,7 @@ TEST(DeformedMeshQuery, AffinelyDeformedCubeGivesTheDistanceToTheMappedFacePlane
 }
 
 TEST(DeformedMeshQuery, LocatesEveryPointLikeABruteForceSearch) {
-  const TetMesh mesh = cube_mesh();
+  const hand::TetMesh mesh = cube_mesh();
   DeformedMeshQuery query(mesh, boundary(mesh), 0.002, 3);
   // A non-affine deformation: each node pushed by a smooth field.
   Eigen::VectorXd x(3 * mesh.num_nodes());
@@ -109,7 +109,7 @@ TEST(DeformedMeshQuery, LocatesEveryPointLikeABruteForceSearch) {
   for (int k = 0; k < 3000; ++k) {
     const Eigen::Vector3d p(coordinate(rng), coordinate(rng), coordinate(rng));
     double brute_best = -1e300;
-    for (const Tet& t : mesh.tets) {
+    for (const hand::Tet& t : mesh.tets) {
       Eigen::Matrix3d Ds;
       const Eigen::Vector3d x0 = x.segment<3>(3 * t[0]);
       Ds << x.segment<3>(3 * t[1]) - x0, x.segment<3>(3 * t[2]) - x0, x.segment<3>(3 * t[3]) - x0;

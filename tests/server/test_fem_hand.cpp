@@ -14,7 +14,7 @@ TEST(FemHand, SkinPointsAreTheRestSkinPlacedByTheScenePoseAndCarryTheirHandles) 
   const SceneDesc scene = load_scene(std::string(HAPTICD_SCENES_DIR) + "/glove_grasp.json");
   const World world(scene);
   const WorldHand& fem = world.hand(0);
-  const Hand& hand = fem;
+  const hand::Hand& hand = fem;
   EXPECT_EQ(hand.model_name(), "fem");
   ASSERT_EQ(hand.num_skin_points(), static_cast<int>(fem.shape.skin_vertices.size()));
   ASSERT_GT(hand.num_skin_points(), 100);

@@ -10,8 +10,8 @@ namespace hapticd {
 namespace {
 
 // A UV sphere of radius r, outward triangles.
-SurfaceMesh uv_sphere(double r, int rings, int segments) {
-  SurfaceMesh m;
+hand::SurfaceMesh uv_sphere(double r, int rings, int segments) {
+  hand::SurfaceMesh m;
   m.vertices.push_back({0, 0, r});
   for (int i = 1; i < rings; ++i) {
     const double th = std::numbers::pi * i / rings;
@@ -35,7 +35,7 @@ SurfaceMesh uv_sphere(double r, int rings, int segments) {
 
 TEST(MeshSdf, SignedDistanceAndNormalMatchASphereWithinTheGridError) {
   const double r = 0.05, cell = 0.003;
-  const SurfaceMesh sphere = uv_sphere(r, 48, 96);
+  const hand::SurfaceMesh sphere = uv_sphere(r, 48, 96);
   const MeshSdf sdf(sphere, cell, 6);
   double worst_distance = 0, worst_normal = 0;
   int inside = 0, outside = 0;

@@ -935,7 +935,7 @@ TEST_F(SceneLoaderTest, RejectsPositionsSpeedsAndLimitsBeyondTheWorldsBounds) {
 bool world_is_finite(const World& world) {
   const WorldSnapshot& s = world.snapshot();
   for (const auto& hand : s.handles)
-    for (const HandleState& h : hand)
+    for (const hand::HandleState& h : hand)
       if (!h.p_WH.allFinite() || !h.q_WH.coeffs().allFinite() || !h.v_WH.allFinite() || !h.w_WH.allFinite())
         return false;
   for (const RigidBodyState& b : s.bodies)

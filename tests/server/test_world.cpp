@@ -36,7 +36,7 @@ double centroid_z(const WorldHand& h) {
 TEST(World, HandRestingOnTheFloorStaysWithinHalfAMillimetreWithoutDriftOrJitter) {
   WorldOptions options;
   options.contact_stiffness_n_m = 2000;
-  options.drive = DriveParams{0, 0, 0, 0};  // let go of the handle: the hand falls and rests
+  options.drive = hand::DriveParams{0, 0, 0, 0};  // let go of the handle: the hand falls and rests
   World world(floor_scene(0), options);
   WorldHand& hand = world.hand(0);
   ASSERT_FALSE(world.rigid()->has_dynamics());  // static geometry only: no ODE dynamics world
@@ -61,7 +61,7 @@ TEST(World, HandPushesARigidBoxAcrossTheFloor) {
   ASSERT_TRUE(rigid.has_dynamics());
   const int box = rigid.find("box");
   const Eigen::Vector3d box0 = rigid.state(box).p_WO;
-  const HandleState start = hand.state.handles[0];
+  const hand::HandleState start = hand.state.handles[0];
   bool box_touched = false;
   for (int k = 0; k < 90; ++k) {  // 1.5 s, pushing along +y at 10 cm/s
     set_target(hand.state, 0, testing_util::push_along_y(start, k, world.dt()));
@@ -69,7 +69,7 @@ TEST(World, HandPushesARigidBoxAcrossTheFloor) {
     for (const ContactRecord& c : world.snapshot().contacts) box_touched = box_touched || c.object == box;
     // Every step publishes the handle-space model of the next one, bodies in contact included.
     ASSERT_TRUE(world.snapshot().linear_model_valid[0]) << "step " << k;
-    const HandleLinearization& lin = world.snapshot().linear_models[0];
+    const hand::HandleLinearization& lin = world.snapshot().linear_models[0];
     ASSERT_EQ(lin.K.rows(), 6);
     ASSERT_TRUE(lin.K.allFinite() && lin.D.allFinite() && lin.F0.allFinite());
     // A restoring stiffness: pulling the handle along any axis is resisted.
@@ -87,7 +87,7 @@ TEST(World, HandPushesARigidBoxAcrossTheFloor) {
 
 TEST(World, HandRestingOnTheFloorWithConstraintContactsDoesNotSink) {
   WorldOptions options;
-  options.drive = DriveParams{0, 0, 0, 0};
+  options.drive = hand::DriveParams{0, 0, 0, 0};
   options.contact = ContactModel::constraint;
   World world(floor_scene(0), options);
   double max_penetration = 0;
@@ -118,7 +118,7 @@ PushRun push_box(ContactModel contact) {
   RigidWorld& rigid = *world.rigid();
   const int box = rigid.find("box");
   const Eigen::Vector3d box0 = rigid.state(box).p_WO;
-  const HandleState start = hand.state.handles[0];
+  const hand::HandleState start = hand.state.handles[0];
   PushRun out;
   for (int k = 0; k < 90; ++k) {
     set_target(hand.state, 0, testing_util::push_along_y(start, k, world.dt()));
@@ -146,10 +146,10 @@ TEST(World, HandPushesARigidBoxWithConstraintContactsToo) {
   // contacts work such an overlap off by kContactDepthRecovery of it per step, so the push is
   // compared from twice the steps that takes to bring it under kReserveDepth_m on.
   const double start_overlap = constraint.deepest_in_box_m[0];
-  ASSERT_GT(start_overlap, kReserveDepth_m);
+  ASSERT_GT(start_overlap, hand::kReserveDepth_m);
   ASSERT_EQ(penalty.deepest_in_box_m[0], start_overlap);
-  const int recovered = 2 * static_cast<int>(std::ceil(std::log(kReserveDepth_m / start_overlap) /
-                                                       std::log(1 - kContactDepthRecovery)));
+  const int recovered = 2 * static_cast<int>(std::ceil(std::log(hand::kReserveDepth_m / start_overlap) /
+                                                       std::log(1 - hand::kContactDepthRecovery)));
   ASSERT_LT(recovered, 60);
   const double c_deepest = deepest_from(constraint, recovered), p_deepest = deepest_from(penalty, recovered);
   int touching = 0;
@@ -166,7 +166,7 @@ TEST(World, HandPushesARigidBoxWithConstraintContactsToo) {
   // Constraint contacts keep the skin out of the box: while pushing, its deepest point stays above
   // penalty contacts' in the same push, and within the reserve depth.
   EXPECT_LT(c_deepest, p_deepest);
-  EXPECT_LE(c_deepest, kReserveDepth_m);
+  EXPECT_LE(c_deepest, hand::kReserveDepth_m);
 }
 
 TEST(World, ShippedScenesStepOrSayWhatIsMissing) {

@@ -201,7 +201,7 @@ TEST_P(DeformableWorld, PushingASoftBunnyDeformsItAndCreatesNoEnergy) {
   const Eigen::Vector3d c0 = centroid(bunny);
   const double settled_deformation = max_deformation(bunny);  // its own weight
   const double E0 = total_energy(*bunny.model, bunny.state);
-  const HandleState start = hand.state.handles[0];
+  const hand::HandleState start = hand.state.handles[0];
   double work = 0, worst_excess = -1e300, max_deform = 0, max_reaction_error = 0;
   int touching_steps = 0;
   double max_bunny_penetration = 0, max_front = -1e300;

@@ -44,9 +44,9 @@ constexpr double kDeg = std::numbers::pi / 180.0;
 constexpr double kMm = 0.001;
 constexpr double kG = 9.81;
 
-HandJointAngles degrees(const std::array<std::array<double, 4>, kHandFingers>& d) {
-  HandJointAngles a;
-  for (int f = 0; f < kHandFingers; ++f)
+hand::HandJointAngles degrees(const std::array<std::array<double, 4>, hand::kHandFingers>& d) {
+  hand::HandJointAngles a;
+  for (int f = 0; f < hand::kHandFingers; ++f)
     for (int k = 0; k < 4; ++k) a.finger[f][k] = d[f][k] * kDeg;
   return a;
 }
@@ -57,7 +57,7 @@ struct GraspSpec {
   double size_m = 0.05, mass_kg = 0.1;
   Eigen::Vector3d object_H = Eigen::Vector3d::Zero();  // object centre in the hand frame, m
   double yaw = 0;                                       // the object's turn about z, rad
-  HandJointAngles closed;
+  hand::HandJointAngles closed;
 };
 
 // Tripod grasp of the 5 cm box: thumb on the near face (-y of the box), index
@@ -121,7 +121,7 @@ SceneDesc grasp_scene(const GraspSpec& g, const Eigen::Vector3d& palm_W) {
 
 WorldOptions glove_options(ContactModel contact) {
   WorldOptions o;
-  o.drive = DriveParams{1e6, 1e3, 1e3, 10};  // the visual loop's almost kinematic drive
+  o.drive = hand::DriveParams{1e6, 1e3, 1e3, 10};  // the visual loop's almost kinematic drive
   o.contact = contact;
   o.hand_gravity = true;  // see the file comment: false makes the held object weightless
   o.linearize = false;    // no handle-space model needed here (it costs ~50 % more per step)
@@ -154,12 +154,12 @@ HandForces hand_forces(const World& w, int object) {
 
 // Sets every handle target of `hand` for `angles` with the hand frame at (p, q), each with the
 // velocity of getting there from its last target in one step.
-void set_posture(const World& w, WorldHand& hand, const HandJointAngles& angles, const Eigen::Vector3d& p,
+void set_posture(const World& w, WorldHand& hand, const hand::HandJointAngles& angles, const Eigen::Vector3d& p,
                  const Eigen::Quaterniond& q, bool left) {
-  std::vector<HandleTarget> t = posture_targets(hand.shape, *hand.model, angles, p, q, left);
+  std::vector<hand::HandleTarget> t = posture_targets(hand.shape, *hand.model, angles, p, q, left);
   for (int j = 0; j < hand.model->num_handles(); ++j) {
     t[j].v_W = (t[j].p_W - hand.state.targets[j].p_W) / w.dt();
-    t[j].w_W = rotation_difference(t[j].q_W, hand.state.targets[j].q_W) / w.dt();
+    t[j].w_W = hand::rotation_difference(t[j].q_W, hand.state.targets[j].q_W) / w.dt();
     set_target(hand.state, j, t[j]);
   }
 }
@@ -188,13 +188,13 @@ GraspRun run_grasp(const GraspSpec& g, const WorldOptions& options) {
   World w(grasp_scene(g, above), options);
   WorldHand& hand = w.hand(0);
   const int object = w.rigid()->find("object");
-  const HandJointAngles open = rest_joint_angles();
-  HandJointAngles angles = open;
+  const hand::HandJointAngles open = hand::rest_joint_angles();
+  hand::HandJointAngles angles = open;
   Eigen::Vector3d palm = above;
   GraspRun run;
   long steps = 0;
   auto object_p = [&] { return w.snapshot().bodies[object].p_WO; };
-  auto step_to = [&](const HandJointAngles& a, const Eigen::Vector3d& p) {
+  auto step_to = [&](const hand::HandJointAngles& a, const Eigen::Vector3d& p) {
     set_posture(w, hand, a, p, Eigen::Quaterniond::Identity(), false);
     w.step();
     angles = a;
@@ -203,13 +203,13 @@ GraspRun run_grasp(const GraspSpec& g, const WorldOptions& options) {
     run.step_ms += w.snapshot().timings.total_ms;
     run.step_ms_max = std::max(run.step_ms_max, w.snapshot().timings.total_ms);
   };
-  auto move = [&](const HandJointAngles& to, const Eigen::Vector3d& palm_to, double seconds, auto each) {
-    const HandJointAngles a0 = angles;
+  auto move = [&](const hand::HandJointAngles& to, const Eigen::Vector3d& palm_to, double seconds, auto each) {
+    const hand::HandJointAngles a0 = angles;
     const Eigen::Vector3d p0 = palm;
     const int n = static_cast<int>(std::lround(seconds / w.dt()));
     for (int k = 1; k <= n; ++k) {
       const double s = 0.5 * (1.0 - std::cos(std::numbers::pi * k / n));
-      step_to(HandJointAngles::from_vector((1 - s) * a0.vector() + s * to.vector()), p0 + s * (palm_to - p0));
+      step_to(hand::HandJointAngles::from_vector((1 - s) * a0.vector() + s * to.vector()), p0 + s * (palm_to - p0));
       each();
     }
   };
@@ -222,7 +222,7 @@ GraspRun run_grasp(const GraspSpec& g, const WorldOptions& options) {
   move(g.closed, grip + Eigen::Vector3d(0, 0, 0.05), 1.0, nothing);
   run.lift_m = object_p().z() - z0;
   auto in_palm = [&] {
-    const HandleState& p = w.snapshot().handles[0][0];
+    const hand::HandleState& p = w.snapshot().handles[0][0];
     return Eigen::Vector3d(p.q_WH.conjugate() * (object_p() - p.p_WH));
   };
   auto turned_in_palm = [&] { return w.snapshot().handles[0][0].q_WH.conjugate() * w.snapshot().bodies[object].q_WO; };
@@ -275,7 +275,7 @@ void print_run(const char* what, const GraspRun& r) {
               r.normal_sum_n, r.step_ms, r.step_ms_max, r.resets);
   for (int f = 0; f < 6; ++f) {
     if (r.force_n[f].norm() == 0 && r.contacts[f] == 0) continue;
-    std::printf("[glove grasp]   %-6s %2d contacts, force on the object (%.3f, %.3f, %.3f) N", f < 5 ? finger_name(f) : "palm",
+    std::printf("[glove grasp]   %-6s %2d contacts, force on the object (%.3f, %.3f, %.3f) N", f < 5 ? hand::finger_name(f) : "palm",
                 r.contacts[f], r.force_n[f].x(), r.force_n[f].y(), r.force_n[f].z());
     if (f < 5) std::printf(", cosine to the object centre %.2f", r.into_object[f]);
     std::printf("\n");
@@ -303,7 +303,7 @@ TEST(WorldGloveGrasp, ConstraintContactsLiftA100gBoxHoldItFiveSecondsAndDropItOn
   EXPECT_LT(r.slip_m, 2 * kMm);
   EXPECT_LT(r.turn_rad, 3 * kDeg);
   // Thumb, index and middle all hold it.
-  for (int f = 0; f < 3; ++f) EXPECT_GT(r.contacts[f], 0) << finger_name(f);
+  for (int f = 0; f < 3; ++f) EXPECT_GT(r.contacts[f], 0) << hand::finger_name(f);
   EXPECT_GT(r.release_s, 0.0);
   EXPECT_LT(r.release_s, 0.3);
   EXPECT_NEAR(r.landed_z_m, 0.5 * g.size_m, 1 * kMm);  // back on the table (a cube lands on a face)
@@ -326,7 +326,7 @@ TEST(WorldGloveGrasp, PenaltyContactsLiftAndDropTheBoxButItCreepsDownAtTheRegula
   EXPECT_EQ(r.resets, 0);
   EXPECT_GT(r.lift_m, 0.045);
   EXPECT_LT(r.lift_m, 0.051);
-  for (int f = 0; f < 3; ++f) EXPECT_GT(r.contacts[f], 0) << finger_name(f);
+  for (int f = 0; f < 3; ++f) EXPECT_GT(r.contacts[f], 0) << hand::finger_name(f);
   EXPECT_GT(r.release_s, 0.0);
   EXPECT_LT(r.release_s, 0.3);
   EXPECT_NEAR(r.landed_z_m, 0.5 * g.size_m, 1 * kMm);
@@ -334,7 +334,7 @@ TEST(WorldGloveGrasp, PenaltyContactsLiftAndDropTheBoxButItCreepsDownAtTheRegula
   EXPECT_NEAR(total_force(r).z(), g.mass_kg * kG, 0.1 * g.mass_kg * kG);
   // The creep: downward, at the regularized friction's speed within 40 %.
   const double mu = std::sqrt(0.9 * 0.8);
-  const double predicted = g.mass_kg * kG * PointContact::kStickSpeed_m_s / (mu * r.normal_sum_n);
+  const double predicted = g.mass_kg * kG * hand::PointContact::kStickSpeed_m_s / (mu * r.normal_sum_n);
   const double measured = -r.slip_z_m / 5.0;
   std::printf("[glove grasp] penalty creep %.3f mm/s, W v_stick / (mu sum N) = %.3f mm/s\n", measured / kMm,
               predicted / kMm);
@@ -348,8 +348,8 @@ TEST(WorldGloveGrasp, PenaltyContactsLiftAndDropTheBoxButItCreepsDownAtTheRegula
 void expect_pinch_forces(const GraspSpec& g, const GraspRun& r) {
   // Thumb and index each push the cube toward its centre (within 45 degrees)...
   for (int f = 0; f < 2; ++f) {
-    EXPECT_GT(r.contacts[f], 0) << finger_name(f);
-    EXPECT_GT(r.into_object[f], std::cos(45 * kDeg)) << finger_name(f);
+    EXPECT_GT(r.contacts[f], 0) << hand::finger_name(f);
+    EXPECT_GT(r.into_object[f], std::cos(45 * kDeg)) << hand::finger_name(f);
   }
   // ...and nothing else touches it.
   for (int f = 2; f < 6; ++f) EXPECT_EQ(r.force_n[f].norm(), 0.0) << f;
@@ -430,7 +430,7 @@ double palm_height_under(double w, double yaw) {
       double inside = 0, outside = -0.04;  // the palm centre is inside, 4 cm below it is not
       for (int i = 0; i < 40; ++i) {
         const double z = 0.5 * (inside + outside);
-        (procedural_hand_sdf(Eigen::Vector3d(xy.x(), xy.y(), z)) < 0 ? inside : outside) = z;
+        (hand::procedural_hand_sdf(Eigen::Vector3d(xy.x(), xy.y(), z)) < 0 ? inside : outside) = z;
       }
       highest = std::max(highest, -inside);
     }
@@ -462,11 +462,11 @@ TEST(WorldGloveHandover, RightHandSetsTheBoxOnTheLeftPalmAndTheLeftCarriesItAway
     WorldHand* hand;
     Eigen::Quaterniond q;
     bool left;
-    HandJointAngles angles = rest_joint_angles();
+    hand::HandJointAngles angles = hand::rest_joint_angles();
     Eigen::Vector3d palm;
   };
-  Driven R{&right, q_right, false, rest_joint_angles(), scene.hands[0].pose.p_W};
-  Driven L{&left, q_left, true, rest_joint_angles(), scene.hands[1].pose.p_W};
+  Driven R{&right, q_right, false, hand::rest_joint_angles(), scene.hands[0].pose.p_W};
+  Driven L{&left, q_left, true, hand::rest_joint_angles(), scene.hands[1].pose.p_W};
   long steps = 0, hand_hand_steps = 0;
   auto box_p = [&] { return w.snapshot().bodies[box].p_WO; };
   auto touches = [&](int hand, int object) {
@@ -475,15 +475,15 @@ TEST(WorldGloveHandover, RightHandSetsTheBoxOnTheLeftPalmAndTheLeftCarriesItAway
     return false;
   };
   // Both hands move together: each eased from where it is to (angles, palm) in `seconds`.
-  auto move = [&](Driven& a, const HandJointAngles& a_to, const Eigen::Vector3d& a_palm, Driven& b,
-                  const HandJointAngles& b_to, const Eigen::Vector3d& b_palm, double seconds, auto each) {
-    const HandJointAngles a0 = a.angles, b0 = b.angles;
+  auto move = [&](Driven& a, const hand::HandJointAngles& a_to, const Eigen::Vector3d& a_palm, Driven& b,
+                  const hand::HandJointAngles& b_to, const Eigen::Vector3d& b_palm, double seconds, auto each) {
+    const hand::HandJointAngles a0 = a.angles, b0 = b.angles;
     const Eigen::Vector3d pa0 = a.palm, pb0 = b.palm;
     const int n = static_cast<int>(std::lround(seconds / w.dt()));
     for (int k = 1; k <= n; ++k) {
       const double s = 0.5 * (1.0 - std::cos(std::numbers::pi * k / n));
-      a.angles = HandJointAngles::from_vector((1 - s) * a0.vector() + s * a_to.vector());
-      b.angles = HandJointAngles::from_vector((1 - s) * b0.vector() + s * b_to.vector());
+      a.angles = hand::HandJointAngles::from_vector((1 - s) * a0.vector() + s * a_to.vector());
+      b.angles = hand::HandJointAngles::from_vector((1 - s) * b0.vector() + s * b_to.vector());
       a.palm = pa0 + s * (a_palm - pa0);
       b.palm = pb0 + s * (b_palm - pb0);
       for (Driven* d : {&a, &b}) set_posture(w, *d->hand, d->angles, d->palm, d->q, d->left);
@@ -498,7 +498,7 @@ TEST(WorldGloveHandover, RightHandSetsTheBoxOnTheLeftPalmAndTheLeftCarriesItAway
     }
   };
   auto nothing = [] {};
-  const HandJointAngles open = rest_joint_angles();
+  const hand::HandJointAngles open = hand::rest_joint_angles();
   // The right hand's pick-up, as in run_grasp, then 8 cm up.
   const Eigen::Vector3d grip = w.snapshot().bodies[box].p_WO - g.object_H;
   move(R, open, grip, L, open, L.palm, 0.5, nothing);
@@ -522,7 +522,7 @@ TEST(WorldGloveHandover, RightHandSetsTheBoxOnTheLeftPalmAndTheLeftCarriesItAway
   move(R, open, set_down + Eigen::Vector3d(0.05, 0, 0.06), L, open, L.palm, 0.5, nothing);
   const bool right_touches_after_release = touches(0, box);
   auto in_left_palm = [&] {
-    const HandleState& p = w.snapshot().handles[1][0];
+    const hand::HandleState& p = w.snapshot().handles[1][0];
     return Eigen::Vector3d(p.q_WH.conjugate() * (box_p() - p.p_WH));
   };
   const Eigen::Vector3d held0 = in_left_palm();
@@ -587,16 +587,16 @@ TEST_P(WorldGloveHardCases, IndexDrivenFiveCentimetresIntoTheTable) {
   World w = glove_over_table(GetParam());
   WorldHand& hand = w.hand(0);
   const Eigen::Vector3d palm(0, 0, 0.035);
-  const std::vector<HandleTarget> rest =
-      posture_targets(hand.shape, *hand.model, rest_joint_angles(), palm, Eigen::Quaterniond::Identity(), false);
-  for (int k = 0; k < 20; ++k) set_posture(w, hand, rest_joint_angles(), palm, Eigen::Quaterniond::Identity(), false), w.step();
+  const std::vector<hand::HandleTarget> rest =
+      posture_targets(hand.shape, *hand.model, hand::rest_joint_angles(), palm, Eigen::Quaterniond::Identity(), false);
+  for (int k = 0; k < 20; ++k) set_posture(w, hand, hand::rest_joint_angles(), palm, Eigen::Quaterniond::Identity(), false), w.step();
   const int index_first = 1 + 3 * 1, index_last = index_first + 3;  // handles of the index phalanges
   double deepest = 0, others = 0;
   const int ramp = 6, held = 60;
   for (int k = 1; k <= ramp + held; ++k) {
     const double s = std::min(1.0, static_cast<double>(k) / ramp);
     for (int j = 0; j < 16; ++j) {
-      HandleTarget t = rest[j];
+      hand::HandleTarget t = rest[j];
       if (j >= index_first && j < index_last) t.p_W.z() -= s * (rest[j].p_W.z() + 0.05);  // 5 cm under the top
       set_target(hand.state, j, t);
     }
@@ -629,9 +629,9 @@ TEST_P(WorldGloveHardCases, EveryFingerTeleportedByTrackingGlitches) {
   World w = glove_over_table(GetParam());
   WorldHand& hand = w.hand(0);
   const Eigen::Vector3d palm(0, 0, 0.06);
-  const std::vector<HandleTarget> rest =
-      posture_targets(hand.shape, *hand.model, rest_joint_angles(), palm, Eigen::Quaterniond::Identity(), false);
-  for (int k = 0; k < 30; ++k) set_posture(w, hand, rest_joint_angles(), palm, Eigen::Quaterniond::Identity(), false), w.step();
+  const std::vector<hand::HandleTarget> rest =
+      posture_targets(hand.shape, *hand.model, hand::rest_joint_angles(), palm, Eigen::Quaterniond::Identity(), false);
+  for (int k = 0; k < 30; ++k) set_posture(w, hand, hand::rest_joint_angles(), palm, Eigen::Quaterniond::Identity(), false), w.step();
   std::srand(7);
   auto jump = []() -> Eigen::Vector3d {  // a value, not an expression of the local d
     const Eigen::Vector3d d = Eigen::Vector3d::Random().normalized();
@@ -641,7 +641,7 @@ TEST_P(WorldGloveHardCases, EveryFingerTeleportedByTrackingGlitches) {
   for (int glitch_steps : {1, 20}) {
     for (int k = 0; k < glitch_steps; ++k) {
       for (int j = 1; j < 16; ++j) {
-        HandleTarget t = rest[j];
+        hand::HandleTarget t = rest[j];
         t.p_W += jump();
         set_target(hand.state, j, t);
       }

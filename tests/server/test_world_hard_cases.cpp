@@ -28,8 +28,8 @@ SceneDesc slab_scene(double slab_thickness, double box_mass_kg) {
   return scene;
 }
 
-HandleTarget target_at(const HandleState& start, const Eigen::Vector3d& offset, const Eigen::Vector3d& v = {0, 0, 0}) {
-  HandleTarget t;
+hand::HandleTarget target_at(const hand::HandleState& start, const Eigen::Vector3d& offset, const Eigen::Vector3d& v = {0, 0, 0}) {
+  hand::HandleTarget t;
   t.p_W = start.p_WH + offset;
   t.q_W = start.q_WH;
   t.v_W = v;
@@ -54,10 +54,10 @@ bool finite(const World& w) {
 
 // The lowest skin point of a hand, m.
 double lowest_skin_z(const WorldHand& hand) {
-  const TetMesh& mesh = hand.model->mesh();
+  const hand::TetMesh& mesh = hand.model->mesh();
   double lowest = 1e9;
   for (size_t v = 0; v < hand.shape.skin_vertices.size(); ++v) {
-    const Tet& t = mesh.tets[hand.shape.skin_tet[v]];
+    const hand::Tet& t = mesh.tets[hand.shape.skin_tet[v]];
     double z = 0;
     for (int i = 0; i < 4; ++i) z += hand.shape.skin_bary[v][i] * hand.state.x[3 * t[i] + 2];
     lowest = std::min(lowest, z);
@@ -69,7 +69,7 @@ double lowest_skin_z(const WorldHand& hand) {
 // top of a slab under it: ~75 N of drive), ramped over 0.5 s, for 2 s.
 void press_into_slab(World& world) {
   WorldHand& hand = world.hand(0);
-  const HandleState start = hand.state.handles[0];
+  const hand::HandleState start = hand.state.handles[0];
   for (int k = 0; k < 120; ++k) {
     set_target(hand.state, 0, target_at(start, {0, 0, -0.055 * std::min(1.0, k / 30.0)}));
     world.step();
@@ -80,7 +80,7 @@ void press_into_slab(World& world) {
 TEST_P(WorldHardCases, HandleDriven10cmIntoAStaticBoxInOneStepRecoversWithinHalfASecond) {
   World world(slab_scene(0.1, 0), options());
   WorldHand& hand = world.hand(0);
-  const HandleState start = hand.state.handles[0];
+  const hand::HandleState start = hand.state.handles[0];
   for (int k = 0; k < 30; ++k) {  // 0.5 s with the target 10 cm inside the slab
     set_target(hand.state, 0, target_at(start, {0, 0, -0.1}));
     world.step();
@@ -119,13 +119,13 @@ TEST(WorldConstraintContacts, ReservePointsHoldTheSkinBetweenSparseRows) {
     EXPECT_EQ(world.snapshot().resets, 0);
   }
   EXPECT_LT(lowest[0], -1e-3);
-  EXPECT_GT(lowest[1], -kReserveDepth_m);
+  EXPECT_GT(lowest[1], -hand::kReserveDepth_m);
 }
 
 TEST_P(WorldHardCases, HandAt3MetresPerSecondIntoABoxStaysFiniteAndSettles) {
   World world(slab_scene(0.1, 0), options());
   WorldHand& hand = world.hand(0);
-  const HandleState start = hand.state.handles[0];
+  const hand::HandleState start = hand.state.handles[0];
   // The target dives at 3 m/s from 3 cm above the slab to 2 cm inside it in 1/60 s steps, then holds there.
   for (int k = 0; k < 60; ++k) {
     const double dz = std::max(-0.05, -3.0 * (k + 1) * world.dt());
@@ -148,7 +148,7 @@ TEST_P(WorldHardCases, PushingObjectsAThousandTimesLighterAndHeavierThanTheHand)
     RigidWorld& rigid = *world.rigid();
     const int box = rigid.find("box");
     const Eigen::Vector3d box0 = rigid.state(box).p_WO;
-    const HandleState start = hand.state.handles[0];
+    const hand::HandleState start = hand.state.handles[0];
     double max_box_speed = 0;
     for (int k = 0; k < 90; ++k) {  // the hand moves 15 cm along +y at 10 cm/s into the box
       set_target(hand.state, 0, testing_util::push_along_y(start, k, world.dt()));
@@ -172,9 +172,9 @@ TEST_P(WorldHardCases, ADivergedBodyUnderTheHandIsResetCountedAndNeverReachesThe
   WorldHand& hand = world.hand(0);
   RigidWorld& rigid = *world.rigid();
   const int box = rigid.find("box");
-  const HandleState start = hand.state.handles[0];
+  const hand::HandleState start = hand.state.handles[0];
   const auto model_finite = [&world] {
-    const HandleLinearization& m = world.snapshot().linear_models[0];
+    const hand::HandleLinearization& m = world.snapshot().linear_models[0];
     return m.K.allFinite() && m.D.allFinite() && m.F0.allFinite();
   };
   for (int k = 0; k < 90; ++k) {  // the hand pushes the box along +y from step ~40 on

@@ -23,7 +23,7 @@ namespace {
 
 constexpr int kTets = 700;
 // A device-like stiff drive (N/m, N s/m, N m/rad, N m s/rad), as the server's proxies.
-constexpr DriveParams kStiffDrive{1e6, 1e3, 1e3, 10};
+constexpr hand::DriveParams kStiffDrive{1e6, 1e3, 1e3, 10};
 
 // How far below its hand frame's origin (the palm centre) a right hand's
 // palmar skin (-z) meets that of another right hand turned half a turn about
@@ -36,7 +36,7 @@ double palms_meet_depth() {
     double inside = 0, outside = -0.04;  // the palm centre is inside, 4 cm below it is not
     for (int i = 0; i < 40; ++i) {
       const double z = 0.5 * (inside + outside);
-      (procedural_hand_sdf(Eigen::Vector3d(x, y, z)) < 0 ? inside : outside) = z;
+      (hand::procedural_hand_sdf(Eigen::Vector3d(x, y, z)) < 0 ? inside : outside) = z;
     }
     return inside;
   };
@@ -81,9 +81,9 @@ Eigen::Vector3d total(const Eigen::VectorXd& f) {
 
 // The drive's force on handle 0 (the palm), N.
 Eigen::Vector3d drive_force(const WorldHand& hand) {
-  const DriveParams& d = hand.model->config().drive;
-  const HandleState& h = hand.state.handles[0];
-  const HandleTarget& t = hand.state.targets[0];
+  const hand::DriveParams& d = hand.model->config().drive;
+  const hand::HandleState& h = hand.state.handles[0];
+  const hand::HandleTarget& t = hand.state.targets[0];
   return -d.stiffness_n_m * (h.p_WH - t.p_W) - d.damping_ns_m * (h.v_WH - t.v_W);
 }
 
@@ -91,12 +91,12 @@ Eigen::Vector3d drive_force(const WorldHand& hand) {
 // point (not only those the contacts kept), through a query of the flesh's
 // own (a world without hand-hand contact has none).
 double deepest_skin_point(const WorldHand& skin, const WorldHand& flesh) {
-  DeformedMeshQuery query(flesh.model->mesh(), SurfaceMesh{flesh.shape.skin_vertices, flesh.shape.skin_triangles},
+  DeformedMeshQuery query(flesh.model->mesh(), hand::SurfaceMesh{flesh.shape.skin_vertices, flesh.shape.skin_triangles},
                           0.003, 6);
   query.update(flesh.state.x);
   double deepest = 0;
   for (size_t v = 0; v < skin.shape.skin_tet.size(); ++v) {
-    const Tet& t = skin.model->mesh().tets[skin.shape.skin_tet[v]];
+    const hand::Tet& t = skin.model->mesh().tets[skin.shape.skin_tet[v]];
     Eigen::Vector3d p = Eigen::Vector3d::Zero();
     for (int k = 0; k < 4; ++k) p += skin.shape.skin_bary[v][k] * skin.state.x.segment<3>(3 * t[k]);
     MeshPenetration pen;
@@ -107,7 +107,7 @@ double deepest_skin_point(const WorldHand& skin, const WorldHand& flesh) {
 
 class TwoHands : public testing::TestWithParam<ContactModel> {
  protected:
-  WorldOptions options(const DriveParams& drive = kStiffDrive) const {
+  WorldOptions options(const hand::DriveParams& drive = kStiffDrive) const {
     WorldOptions o;
     o.contact = GetParam();
     o.hand_gravity = false;
@@ -126,13 +126,13 @@ struct PressResult {
 };
 PressResult press(World& world, int steps) {
   PressResult r;
-  const HandleTarget start[2] = {world.hand(0).state.targets[0], world.hand(1).state.targets[0]};
+  const hand::HandleTarget start[2] = {world.hand(0).state.targets[0], world.hand(1).state.targets[0]};
   constexpr double kTravel = 0.0115, kSpeed = 0.03;  // m, m/s (each hand)
   double time_ms = 0;
   for (int k = 0; k < steps; ++k) {
     const double t = (k + 1) * world.dt();
     for (int h = 0; h < 2; ++h) {
-      HandleTarget target = start[h];
+      hand::HandleTarget target = start[h];
       const double sign = h == 0 ? -1 : 1;  // the right hand comes down, the left hand up
       target.p_W.z() += sign * std::min(kTravel, kSpeed * t);
       target.v_W.z() = kSpeed * t < kTravel ? sign * kSpeed : 0;
@@ -224,7 +224,7 @@ TEST_P(TwoHands, PressedPalmToPalmTheyStopAtEachOtherWithEqualAndOppositeForces)
 // forces. Without mass-proportional damping nothing else changes the hands'
 // momentum: the contacts only move it from one hand to the other.
 TEST_P(TwoHands, LetGoAfterAPushTheyConserveMomentum) {
-  World world(palm_to_palm(0.01, 0.0, {0.015, 0.02, 0}, 0.35), options(DriveParams{0, 0, 0, 0}));
+  World world(palm_to_palm(0.01, 0.0, {0.015, 0.02, 0}, 0.35), options(hand::DriveParams{0, 0, 0, 0}));
   WorldHand& right = world.hand(0);
   WorldHand& left = world.hand(1);
   const Eigen::Vector3d v0(0, 0, -0.3);

@@ -27,8 +27,8 @@ inline void add_push_box(SceneDesc& scene, double mass_kg, double friction = 0.5
 }
 
 // The handle target of step k of a push along +y at 10 cm/s from `start`.
-inline HandleTarget push_along_y(const HandleState& start, int k, double dt) {
-  HandleTarget t;
+inline hand::HandleTarget push_along_y(const hand::HandleState& start, int k, double dt) {
+  hand::HandleTarget t;
   t.p_W = start.p_WH + Eigen::Vector3d(0, 0.1 * (k + 1) * dt, 0);
   t.q_W = start.q_WH;
   t.v_W = Eigen::Vector3d(0, 0.1, 0);

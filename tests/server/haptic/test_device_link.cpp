@@ -41,10 +41,10 @@ TEST(DeviceLink, GloveFramesAtRestLandOnTheHandles) {
     options.hand_gravity = false;
     const World world(scene, options);
     const DeviceLink link = make_device_link(world, scene.devices[0], 1000);
-    const HandState& s = world.hand(0).state;
+    const hand::HandState& s = world.hand(0).state;
     ASSERT_EQ(link.handles, static_cast<int>(s.handles.size()));
     // The glove at rest: palm = hand frame at the device origin, phalanges from the skeleton.
-    const SkeletonPose skeleton = skeleton_pose(rest_joint_angles());
+    const hand::SkeletonPose skeleton = hand::skeleton_pose(hand::rest_joint_angles());
     for (int j = 0; j < link.handles; ++j) {
       Eigen::Vector3d p_D = Eigen::Vector3d::Zero();
       Eigen::Quaterniond q_D = Eigen::Quaterniond::Identity();

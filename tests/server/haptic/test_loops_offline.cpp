@@ -44,7 +44,7 @@ LoopRun run_loops(double seconds, const SimulatedStylus::Command& command, int d
   OfflineLoops loops(scene, options);
   const double period = options.haptic_period_s;
   // The device starts where the handle is (no jump to excite the flesh); `command` is an offset from there.
-  const HandleState h0 = loops.world().snapshot().handles[0][0];
+  const hand::HandleState h0 = loops.world().snapshot().handles[0][0];
   Eigen::Vector3d start_D;
   Eigen::Quaterniond q_D;
   loops.frame_pose_at_handle(0, start_D, q_D);

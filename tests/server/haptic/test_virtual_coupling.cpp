@@ -84,14 +84,14 @@ TEST(VirtualCoupling, DeviceInFreeSpaceOfTheShippedSceneFeelsLessThanFiveCentine
   World world(scene, options);
   for (int k = 0; k < 5; ++k) world.step();
   HapticModel model;
-  HandleLinearization lin;
+  hand::HandleLinearization lin;
   fill_haptic_model(world, 0, lin, model);
   ASSERT_EQ(model.handles, 1);
   const DeviceDesc& dev = scene.devices[0];
   DeviceMap map{dev.workspace.scale, dev.workspace.offset_W, dev.workspace.R_WD};
   ProxyHand p = make_proxy(map, dev.stiffness_n_m, {dev.max_force_n, dev.max_torque_nm, dev.max_force_rate_n_s});
   // The device where the handle is.
-  const HandleState& h = world.snapshot().handles[0][0];
+  const hand::HandleState& h = world.snapshot().handles[0][0];
   const Eigen::Vector3d p_D = map.R_WD.inverse() * (h.p_WH - map.offset_W) / map.scale;
   const Eigen::Quaterniond q_D = map.R_WD.inverse() * h.q_WH;
   double worst = 0, t = 0;
@@ -450,7 +450,7 @@ void drive(ProxyHand& p, const HapticPose* start, double t, double turn_rad = 0.
 void follow(HapticModel& m, const ProxyHand& p, double step_s) {
   for (int j = 0; j < GloveModelCase::kHandles; ++j) {
     m.x0[j] = {p.proxy(j).p_W + step_s * p.proxy_velocity(j),
-               rotate_by(p.proxy(j).q_W, step_s * p.proxy_angular_velocity(j))};
+               hand::rotate_by(p.proxy(j).q_W, step_s * p.proxy_angular_velocity(j))};
     m.v0[j] = p.proxy_velocity(j);
     m.w0[j] = p.proxy_angular_velocity(j);
   }

@@ -33,7 +33,7 @@ TEST(VisualLoopTargets, AProxyIsExtrapolatedFromTheTimeItIsOfToThePublication) {
   const std::uint64_t t = 5'000'000'000ull;
   const ProxyTargets targets = moving_proxy(t);
   // Published 3 ms after the proxies' time: 3 ms of their motion ahead.
-  HandleTarget h = proxy_target(targets, 0, 1, t + 3'000'000);
+  hand::HandleTarget h = proxy_target(targets, 0, 1, t + 3'000'000);
   EXPECT_NEAR((h.p_W - Eigen::Vector3d(0.1003, 0.2, 0.2994)).norm(), 0.0, 1e-12);
   EXPECT_NEAR(h.q_W.angularDistance(Eigen::Quaterniond(Eigen::AngleAxisd(0.006, Eigen::Vector3d::UnitZ()))), 0.0,
               1e-12);
@@ -93,7 +93,7 @@ struct Threads {
     step->build_models(protocol::now_ns(), 1.0 / visual_hz);
     step->publish();
     loop = std::make_unique<VisualLoop>(*step, visual_hz, &report, [this](const std::string&) { ++logged; });
-    const HandleState& h = world->hand(0).state.handles[0];
+    const hand::HandleState& h = world->hand(0).state.handles[0];
     Eigen::Quaterniond q;
     link.map.to_device(0, {h.p_WH, h.q_WH}, start_D, q);
   }
