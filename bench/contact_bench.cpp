@@ -64,11 +64,11 @@ const std::vector<int> kVisualTicks = {33, 17, 1};
 const std::vector<double> kNominalHz = {30, 60, 1000};
 
 struct Row {
-  ContactModel contact = ContactModel::constraint;
+  world::ContactModel contact = world::ContactModel::constraint;
   double nominal_hz = 0;
   int every = 1;
   PressRun run;
-  ForceError error;
+  offline::ForceError error;
   bool reference = false;
 };
 
@@ -89,26 +89,26 @@ nlohmann::json row_json(const Row& r) {
 void run_contact_bench(const ContactArgs& a) {
   const Size size = size_of(a.size);
   const Machine machine = describe_machine();
-  const SceneDesc scene = wall_scene(a.scene, size.hand_tets, kWallGapM);
+  const world::SceneDesc scene = wall_scene(a.scene, size.hand_tets, kWallGapM);
   const long ticks = std::lround(size.press.total_s() / kHapticPeriodS);
   const auto t0 = std::chrono::steady_clock::now();
-  OfflineOptions options;
+  offline::OfflineOptions options;
   options.haptic_period_s = kHapticPeriodS;
   options.visual_every_ticks = 1;
-  options.contact = ContactModel::constraint;
+  options.contact = world::ContactModel::constraint;
   Row reference;
   reference.nominal_hz = 1000;
   reference.reference = true;
   {
-    OfflineLoops loops(scene, options);
-    SimulatedStylus stylus = press_stylus(loops, size.press, sim::DeviceParams{});
+    offline::OfflineLoops loops(scene, options);
+    offline::SimulatedStylus stylus = press_stylus(loops, size.press, sim::DeviceParams{});
     reference.run = run_press(loops, stylus, ticks, size.press);
   }
-  const OfflineTrace& ref = reference.run.trace;
+  const offline::OfflineTrace& ref = reference.run.trace;
   std::vector<Row> rows;
-  for (ContactModel contact : {ContactModel::constraint, ContactModel::penalty})
+  for (world::ContactModel contact : {world::ContactModel::constraint, world::ContactModel::penalty})
     for (std::size_t i = 0; i < kVisualTicks.size(); ++i) {
-      if (contact == ContactModel::constraint && kVisualTicks[i] == 1) {
+      if (contact == world::ContactModel::constraint && kVisualTicks[i] == 1) {
         rows.push_back(reference);
         continue;
       }
@@ -118,10 +118,10 @@ void run_contact_bench(const ContactArgs& a) {
       row.every = kVisualTicks[i];
       options.contact = contact;
       options.visual_every_ticks = row.every;
-      OfflineLoops loops(scene, options);
-      RecordedDevice replay(ref.poses);
+      offline::OfflineLoops loops(scene, options);
+      offline::RecordedDevice replay(ref.poses);
       row.run = run_press(loops, replay, ticks, size.press);
-      row.error = force_error(row.run.trace, ref);
+      row.error = offline::force_error(row.run.trace, ref);
       rows.push_back(std::move(row));
     }
   const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -144,8 +144,8 @@ void run_contact_bench(const ContactArgs& a) {
     json_rows.push_back(row_json(r));
   }
   const int hand_tets = scene.hands[0].resolution_tets;
-  std::printf("reference: RMS force %.3f N; hand %d tets target; %.1f s wall (all runs)\n", rms_force(ref), hand_tets,
-              wall_s);
+  std::printf("reference: RMS force %.3f N; hand %d tets target; %.1f s wall (all runs)\n", offline::rms_force(ref),
+              hand_tets, wall_s);
   std::printf("machine: %s, %d cores, BLAS %s, revision %s (one thread; times are medians)\n", machine.cpu.c_str(),
               machine.cores, machine.blas.c_str(), machine.git_revision.c_str());
   if (!a.json.empty())
@@ -165,7 +165,7 @@ void run_contact_bench(const ContactArgs& a) {
                           {"depth_device_m", size.press.depth_m}}},
                         {"hand_tets_target", hand_tets},
                         {"wall_gap_m", kWallGapM},
-                        {"reference_rms_force_n", rms_force(ref)},
+                        {"reference_rms_force_n", offline::rms_force(ref)},
                         {"rows", json_rows},
                         {"wall_s", wall_s},
                         {"threads", 1},

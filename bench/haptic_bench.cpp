@@ -21,7 +21,7 @@ int main(int argc, char** argv) {
   // Diagnostics through spdlog to stderr, each naming its suite ("latency: ..."); stdout keeps the tables.
   spdlog::set_default_logger(spdlog::stderr_logger_mt("haptic-bench"));
   spdlog::set_pattern("%v");
-  if (!hapticd::keep_large_allocations_on_heap()) spdlog::warn("haptic-bench: heap settings refused");
+  if (!hapticd::process::keep_large_allocations_on_heap()) spdlog::warn("haptic-bench: heap settings refused");
   CLI::App app{"haptic-bench: hapticd benchmarks; every figure printed with its machine and baseline"};
   app.require_subcommand(1);
   hapticd::bench::add_hand_suite(app);

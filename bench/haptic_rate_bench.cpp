@@ -141,26 +141,26 @@ struct Probe {
   double k = 0, energy_j = 0;
   long resets = 0;
   bool passive = false;
-  OfflineTimings timings;
+  offline::OfflineTimings timings;
 };
 
 struct RateResult {
   int haptic_hz = 0, every = 1;
-  OfflineTimings timings;  // at the scene's stiffness
+  offline::OfflineTimings timings;  // at the scene's stiffness
   double max_passive = 0, first_active = 0, energy_at_max = 0, theory = 0, colgate = 0;
   std::vector<Probe> probes;
 };
 
-Probe probe(SceneDesc scene, const Size& size, int haptic_hz, int every, double k) {
+Probe probe(world::SceneDesc scene, const Size& size, int haptic_hz, int every, double k) {
   const double T = 1.0 / haptic_hz;
   scene.devices[0].stiffness_n_m = k;
   scene.devices[0].max_force_rate_n_s = kSweepSlewLimit_n_s;
-  OfflineOptions options;
+  offline::OfflineOptions options;
   options.haptic_period_s = T;
   options.visual_every_ticks = every;
-  options.contact = ContactModel::constraint;
-  OfflineLoops loops(scene, options);
-  SimulatedStylus stylus = press_stylus(loops, size.press, phantom_class());
+  options.contact = world::ContactModel::constraint;
+  offline::OfflineLoops loops(scene, options);
+  offline::SimulatedStylus stylus = press_stylus(loops, size.press, phantom_class());
   const PressRun run = run_press(loops, stylus, std::lround(size.press.total_s() / T), size.press);
   Probe p;
   p.k = k;
@@ -171,7 +171,7 @@ Probe probe(SceneDesc scene, const Size& size, int haptic_hz, int every, double 
   return p;
 }
 
-RateResult sweep(const SceneDesc& scene, const Size& size, int haptic_hz) {
+RateResult sweep(const world::SceneDesc& scene, const Size& size, int haptic_hz) {
   RateResult r;
   r.haptic_hz = haptic_hz;
   r.every = static_cast<int>(std::lround(haptic_hz / kVisualHz));
@@ -220,7 +220,7 @@ RateResult sweep(const SceneDesc& scene, const Size& size, int haptic_hz) {
 void run_haptic_rate_bench(const HapticRateArgs& a) {
   const Size size = size_of(a.size);
   const Machine machine = describe_machine();
-  const SceneDesc scene = wall_scene(a.scene, size.hand_tets, kWallGapM);
+  const world::SceneDesc scene = wall_scene(a.scene, size.hand_tets, kWallGapM);
   const sim::DeviceParams dev = phantom_class();
   const auto t0 = std::chrono::steady_clock::now();
   std::vector<RateResult> results;

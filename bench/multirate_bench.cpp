@@ -43,7 +43,7 @@ Size size_of(const std::string& name) {
 const std::vector<int> kVisualTicks = {67, 33, 17, 8, 4, 1};
 const std::vector<double> kNominalHz = {15, 30, 60, 120, 240, 1000};
 
-nlohmann::json row_json(const MultirateRow& r, double nominal_hz) {
+nlohmann::json row_json(const offline::MultirateRow& r, double nominal_hz) {
   return {{"interaction", r.interaction},
           {"visual_hz", nominal_hz},
           {"visual_hz_exact", r.visual_hz},
@@ -61,19 +61,19 @@ nlohmann::json row_json(const MultirateRow& r, double nominal_hz) {
 void run_multirate_bench(const MultirateArgs& a) {
   const Size size = size_of(a.size);
   const Machine machine = describe_machine();
-  SceneDesc stylus_scene = load_scene(a.stylus_scene), glove_scene = load_scene(a.glove_scene);
+  world::SceneDesc stylus_scene = world::load_scene(a.stylus_scene), glove_scene = world::load_scene(a.glove_scene);
   if (size.hand_tets > 0) {
-    for (HandDesc& h : stylus_scene.hands) h.resolution_tets = size.hand_tets;
-    for (HandDesc& h : glove_scene.hands) h.resolution_tets = size.hand_tets;
+    for (world::HandDesc& h : stylus_scene.hands) h.resolution_tets = size.hand_tets;
+    for (world::HandDesc& h : glove_scene.hands) h.resolution_tets = size.hand_tets;
   }
   const int frames = a.glove_frames ? a.glove_frames : size.glove_frames;
-  const std::vector<Interaction> interactions = {
-      stylus_press(stylus_scene, a.stylus_s > 0 ? a.stylus_s : size.stylus_s),
-      stylus_press_fixed(stylus_scene, a.stylus_s > 0 ? a.stylus_s : size.stylus_s),
-      glove_grasp(glove_scene, a.glove_s > 0 ? a.glove_s : size.glove_s, frames)};
-  std::vector<HandleModelKind> models;
+  const std::vector<offline::Interaction> interactions = {
+      offline::stylus_press(stylus_scene, a.stylus_s > 0 ? a.stylus_s : size.stylus_s),
+      offline::stylus_press_fixed(stylus_scene, a.stylus_s > 0 ? a.stylus_s : size.stylus_s),
+      offline::glove_grasp(glove_scene, a.glove_s > 0 ? a.glove_s : size.glove_s, frames)};
+  std::vector<haptic::HandleModelKind> models;
   for (const std::string& m : a.models)
-    models.push_back(m == "linearized" ? HandleModelKind::linearized : HandleModelKind::zoh);
+    models.push_back(m == "linearized" ? haptic::HandleModelKind::linearized : haptic::HandleModelKind::zoh);
 
   nlohmann::json rows = nlohmann::json::array(), meta = nlohmann::json::array(), ratios = nlohmann::json::object();
   std::printf(
@@ -83,28 +83,28 @@ void run_multirate_bench(const MultirateArgs& a) {
       "coupling force, held.\n");
   std::printf("%-18s %8s %6s %-12s %10s %10s %9s %10s %10s %7s\n", "interaction", "visual", "ticks", "model",
               "rms_err_N", "max_err_N", "x_lin", "haptic_us", "visual_ms", "resets");
-  for (const Interaction& in : interactions) {
+  for (const offline::Interaction& in : interactions) {
     const auto t0 = std::chrono::steady_clock::now();
-    const MultirateRuns runs = run_multirate(in, kVisualTicks, models);
+    const offline::MultirateRuns runs = offline::run_multirate(in, kVisualTicks, models);
     const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    const HandDesc& hand = in.scene.hands[0];
+    const world::HandDesc& hand = in.scene.hands[0];
     meta.push_back({{"interaction", in.name},
                     {"scene", in.scene.name},
                     {"seconds", in.seconds},
                     {"hand_tets_target", hand.resolution_tets},
                     {"handles", std::string(to_string(hand.handles))},
-                    {"reference_rms_force_n", rms_force(runs.reference)},
+                    {"reference_rms_force_n", offline::rms_force(runs.reference)},
                     {"reference_resets", runs.reference.resets},
                     {"wall_s", wall_s}});
     std::map<int, double> lin_rms;
-    for (const MultirateRow& r : runs.rows)
-      if (r.model == HandleModelKind::linearized) lin_rms[r.visual_ticks] = r.error.rms_n;
-    for (const MultirateRow& r : runs.rows) {
+    for (const offline::MultirateRow& r : runs.rows)
+      if (r.model == haptic::HandleModelKind::linearized) lin_rms[r.visual_ticks] = r.error.rms_n;
+    for (const offline::MultirateRow& r : runs.rows) {
       double nominal = r.visual_hz;
       for (std::size_t i = 0; i < kVisualTicks.size(); ++i)
         if (kVisualTicks[i] == r.visual_ticks) nominal = kNominalHz[i];
       // The ratio to the linearized model's error at the same rate (not at every tick, where that is zero).
-      const bool baseline = r.model != HandleModelKind::linearized;
+      const bool baseline = r.model != haptic::HandleModelKind::linearized;
       const auto lin = lin_rms.find(r.visual_ticks);
       const double ratio = baseline && lin != lin_rms.end() && lin->second > 1e-9 ? r.error.rms_n / lin->second : NAN;
       if (baseline)
@@ -121,7 +121,7 @@ void run_multirate_bench(const MultirateArgs& a) {
     std::printf(
         "%-18s reference: RMS force %.3f N, %.1f s simulated in %.1f s wall (all runs), hand %d tets target, "
         "%s handles\n",
-        in.name.c_str(), rms_force(runs.reference), in.seconds, wall_s, hand.resolution_tets,
+        in.name.c_str(), offline::rms_force(runs.reference), in.seconds, wall_s, hand.resolution_tets,
         std::string(to_string(hand.handles)).c_str());
   }
   std::printf("machine: %s, %d cores, BLAS %s, revision %s (one thread; times are medians)\n", machine.cpu.c_str(),

@@ -32,19 +32,20 @@ PressProfile tiny_press();
 // The scene at `path` with its objects replaced by one static box whose top lies `gap_m`
 // (world) under the lowest node of the first hand at its pose; hands at `hand_tets` (0: the
 // scene's). The box is 30 x 30 cm, 4 cm thick, centred under the hand.
-SceneDesc wall_scene(const std::string& path, int hand_tets, double gap_m);
+world::SceneDesc wall_scene(const std::string& path, int hand_tets, double gap_m);
 
 struct PressRun {
-  OfflineTrace trace;
+  offline::OfflineTrace trace;
   // Deepest skin point inside the wall (World snapshot max_penetration_m, clamped at 0) after
   // each visual step: the largest over the run, and the RMS over the steps that end while
   // the press is down or held (PressProfile::pressed_*), m.
   double penetration_max_m = 0, penetration_rms_m = 0;
 };
 // As run_offline, sampling the world's penetration after every visual step.
-PressRun run_press(OfflineLoops& loops, OfflineDevice& device, long ticks, const PressProfile& press);
+PressRun run_press(offline::OfflineLoops& loops, offline::OfflineDevice& device, long ticks, const PressProfile& press);
 
 // The simulated stylus at the hand's handle following the press.
-SimulatedStylus press_stylus(const OfflineLoops& loops, const PressProfile& press, const sim::DeviceParams& params);
+offline::SimulatedStylus press_stylus(const offline::OfflineLoops& loops, const PressProfile& press,
+                                      const sim::DeviceParams& params);
 
 }  // namespace hapticd::bench

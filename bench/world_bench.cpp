@@ -48,17 +48,17 @@ Eigen::Vector3d to_eigen(sim::Vec3d v) { return {v.x, v.y, v.z}; }
 
 struct GloveScript {
   int hand = -1;
-  DeviceLink link;
+  haptic::DeviceLink link;
   sim::GloveTrajectory trajectory = sim::GloveTrajectory::grasp();
 };
 
-std::vector<GloveScript> glove_scripts(const SceneDesc& scene, const World& world) {
+std::vector<GloveScript> glove_scripts(const world::SceneDesc& scene, const world::World& world) {
   std::vector<GloveScript> out;
-  for (const DeviceDesc& d : scene.devices) {
-    if (d.kind != DeviceKind::glove) continue;
+  for (const world::DeviceDesc& d : scene.devices) {
+    if (d.kind != world::DeviceKind::glove) continue;
     GloveScript g;
     g.hand = world.find_hand(d.hand);
-    g.link = make_device_link(world, d, 1000.0);
+    g.link = haptic::make_device_link(world, d, 1000.0);
     const hand::HandleState& palm = world.hand(g.hand).state.handles[0];
     Eigen::Vector3d palm_D;
     Eigen::Quaterniond q_D;
@@ -75,7 +75,7 @@ void set_glove_targets(const GloveScript& g, double t, hand::HandState& state) {
   const auto frames = sim::glove_frame_poses(hand::skeleton_pose(hand::HandJointAngles::from_vector(g.trajectory.angles(t)), g.link.left),
                                         palm, g.link.handles);
   for (int j = 0; j < g.link.handles; ++j) {
-    const HapticPose pose = g.link.map.to_world(j, frames[j].p_m, frames[j].q);
+    const haptic::HapticPose pose = g.link.map.to_world(j, frames[j].p_m, frames[j].q);
     hand::HandleTarget target;
     target.p_W = pose.p_W;
     target.q_W = pose.q_W;
@@ -87,16 +87,16 @@ void set_glove_targets(const GloveScript& g, double t, hand::HandState& state) {
 // first rigid or deformable object (file order), come down onto it in the next
 // half second (palm centre 5 mm above its top surface, so the palm's skin
 // presses into it), then stroke 2 cm along x with a 2 s period.
-RunStats run(const SceneDesc& scene, WorldOptions options, int steps) {
+RunStats run(const world::SceneDesc& scene, world::WorldOptions options, int steps) {
   options.linearize = false;  // the model is the coming step's, built after each step as the server does
-  World world(scene, options);
+  world::World world(scene, options);
   const std::vector<GloveScript> gloves = glove_scripts(scene, world);
   hand::HandleLinearization model;
   std::vector<std::vector<hand::HandleState>> start;
   for (int h = 0; h < world.num_hands(); ++h) start.push_back(world.hand(h).state.handles);
   Eigen::Vector3d goal = start.empty() ? Eigen::Vector3d::Zero() : start[0][0].p_WH;
-  for (const ObjectDesc& o : scene.objects) {
-    if (o.kind == BodyKind::deformable) {
+  for (const world::ObjectDesc& o : scene.objects) {
+    if (o.kind == world::BodyKind::deformable) {
       // The highest surface point within 1 cm of the vertical through the centre of its bounding box.
       const std::vector<Eigen::Vector3d>& surface =
           world.snapshot().deformables[world.find_deformable(o.name)].surface_W;
@@ -108,7 +108,7 @@ RunStats run(const SceneDesc& scene, WorldOptions options, int steps) {
       goal.z() += 0.005;
       break;
     }
-    if (o.kind == BodyKind::rigid && world.rigid()) {
+    if (o.kind == world::BodyKind::rigid && world.rigid()) {
       // The object's top surface under the centre of its bounding box.
       const int i = world.rigid()->find(o.name);
       dReal aabb[6];
@@ -147,13 +147,13 @@ RunStats run(const SceneDesc& scene, WorldOptions options, int steps) {
     world.step();
     const auto t_model = std::chrono::steady_clock::now();
     for (int h = 0; h < world.num_hands(); ++h) {
-      WorldHand& hand = world.hand(h);
+      world::WorldHand& hand = world.hand(h);
       hand::HandleLinearization lin;
       linearize_next_step(*hand.model, hand.state, *hand.solver, lin);
       if (h == 0) model = lin;
     }
     const double model_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_model).count();
-    const WorldSnapshot& s = world.snapshot();
+    const world::WorldSnapshot& s = world.snapshot();
     if (k < 10) continue;  // warm-up
     if (previous.K.size() > 0 && world.num_hands() > 0) {
       const hand::HandState& hs = world.hand(0).state;
@@ -191,15 +191,15 @@ nlohmann::json to_json(const RunStats& r) {
 }
 
 void run_world_bench(const WorldBenchArgs& a) {
-  const SceneDesc scene = load_scene(a.scene);
-  WorldOptions options;
+  const world::SceneDesc scene = world::load_scene(a.scene);
+  world::WorldOptions options;
   options.solver = hand::parse_solver_kind(a.solver);
   const Machine machine = describe_machine();
   spdlog::info("world: {}, {} objects, {} hands, {} steps", scene.name, scene.objects.size(), scene.hands.size(),
                a.steps);
-  options.contact = ContactModel::penalty;
+  options.contact = world::ContactModel::penalty;
   const RunStats penalty = run(scene, options, a.steps);
-  options.contact = ContactModel::constraint;
+  options.contact = world::ContactModel::constraint;
   const RunStats constraint = run(scene, options, a.steps);
   options.hand_contacts = false;
   const RunStats without = run(scene, options, a.steps);

@@ -60,8 +60,9 @@ int main(int argc, char** argv) {
       return 1;
     }
     std::printf("%s: %zu vertices, %zu triangles, volume %.4g m^3 -> %s: %d nodes, %d tets, spacing %.4g m\n",
-                name.c_str(), surface.vertices.size(), surface.triangles.size(), hapticd::hand::enclosed_volume(surface),
-                base.c_str(), body.mesh.num_nodes(), body.mesh.num_tets(), body.spacing);
+                name.c_str(), surface.vertices.size(), surface.triangles.size(),
+                hapticd::hand::enclosed_volume(surface), base.c_str(), body.mesh.num_nodes(), body.mesh.num_tets(),
+                body.spacing);
   } catch (const std::exception& e) {
     std::cerr << "embed_asset: " << e.what() << '\n';
     return 1;

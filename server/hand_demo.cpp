@@ -9,8 +9,9 @@
 #include "hand_models/coupled_solver.hpp"
 #include "hand_models/press_scenario.hpp"
 
+namespace hand = hapticd::hand;
+
 int main(int argc, char** argv) {
-  using namespace hapticd;
   try {
     hand::PressScenarioOptions options;
     options.target_tets = argc > 1 ? std::atoi(argv[1]) : 1700;

@@ -22,6 +22,10 @@
 #include "server/world/scene_loader.hpp"
 #include "server/world/world.hpp"
 
+namespace haptic = hapticd::haptic;
+namespace protocol = hapticd::protocol;
+namespace world = hapticd::world;
+
 namespace {
 
 std::atomic<bool> g_stop{false};
@@ -42,7 +46,7 @@ void init_logger(const std::string& level) {
   spdlog::set_default_logger(std::move(logger));
 }
 
-nlohmann::json histogram_json(const hapticd::MicrosecondHistogram& h) {
+nlohmann::json histogram_json(const haptic::MicrosecondHistogram& h) {
   return {{"p50", h.percentile(50)}, {"p99", h.percentile(99)}, {"p999", h.percentile(99.9)},
           {"max", h.max_us()},       {"count", h.count()}};
 }
@@ -50,10 +54,9 @@ nlohmann::json histogram_json(const hapticd::MicrosecondHistogram& h) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  using namespace hapticd;
   CLI::App app{"hapticd: real-time haptic rendering server (UDP, FlatBuffers)"};
   std::string scene_path = std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json";
-  ServerOptions options;
+  haptic::ServerOptions options;
   double visual_rate = 60, duration = 0;
   std::string stats_path, level = "info", key_path, generate_key_path;
   app.add_option("--scene", scene_path, "scene file (default: the stylus, bunny and blocks scene)")
@@ -115,32 +118,34 @@ int main(int argc, char** argv) {
   }
 
   try {
-    HapticServer::check_bind(options);  // before the scene: a refused address fails at once
-    SceneDesc scene = load_scene(scene_path);
+    haptic::HapticServer::check_bind(options);  // before the scene: a refused address fails at once
+    world::SceneDesc scene = world::load_scene(scene_path);
     scene.visual_rate_hz = visual_rate;
     scene.dt_s = 1.0 / visual_rate;
     if (scene.devices.empty()) throw std::runtime_error(scene_path + ": devices: the scene names no device to serve");
-    World world(scene, served_world_options());
-    if (world.num_hands() > kMaxHands) throw std::runtime_error("hands: at most " + std::to_string(kMaxHands));
-    std::vector<DeviceLink> links;
-    for (const DeviceDesc& d : scene.devices) links.push_back(make_device_link(world, d, options.haptic_rate_hz));
-    if (!keep_large_allocations_on_heap())
+    world::World world(scene, haptic::served_world_options());
+    if (world.num_hands() > haptic::kMaxHands)
+      throw std::runtime_error("hands: at most " + std::to_string(haptic::kMaxHands));
+    std::vector<haptic::DeviceLink> links;
+    for (const world::DeviceDesc& d : scene.devices)
+      links.push_back(haptic::make_device_link(world, d, options.haptic_rate_hz));
+    if (!hapticd::process::keep_large_allocations_on_heap())
       spdlog::warn("the allocator refused the heap settings (a sanitizer's does): the visual step's large blocks are mapped anew each step");
     // Lock memory so a page fault never stalls the haptic thread (needs CAP_IPC_LOCK).
     if (mlockall(MCL_CURRENT | MCL_FUTURE) != 0)
       spdlog::warn("memory not locked (mlockall not permitted): page faults may delay the haptic loop");
 
-    auto snapshots = std::make_unique<TripleBuffer<HapticSnapshot>>();
-    auto targets = std::make_unique<TripleBuffer<ProxyTargets>>();
-    VisualReport visual_report;
-    HapticServer server(links, options, *snapshots, *targets, &visual_report);
-    const TickSolverPreparer preparer(links, server.haptic_period_s());
-    VisualStep step(world, *snapshots, *targets, &preparer);
+    auto snapshots = std::make_unique<haptic::TripleBuffer<haptic::HapticSnapshot>>();
+    auto targets = std::make_unique<haptic::TripleBuffer<haptic::ProxyTargets>>();
+    haptic::VisualReport visual_report;
+    haptic::HapticServer server(links, options, *snapshots, *targets, &visual_report);
+    const haptic::TickSolverPreparer preparer(links, server.haptic_period_s());
+    haptic::VisualStep step(world, *snapshots, *targets, &preparer);
     // The first models before the first packet.
     step.build_models(protocol::now_ns(), 1.0 / visual_rate);
     step.prepare_tick_solvers();
     step.publish();
-    VisualLoop visual(step, visual_rate, &visual_report, [](const std::string& what) {
+    haptic::VisualLoop visual(step, visual_rate, &visual_report, [](const std::string& what) {
       spdlog::error("visual step failed (" + what + "): hands reset, models held until a step succeeds");
     });
     std::signal(SIGINT, on_signal);
@@ -171,8 +176,8 @@ int main(int argc, char** argv) {
     stop_loops.store(true);
     haptic_thread.join();
     visual_thread.join();
-    const ServerStats& st = server.stats();
-    const VisualStats& vs = visual.stats();
+    const haptic::ServerStats& st = server.stats();
+    const haptic::VisualStats& vs = visual.stats();
     if (!st.realtime && !options.busy_poll)
       spdlog::warn("haptic thread ran without real-time priority (SCHED_FIFO not permitted)");
     nlohmann::json rejected = nlohmann::json::object();
@@ -240,9 +245,9 @@ int main(int argc, char** argv) {
           {"timed_out", st.sessions_timed_out},
           {"replaced", st.sessions_replaced},
           {"pending_expired", st.pending_expired},
-          {"max", kMaxSessions}}},
+          {"max", haptic::kMaxSessions}}},
         {"memory",
-         {{"session_bytes", HapticServer::session_bytes()},
+         {{"session_bytes", haptic::HapticServer::session_bytes()},
           {"server_bytes", server.memory_bytes()}}}};
     if (!stats_path.empty()) {
       std::ofstream out(stats_path);

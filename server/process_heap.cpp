@@ -2,7 +2,7 @@
 
 #include <malloc.h>
 
-namespace hapticd {
+namespace hapticd::process {
 
 bool keep_large_allocations_on_heap() {
   constexpr int kMmapThreshold = 32 << 20;  // glibc refuses more (HEAP_MAX_SIZE / 2)
@@ -10,4 +10,4 @@ bool keep_large_allocations_on_heap() {
   return mallopt(M_MMAP_THRESHOLD, kMmapThreshold) == 1 && mallopt(M_TRIM_THRESHOLD, kTrimThreshold) == 1;
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::process

@@ -7,7 +7,7 @@
 // scene that was ~30 % of the visual step (`haptic-bench world --scene scenes/glove_grasp.json`,
 // step median about 17 -> 12 ms, contact-free; run-to-run spread on this machine is large).
 
-namespace hapticd {
+namespace hapticd::process {
 
 // Serves allocations of up to 32 MB (glibc's largest mmap threshold) from the heap and keeps freed
 // heap memory in the process, so that a steady visual loop reuses its pages instead of faulting
@@ -15,4 +15,4 @@ namespace hapticd {
 // (a sanitizer's allocator ignores these settings).
 bool keep_large_allocations_on_heap();
 
-}  // namespace hapticd
+}  // namespace hapticd::process

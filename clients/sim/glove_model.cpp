@@ -63,7 +63,8 @@ std::array<PhalanxJacobian, hand::kHandPhalanges> phalanx_jacobians(const hand::
 JointVector joint_torques(const std::array<PhalanxJacobian, hand::kHandPhalanges>& jacobians,
                           const std::array<Wrench6, hand::kHandPhalanges>& wrenches_H) {
   JointVector tau = JointVector::Zero();
-  for (int i = 0; i < hand::kHandPhalanges; ++i) tau.segment<4>(4 * (i / 3)) += jacobians[i].transpose() * wrenches_H[i];
+  for (int i = 0; i < hand::kHandPhalanges; ++i)
+    tau.segment<4>(4 * (i / 3)) += jacobians[i].transpose() * wrenches_H[i];
   return tau;
 }
 

@@ -45,7 +45,8 @@ JointVector GloveSimulation::external_joint_torques() const noexcept {
     wrenches_H[i].head<3>() = R_T * to_eigen(f_N_[id]);
     wrenches_H[i].tail<3>() = R_T * to_eigen(t_Nm_[id]);
   }
-  return joint_torques(phalanx_jacobians(hand::HandJointAngles::from_vector(joints_.q_rad), skeleton_, left_), wrenches_H);
+  return joint_torques(phalanx_jacobians(hand::HandJointAngles::from_vector(joints_.q_rad), skeleton_, left_),
+                       wrenches_H);
 }
 
 void GloveSimulation::advance() noexcept {
@@ -85,7 +86,8 @@ void GloveSimulation::record_tick() noexcept {
   ++contact_ticks_;
   // Where the frames in contact would be at the commanded posture and palm position.
   const RigidPose palm_C{to_eigen(trajectory_.palm_position(time_s())), trajectory_.palm_orientation()};
-  const auto commanded = glove_frame_poses(skeleton_pose(hand::HandJointAngles::from_vector(q_C), left_), palm_C, frames_);
+  const auto commanded =
+      glove_frame_poses(skeleton_pose(hand::HandJointAngles::from_vector(q_C), left_), palm_C, frames_);
   const auto actual = frame_poses();
   for (int id = 0; id < frames_; ++id)
     if (contact_[id]) penetration_max_m_ = std::max(penetration_max_m_, (commanded[id].p_m - actual[id].p_m).norm());

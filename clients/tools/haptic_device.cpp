@@ -342,8 +342,10 @@ int main(int argc, char** argv) {
     for (int g = 0; g <= sim::kPalmGroup; ++g) {
       const sim::GloveGroupFigures f = glove_sim->group_figures(g);
       std::printf("  %-6s force N: max %.3f rms %.3f; contact %.1f %% of ticks",
-                  g < hand::kHandFingers ? hand::finger_name(g) : "palm", f.force_max_n, f.force_rms_n, 100.0 * f.contact_fraction);
-      if (g < hand::kHandFingers) std::printf("; joint lag max %.2f deg", f.joint_lag_max_rad * 180.0 / std::numbers::pi);
+                  g < hand::kHandFingers ? hand::finger_name(g) : "palm", f.force_max_n, f.force_rms_n,
+                  100.0 * f.contact_fraction);
+      if (g < hand::kHandFingers)
+        std::printf("; joint lag max %.2f deg", f.joint_lag_max_rad * 180.0 / std::numbers::pi);
       std::printf("\n");
     }
   }

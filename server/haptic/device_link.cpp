@@ -4,12 +4,12 @@
 #include <stdexcept>
 
 
-namespace hapticd {
+namespace hapticd::haptic {
 
-DeviceLink make_device_link(const World& world, const DeviceDesc& d, double haptic_rate_hz) {
+DeviceLink make_device_link(const world::World& world, const world::DeviceDesc& d, double haptic_rate_hz) {
   DeviceLink link;
   link.name = d.name;
-  link.kind = d.kind == DeviceKind::glove ? protocol::DeviceKind::kGlove : protocol::DeviceKind::kStylus;
+  link.kind = d.kind == world::DeviceKind::glove ? protocol::DeviceKind::kGlove : protocol::DeviceKind::kStylus;
   link.hand = world.find_hand(d.hand);
   if (link.hand < 0) throw std::runtime_error("devices." + d.name + ": no hand named " + d.hand);
   const hand::Hand& hand = world.hand(link.hand);
@@ -20,7 +20,7 @@ DeviceLink make_device_link(const World& world, const DeviceDesc& d, double hapt
                              std::to_string(kMaxHapticHandles));
   link.map = DeviceMap(d.workspace.scale, d.workspace.offset_W, d.workspace.R_WD);
   // A glove tracks a frame per handle; a stylus, the palm's.
-  const int tracked = d.kind == DeviceKind::glove ? link.handles : 1;
+  const int tracked = d.kind == world::DeviceKind::glove ? link.handles : 1;
   for (int j = 0; j < link.handles; ++j) {
     const hand::HandleInfo info = hand.handle_info(j, tracked);
     link.mass_kg[j] = info.mass_kg;
@@ -28,9 +28,10 @@ DeviceLink make_device_link(const World& world, const DeviceDesc& d, double hapt
     link.map.handle_p_F[j] = info.in_frame.p_F;
     link.map.handle_q_F[j] = info.in_frame.q_F;
   }
-  if (d.kind == DeviceKind::glove) {
+  if (d.kind == world::DeviceKind::glove) {
     link.contact_gated = true;
-    link.output = d.force_output == GloveForceOutput::finger_lines ? ForceOutput::finger_lines : ForceOutput::frames;
+    link.output =
+        d.force_output == world::GloveForceOutput::finger_lines ? ForceOutput::finger_lines : ForceOutput::frames;
     link.actuator_line_F = d.actuator_line_F;
     if (link.output == ForceOutput::finger_lines && link.handles != 6 && link.handles != 16)
       throw std::runtime_error("devices." + d.name + ": finger_lines output needs a hand with fingertip or phalanx "
@@ -86,4 +87,4 @@ void project_onto_finger_lines(const DeviceLink& link, const HapticPose* device_
   }
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::haptic

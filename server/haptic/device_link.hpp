@@ -8,7 +8,7 @@
 #include "server/haptic/virtual_coupling.hpp"
 #include "server/world/world.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 
 // How a device's frames get their forces: each its own coupling wrench, or one
 // force per finger along its actuator's line of action.
@@ -53,11 +53,11 @@ void project_onto_finger_lines(const DeviceLink& link, const HapticPose* device_
 // hand_skeleton.hpp, and carry the handles built on them; a stylus's pose is
 // its handle's), the coupling gains and the output limits. Throws
 // std::runtime_error naming the device when its hand cannot be served.
-DeviceLink make_device_link(const World& world, const DeviceDesc& d, double haptic_rate_hz);
+DeviceLink make_device_link(const world::World& world, const world::DeviceDesc& d, double haptic_rate_hz);
 
 // The Welcome that grants a session on `link`: its limits, the rate, and frame_ids[j] mapped to handle
 // j. Written in place, allocating nothing (the haptic thread's handshake calls it).
 void fill_welcome(const DeviceLink& link, std::uint64_t session_id, std::uint32_t rate_hz,
                   std::span<const std::uint16_t> frame_ids, protocol::Welcome& out);
 
-}  // namespace hapticd
+}  // namespace hapticd::haptic

@@ -6,7 +6,7 @@
 #include <random>
 #include <stdexcept>
 
-namespace hapticd {
+namespace hapticd::haptic {
 
 using protocol::MessageType;
 
@@ -612,4 +612,4 @@ void HapticCore::fill_stats(protocol::Stats& out, std::uint64_t now) const {
   out.sessions_active = active;
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::haptic

@@ -23,7 +23,7 @@
 #include "server/haptic/triple_buffer.hpp"
 #include "server/haptic/virtual_coupling.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 
 constexpr int kMaxHands = 4;
 constexpr int kMaxSessions = 16;
@@ -207,4 +207,4 @@ class HapticCore {
   std::uint64_t start_ns_ = 0;
 };
 
-}  // namespace hapticd
+}  // namespace hapticd::haptic

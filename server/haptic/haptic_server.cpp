@@ -15,7 +15,7 @@
 
 #include "protocol/clock.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 
 namespace asio = boost::asio;
 
@@ -187,4 +187,4 @@ void HapticServer::run(const std::atomic<bool>& stop) {
   st.rate_sources_evicted = limiter_->evictions();
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::haptic

@@ -17,7 +17,7 @@
 #include "server/haptic/haptic_core.hpp"
 #include "server/haptic/source_rate_limiter.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 
 class HapticServer {
  public:
@@ -69,4 +69,4 @@ class HapticServer {
   std::unique_ptr<SourceRateLimiter> limiter_;
 };
 
-}  // namespace hapticd
+}  // namespace hapticd::haptic

@@ -8,7 +8,7 @@
 
 #include "protocol/percentile.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 
 class MicrosecondHistogram {
  public:
@@ -53,4 +53,4 @@ class MicrosecondHistogram {
   double max_us_ = 0;
 };
 
-}  // namespace hapticd
+}  // namespace hapticd::haptic

@@ -6,7 +6,7 @@
 #include <cstring>
 #include <random>
 
-namespace hapticd {
+namespace hapticd::haptic {
 namespace {
 
 // splitmix64's finalizer: every input bit reaches every output bit.
@@ -76,4 +76,4 @@ bool SourceRateLimiter::allow(const sockaddr_storage& from, socklen_t from_len, 
   return true;
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::haptic

@@ -12,7 +12,7 @@
 
 #include <cstdint>
 
-namespace hapticd {
+namespace hapticd::haptic {
 
 class SourceRateLimiter {
  public:
@@ -50,4 +50,4 @@ class SourceRateLimiter {
   Slot slots_[kSlots];
 };
 
-}  // namespace hapticd
+}  // namespace hapticd::haptic

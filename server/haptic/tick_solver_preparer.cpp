@@ -1,6 +1,6 @@
 #include "server/haptic/tick_solver_preparer.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 
 bool TickSolverPreparer::prepare(int h, HapticModel& model) const {
   model.solver.prepared = false;
@@ -11,4 +11,4 @@ bool TickSolverPreparer::prepare(int h, HapticModel& model) const {
   return false;
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::haptic

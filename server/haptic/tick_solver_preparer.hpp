@@ -7,7 +7,7 @@
 
 #include "server/haptic/device_link.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 
 class TickSolverPreparer {
  public:
@@ -22,4 +22,4 @@ class TickSolverPreparer {
   double haptic_dt_s_;
 };
 
-}  // namespace hapticd
+}  // namespace hapticd::haptic

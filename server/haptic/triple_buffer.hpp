@@ -6,7 +6,7 @@
 #include <atomic>
 #include <cstdint>
 
-namespace hapticd {
+namespace hapticd::haptic {
 
 template <typename T>
 class TripleBuffer {
@@ -40,4 +40,4 @@ class TripleBuffer {
   std::atomic<std::uint8_t> middle_{2};
 };
 
-}  // namespace hapticd
+}  // namespace hapticd::haptic

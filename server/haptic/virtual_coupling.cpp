@@ -7,7 +7,7 @@
 
 #include "hand_models/rigid_handle.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 namespace {
 
 // A proxy faster than this has diverged (no hand moves a handle at 20 m/s).
@@ -242,7 +242,8 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
       a_lin_[j] += dt * b + dt * dt * k;
       a_rot_[j].diagonal().array() += dt * b_rot + dt * dt * k_rot;
       b_.segment<3>(6 * j) += dt * (k * (device_[j].p_W - proxy_[j].p_W) + b * v_dev_[j]);
-      b_.segment<3>(6 * j + 3) += dt * (k_rot * hand::rotation_difference(device_[j].q_W, proxy_[j].q_W) + b_rot * w_dev_[j]);
+      b_.segment<3>(6 * j + 3) +=
+          dt * (k_rot * hand::rotation_difference(device_[j].q_W, proxy_[j].q_W) + b_rot * w_dev_[j]);
     }
     if (use_model) {
       x_rel_.segment<3>(6 * j) = proxy_[j].p_W - model.x0[j].p_W - late * model.v0[j];
@@ -460,4 +461,4 @@ ReplyWrench ProxyHand::reply(int j, double output_scale, double dt_since_last_s)
   return r;
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::haptic

@@ -10,7 +10,7 @@
 #include <Eigen/LU>
 #include <cstdint>
 
-namespace hapticd {
+namespace hapticd::haptic {
 
 constexpr int kMaxHapticHandles = 16;
 constexpr int kMaxHapticDofs = 6 * kMaxHapticHandles;
@@ -257,4 +257,4 @@ class ProxyHand {
   Eigen::PartialPivLU<HapticMatrix> lu_;
 };
 
-}  // namespace hapticd
+}  // namespace hapticd::haptic

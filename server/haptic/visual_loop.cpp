@@ -7,16 +7,16 @@
 
 #include "protocol/clock.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 
 VisualLoop::VisualLoop(VisualStep& step, double rate_hz, VisualReport* report,
                        std::function<void(const std::string&)> on_fault)
     : step_(step), rate_hz_(rate_hz), report_(report), on_fault_(std::move(on_fault)) {}
 
 void VisualLoop::run(const std::atomic<bool>& stop) {
-  ensure_ode_for_this_thread();
+  world::ensure_ode_for_this_thread();
   hand::single_threaded_cholmod();
-  World& world = step_.world();
+  world::World& world = step_.world();
   const double period = 1.0 / rate_hz_;
   const std::uint64_t start = protocol::now_ns();
   double latency_s = 0;      // how long an iteration takes from reading the proxies to publishing
@@ -44,9 +44,9 @@ void VisualLoop::run(const std::atomic<bool>& stop) {
       // lag of simulated time behind the wall clock. The model is built for exactly
       // this length and the world then takes it, reusing the model's factorization.
       const double lag_s = 1e-9 * static_cast<double>(publish - start) - world_time_s;
-      dt = std::clamp(std::max(period, kLatencyMargin * latency_s) + 0.5 * lag_s, kMinStepFraction * period,
-                      kMaxStep_s);
-      if (kLatencyMargin * latency_s > period) ++stats_.late_steps;
+      dt = std::clamp(std::max(period, detail::kLatencyMargin * latency_s) + 0.5 * lag_s,
+                      detail::kMinStepFraction * period, detail::kMaxStep_s);
+      if (detail::kLatencyMargin * latency_s > period) ++stats_.late_steps;
       step_.build_models(publish, dt);
       t_model = protocol::now_ns();
       step_.prepare_tick_solvers();
@@ -67,7 +67,7 @@ void VisualLoop::run(const std::atomic<bool>& stop) {
     const std::uint64_t t1 = protocol::now_ns();
     if (!faulted) {
       // The next iteration's latency: the slower of this one and a decaying memory of the last.
-      latency_s = std::max(1e-9 * static_cast<double>(t1 - t0), kLatencyMemory * latency_s);
+      latency_s = std::max(1e-9 * static_cast<double>(t1 - t0), detail::kLatencyMemory * latency_s);
       step_.publish();
       ++stats_.steps;
       stats_.step_us.add(1e-3 * static_cast<double>(t1 - t0));
@@ -92,4 +92,4 @@ void VisualLoop::run(const std::atomic<bool>& stop) {
   }
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::haptic

@@ -12,7 +12,10 @@
 #include "server/haptic/loop_stats.hpp"
 #include "server/haptic/visual_step.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
+
+// The visual loop's step-length rule (visual_loop.cpp).
+namespace detail {
 
 // The longest step the visual loop takes after a stall, s (beyond, the world slows down).
 constexpr double kMaxStep_s = 0.1;
@@ -23,6 +26,8 @@ constexpr double kLatencyMargin = 2.0;
 constexpr double kLatencyMemory = 0.8;
 // The shortest step, as a fraction of the period (a world ahead of the clock catches up no faster).
 constexpr double kMinStepFraction = 0.25;
+
+}  // namespace detail
 
 struct VisualStats {
   long steps = 0, late_steps = 0, resets = 0, body_resets = 0;  // resets: the world's hands and deformables
@@ -52,4 +57,4 @@ class VisualLoop {
   VisualStats stats_;
 };
 
-}  // namespace hapticd
+}  // namespace hapticd::haptic

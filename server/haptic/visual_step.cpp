@@ -4,10 +4,10 @@
 
 #include "hand_models/rigid_handle.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 
-WorldOptions served_world_options() {
-  WorldOptions o;
+world::WorldOptions served_world_options() {
+  world::WorldOptions o;
   o.hand_gravity = false;
   o.drive = kProxyDrive;
   o.linearize = false;
@@ -24,12 +24,12 @@ const char* to_string(HandleModelKind kind) {
   return "?";
 }
 
-void fill_contact_flags(const World& world, int h, HapticModel& out) {
-  const WorldSnapshot& snap = world.snapshot();
+void fill_contact_flags(const world::World& world, int h, HapticModel& out) {
+  const world::WorldSnapshot& snap = world.snapshot();
   const hand::Hand& hand = world.hand(h);
   out.in_contact = false;
   std::fill(std::begin(out.handle_in_contact), std::end(out.handle_in_contact), false);
-  for (const ContactRecord& c : snap.contacts) {
+  for (const world::ContactRecord& c : snap.contacts) {
     if (c.hand != h || c.depth_m <= 0) continue;
     out.in_contact = true;
     // A contact without a skin point of this hand (another hand's skin inside its flesh) marks no handle.
@@ -38,7 +38,7 @@ void fill_contact_flags(const World& world, int h, HapticModel& out) {
   }
 }
 
-void fill_haptic_model(World& world, int h, hand::HandleLinearization& lin, HapticModel& out) {
+void fill_haptic_model(world::World& world, int h, hand::HandleLinearization& lin, HapticModel& out) {
   out.handles = 0;
   out.solver.prepared = false;
   hand::Hand& hand = world.hand(h);
@@ -60,7 +60,7 @@ void fill_haptic_model(World& world, int h, hand::HandleLinearization& lin, Hapt
 namespace {
 
 // The zero-order hold: the flesh's wrench on the handles as the step left them (seed 004 eq. 4-5), K = D = 0.
-void fill_held_model(World& world, int h, HapticModel& out) {
+void fill_held_model(world::World& world, int h, HapticModel& out) {
   out.handles = 0;
   out.solver.prepared = false;
   fill_contact_flags(world, h, out);
@@ -90,8 +90,8 @@ hand::HandleTarget proxy_target(const ProxyTargets& targets, int h, int j, std::
   return {p.p_W + ahead * v, hand::rotate_by(p.q_W, ahead * w), v, w};
 }
 
-VisualStep::VisualStep(World& world, TripleBuffer<HapticSnapshot>& snapshots, TripleBuffer<ProxyTargets>& targets,
-                       const TickSolverPreparer* preparer, HandleModelKind kind)
+VisualStep::VisualStep(world::World& world, TripleBuffer<HapticSnapshot>& snapshots,
+                       TripleBuffer<ProxyTargets>& targets, const TickSolverPreparer* preparer, HandleModelKind kind)
     : world_(world), snapshots_(snapshots), targets_(targets), preparer_(preparer), kind_(kind) {}
 
 void VisualStep::advance_world(std::uint64_t publish_ns, double dt_s) {
@@ -143,4 +143,4 @@ void VisualStep::recover() {
   }
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::haptic

@@ -12,7 +12,7 @@
 #include "server/haptic/tick_solver_preparer.hpp"
 #include "server/world/world.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 
 // How the visual loop's handles follow the haptic proxies: almost kinematically
 // (GO09: the visual loop's handle is the proxy's), so the handle-space model is
@@ -22,7 +22,7 @@ constexpr hand::DriveParams kProxyDrive{1e6, 1e3, 1e3, 10.0};
 // The world a server steps: the scene's step is the visual period, hands are weightless (a device
 // in free space feels no virtual hand weight), their handles follow the proxies (kProxyDrive), and
 // the visual step builds the coming step's model itself (no in-step linearization).
-WorldOptions served_world_options();
+world::WorldOptions served_world_options();
 
 // What the visual step publishes for a hand between two steps.
 enum class HandleModelKind {
@@ -39,9 +39,9 @@ const char* to_string(HandleModelKind kind);
 // Fills `out` with hand h's model for the coming interval (linearize_next_step:
 // the step about to be taken from the world's current state; `lin` is scratch),
 // in_contact from the hand's contacts; out.handles = 0 when it cannot.
-void fill_haptic_model(World& world, int h, hand::HandleLinearization& lin, HapticModel& out);
+void fill_haptic_model(world::World& world, int h, hand::HandleLinearization& lin, HapticModel& out);
 // Only its contact flags (in_contact, handle_in_contact) from the world's last contacts.
-void fill_contact_flags(const World& world, int h, HapticModel& out);
+void fill_contact_flags(const world::World& world, int h, HapticModel& out);
 
 // Handle j of hand h's target for a world that simulates up to `until_ns`: the proxy extrapolated
 // at its velocity from the time it is of (targets.t_ns) to then, by at most kMaxProxyExtrapolation_s
@@ -53,7 +53,7 @@ class VisualStep {
  public:
   // `preparer`: the haptic side's tick-solver preparation for the models of glove-sized hands
   // (none: the tick solves them densely).
-  VisualStep(World& world, TripleBuffer<HapticSnapshot>& snapshots, TripleBuffer<ProxyTargets>& targets,
+  VisualStep(world::World& world, TripleBuffer<HapticSnapshot>& snapshots, TripleBuffer<ProxyTargets>& targets,
              const TickSolverPreparer* preparer = nullptr, HandleModelKind kind = HandleModelKind::linearized);
 
   // The world up to `publish_ns`: the newest proxies are read, a hand whose driving session re-synced
@@ -73,13 +73,13 @@ class VisualStep {
   // shape and contacts; any other is placed rigidly at its proxy, at rest, without contacts.
   void recover();
 
-  World& world() { return world_; }
-  const World& world() const { return world_; }
+  world::World& world() { return world_; }
+  const world::World& world() const { return world_; }
   // Tests only: called before each world step; whatever it throws is a fault of the step.
   void set_fault_injection(std::function<void()> inject) { inject_ = std::move(inject); }
 
  private:
-  World& world_;
+  world::World& world_;
   TripleBuffer<HapticSnapshot>& snapshots_;
   TripleBuffer<ProxyTargets>& targets_;
   const TickSolverPreparer* preparer_;
@@ -89,4 +89,4 @@ class VisualStep {
   std::function<void()> inject_;
 };
 
-}  // namespace hapticd
+}  // namespace hapticd::haptic

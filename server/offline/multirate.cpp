@@ -8,14 +8,14 @@
 #include "clients/sim/glove_trajectory.hpp"
 #include "clients/sim/trajectory.hpp"
 
-namespace hapticd {
+namespace hapticd::offline {
 namespace {
 
 Eigen::Vector3d to_eigen(sim::Vec3d v) { return {v.x, v.y, v.z}; }
 
 }  // namespace
 
-Interaction stylus_press(SceneDesc scene, double seconds) {
+Interaction stylus_press(world::SceneDesc scene, double seconds) {
   Interaction in;
   in.name = "stylus_press";
   in.scene = std::move(scene);
@@ -34,10 +34,10 @@ Interaction stylus_press(SceneDesc scene, double seconds) {
   return in;
 }
 
-Interaction stylus_press_fixed(SceneDesc scene, double seconds) {
-  for (ObjectDesc& o : scene.objects)
-    if (o.kind == BodyKind::rigid) {
-      o.kind = BodyKind::static_body;
+Interaction stylus_press_fixed(world::SceneDesc scene, double seconds) {
+  for (world::ObjectDesc& o : scene.objects)
+    if (o.kind == world::BodyKind::rigid) {
+      o.kind = world::BodyKind::static_body;
       o.linear_velocity.setZero();
       o.angular_velocity.setZero();
     }
@@ -46,16 +46,16 @@ Interaction stylus_press_fixed(SceneDesc scene, double seconds) {
   return in;
 }
 
-Interaction glove_grasp(SceneDesc scene, double seconds, int frames) {
+Interaction glove_grasp(world::SceneDesc scene, double seconds, int frames) {
   if (frames != sim::kGloveFramesAll && frames != sim::kGloveFramesTips)
     throw std::invalid_argument("glove_grasp: 16 or 6 frames, not " + std::to_string(frames));
   if (scene.hands.empty()) throw std::invalid_argument("glove_grasp: " + scene.name + " has no hand");
-  scene.hands[0].handles = frames == sim::kGloveFramesAll ? HandleSet::phalanges : HandleSet::fingertips;
+  scene.hands[0].handles = frames == sim::kGloveFramesAll ? world::HandleSet::phalanges : world::HandleSet::fingertips;
   Interaction in;
   in.name = frames == sim::kGloveFramesAll ? "glove_grasp" : "glove_grasp_tips";
   in.scene = std::move(scene);
   in.seconds = seconds;
-  const bool left = in.scene.hands[0].side == HandSide::left;
+  const bool left = in.scene.hands[0].side == world::HandSide::left;
   in.device = [frames, left](const OfflineLoops& loops) -> std::unique_ptr<OfflineDevice> {
     Eigen::Vector3d palm_D;
     Eigen::Quaterniond q_D;
@@ -90,7 +90,7 @@ double rms_force(const OfflineTrace& trace) {
 }
 
 MultirateRuns run_multirate(const Interaction& interaction, const std::vector<int>& visual_ticks,
-                            const std::vector<HandleModelKind>& models, double haptic_period_s) {
+                            const std::vector<haptic::HandleModelKind>& models, double haptic_period_s) {
   const long ticks = std::lround(interaction.seconds / haptic_period_s);
   MultirateRuns out;
   OfflineOptions options;
@@ -103,13 +103,13 @@ MultirateRuns run_multirate(const Interaction& interaction, const std::vector<in
     out.reference = run_offline(loops, *device, ticks);
   }
   for (int k : visual_ticks)
-    for (HandleModelKind model : models) {
+    for (haptic::HandleModelKind model : models) {
       MultirateRow row;
       row.interaction = interaction.name;
       row.visual_ticks = k;
       row.visual_hz = 1.0 / (k * haptic_period_s);
       row.model = model;
-      if (k == 1 && model == HandleModelKind::linearized) {
+      if (k == 1 && model == haptic::HandleModelKind::linearized) {
         row.timings = out.reference.timings;
         row.resets = out.reference.resets;
       } else {
@@ -127,4 +127,4 @@ MultirateRuns run_multirate(const Interaction& interaction, const std::vector<in
   return out;
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::offline

@@ -20,12 +20,12 @@
 
 #include "server/offline/offline_run.hpp"
 
-namespace hapticd {
+namespace hapticd::offline {
 
 // A scripted interaction: a scene and the simulated device that drives it.
 struct Interaction {
   std::string name;
-  SceneDesc scene;
+  world::SceneDesc scene;
   double seconds = 1.0;
   // Every run's rigid bodies first settle this long at the haptic period
   // (OfflineOptions::settle_s), so all runs start from the same world.
@@ -36,16 +36,16 @@ struct Interaction {
 
 // The simulated stylus along sim::Trajectory::press (settle, 2 cm down over
 // 1 s, hold; device space), starting where the scene's handle is.
-Interaction stylus_press(SceneDesc scene, double seconds);
+Interaction stylus_press(world::SceneDesc scene, double seconds);
 // The same press with the scene's rigid bodies made static ("stylus_press_fixed"): nothing but the
 // hand moves, so the world at the visual rate differs from the every-tick world only in the hand
 // and its contacts, and the error is the rendering's own. On the movable bunny the 30 Hz world
 // also lets the bunny slide under the held stylus and starts the contact a step late.
-Interaction stylus_press_fixed(SceneDesc scene, double seconds);
+Interaction stylus_press_fixed(world::SceneDesc scene, double seconds);
 // The simulated glove along sim::GloveTrajectory::grasp (rest, close into the
 // power grasp over 1 s, hold), its palm starting on the palm handle; `frames`
 // 16 (phalanges handles) or 6 (fingertips), the scene's first hand set to match.
-Interaction glove_grasp(SceneDesc scene, double seconds, int frames);
+Interaction glove_grasp(world::SceneDesc scene, double seconds, int frames);
 
 struct ForceError {
   // Per tick, e = sqrt(sum over frames |f_D - f_D,ref|^2) (the force each frame
@@ -60,7 +60,7 @@ struct MultirateRow {
   std::string interaction;
   int visual_ticks = 1;  // the world steps every this many haptic ticks
   double visual_hz = 0;  // 1 / (visual_ticks T)
-  HandleModelKind model = HandleModelKind::linearized;
+  haptic::HandleModelKind model = haptic::HandleModelKind::linearized;
   ForceError error;
   OfflineTimings timings;
   long resets = 0;
@@ -75,6 +75,6 @@ struct MultirateRuns {
 // replay of the reference's device poses. A visual period of 1 with the linearized
 // model is the reference itself (its row has no error by definition).
 MultirateRuns run_multirate(const Interaction& interaction, const std::vector<int>& visual_ticks,
-                            const std::vector<HandleModelKind>& models, double haptic_period_s = 1e-3);
+                            const std::vector<haptic::HandleModelKind>& models, double haptic_period_s = 1e-3);
 
-}  // namespace hapticd
+}  // namespace hapticd::offline

@@ -10,7 +10,7 @@
 
 #include "protocol/percentile.hpp"
 
-namespace hapticd {
+namespace hapticd::offline {
 namespace {
 
 using Clock = std::chrono::steady_clock;
@@ -29,8 +29,8 @@ sim::Vec3d to_sim(const Eigen::Vector3d& v) { return {v.x(), v.y(), v.z()}; }
 }  // namespace
 
 // The device's end of the wire: the core's replies land here, stamped with simulated time.
-struct OfflineLoops::Wire final : Transport {
-  bool send(std::span<const std::uint8_t> datagram, const Endpoint&) override {
+struct OfflineLoops::Wire final : haptic::Transport {
+  bool send(std::span<const std::uint8_t> datagram, const haptic::Endpoint&) override {
     if (datagram.size() > sizeof(reply.bytes)) return false;
     std::copy(datagram.begin(), datagram.end(), reply.bytes.begin());
     reply_bytes = datagram.size();
@@ -41,13 +41,13 @@ struct OfflineLoops::Wire final : Transport {
   std::size_t reply_bytes = 0;
   std::uint64_t now_ns = 0;
   protocol::ReceiveBuffer request;  // what the device sends, aligned as a socket's buffer
-  const Endpoint device{boost::asio::ip::make_address_v4("127.0.0.1"), 40000};
+  const haptic::Endpoint device{boost::asio::ip::make_address_v4("127.0.0.1"), 40000};
 };
 
-OfflineLoops::OfflineLoops(SceneDesc scene, const OfflineOptions& options)
+OfflineLoops::OfflineLoops(world::SceneDesc scene, const OfflineOptions& options)
     : options_(options),
-      snapshots_(std::make_unique<TripleBuffer<HapticSnapshot>>()),
-      targets_(std::make_unique<TripleBuffer<ProxyTargets>>()),
+      snapshots_(std::make_unique<haptic::TripleBuffer<haptic::HapticSnapshot>>()),
+      targets_(std::make_unique<haptic::TripleBuffer<haptic::ProxyTargets>>()),
       wire_(std::make_unique<Wire>()),
       pose_(std::make_unique<protocol::Message>()),
       received_(std::make_unique<protocol::Message>()) {
@@ -62,20 +62,22 @@ OfflineLoops::OfflineLoops(SceneDesc scene, const OfflineOptions& options)
   const double dt = options_.visual_every_ticks * options_.haptic_period_s;
   scene.dt_s = dt;
   scene.visual_rate_hz = 1.0 / dt;
-  WorldOptions world_options = served_world_options();
+  world::WorldOptions world_options = haptic::served_world_options();
   world_options.contact = options_.contact;
   // CHOLMOD's OpenMP regions: one thread, as the visual thread runs it.
   hand::single_threaded_cholmod();
-  world_ = std::make_unique<World>(scene, world_options);
-  if (RigidWorld* rigid = world_->rigid())
+  world_ = std::make_unique<world::World>(scene, world_options);
+  if (world::RigidWorld* rigid = world_->rigid())
     for (long i = 0; i < std::lround(options_.settle_s / options_.haptic_period_s); ++i)
       rigid->step(options_.haptic_period_s);
-  link_ = make_device_link(*world_, scene.devices[options_.device], 1.0 / options_.haptic_period_s);
-  ServerOptions server;  // hapticd's defaults at this haptic rate
+  link_ = haptic::make_device_link(*world_, scene.devices[options_.device], 1.0 / options_.haptic_period_s);
+  haptic::ServerOptions server;  // hapticd's defaults at this haptic rate
   server.haptic_rate_hz = 1.0 / options_.haptic_period_s;
-  core_ = std::make_unique<HapticCore>(std::vector<DeviceLink>{link_}, server, *snapshots_, *targets_, *wire_);
-  preparer_ = std::make_unique<TickSolverPreparer>(std::vector<DeviceLink>{link_}, options_.haptic_period_s);
-  visual_ = std::make_unique<VisualStep>(*world_, *snapshots_, *targets_, preparer_.get(), options_.model);
+  core_ = std::make_unique<haptic::HapticCore>(std::vector<haptic::DeviceLink>{link_}, server, *snapshots_, *targets_,
+                                               *wire_);
+  preparer_ =
+      std::make_unique<haptic::TickSolverPreparer>(std::vector<haptic::DeviceLink>{link_}, options_.haptic_period_s);
+  visual_ = std::make_unique<haptic::VisualStep>(*world_, *snapshots_, *targets_, preparer_.get(), options_.model);
   const std::uint64_t t0 = now_ns();
   core_->start(t0);
   // The session, opened as a device opens it.
@@ -123,7 +125,7 @@ void OfflineLoops::frame_pose_at_handle(int j, Eigen::Vector3d& p_D, Eigen::Quat
   link_.map.to_device(j, {h.p_WH, h.q_WH}, p_D, q_D);
 }
 
-const ProxyHand& OfflineLoops::proxy() const { return *core_->proxy_of(session_); }
+const haptic::ProxyHand& OfflineLoops::proxy() const { return *core_->proxy_of(session_); }
 
 long OfflineLoops::resets() const { return proxy().resets() + world_->snapshot().resets; }
 
@@ -260,4 +262,4 @@ OfflineTrace run_offline(OfflineLoops& loops, OfflineDevice& device, long ticks,
   return trace;
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::offline

@@ -23,7 +23,7 @@
 #include "server/haptic/visual_step.hpp"
 #include "server/world/world.hpp"
 
-namespace hapticd {
+namespace hapticd::offline {
 
 struct OfflineOptions {
   double haptic_period_s = 1e-3;
@@ -34,7 +34,7 @@ struct OfflineOptions {
   // compute time); the world then simulates up to that publication, as VisualLoop does.
   // Less than visual_every_ticks.
   int model_delay_ticks = 0;
-  HandleModelKind model = HandleModelKind::linearized;
+  haptic::HandleModelKind model = haptic::HandleModelKind::linearized;
   int device = 0;  // the scene device served
   // Before the first tick, the scene's rigid bodies (ODE alone) settle this long
   // in steps of one haptic period. Runs at different visual rates then start
@@ -51,22 +51,22 @@ struct OfflineOptions {
   // go unstable.
   bool targets_one_tick_stale = false;
   // The hands' contact model (WorldOptions::contact; unset: the scene's). Penalty by default, as hapticd.
-  std::optional<ContactModel> contact = ContactModel::penalty;
+  std::optional<world::ContactModel> contact = world::ContactModel::penalty;
 };
 
 // A device's frames in device space, per tick.
 struct DeviceFrames {
   int frames = 0;
-  Eigen::Vector3d p_D[kMaxHapticHandles];
-  Eigen::Quaterniond q_D[kMaxHapticHandles];
+  Eigen::Vector3d p_D[haptic::kMaxHapticHandles];
+  Eigen::Quaterniond q_D[haptic::kMaxHapticHandles];
 };
 
 // What a device receives at a tick: the reply's wrench per frame (device
 // space, about the frame's origin) and its contact flag.
 struct DeviceReply {
   int frames = 0;
-  ReplyWrench wrench[kMaxHapticHandles];
-  bool in_contact[kMaxHapticHandles]{};
+  haptic::ReplyWrench wrench[haptic::kMaxHapticHandles];
+  bool in_contact[haptic::kMaxHapticHandles]{};
 };
 
 // Median and 99th percentile of the stage timings of a run (wall clock; they do
@@ -84,7 +84,7 @@ class OfflineLoops {
  public:
   // Builds the world as hapticd does (served_world_options) with the scene's step set to k T, and
   // opens the device's session. Throws std::runtime_error when the scene's device cannot be served.
-  OfflineLoops(SceneDesc scene, const OfflineOptions& options);
+  OfflineLoops(world::SceneDesc scene, const OfflineOptions& options);
   ~OfflineLoops();
   OfflineLoops(const OfflineLoops&) = delete;
   OfflineLoops& operator=(const OfflineLoops&) = delete;
@@ -100,11 +100,11 @@ class OfflineLoops {
 
   long ticks() const { return ticks_; }
   double time_s() const { return static_cast<double>(ticks_) * options_.haptic_period_s; }
-  World& world() { return *world_; }
-  const World& world() const { return *world_; }
-  const DeviceLink& link() const { return link_; }
+  world::World& world() { return *world_; }
+  const world::World& world() const { return *world_; }
+  const haptic::DeviceLink& link() const { return link_; }
   // The session's proxies (as the haptic tick left them).
-  const ProxyHand& proxy() const;
+  const haptic::ProxyHand& proxy() const;
   const OfflineOptions& options() const { return options_; }
   // Proxy resets plus world resets.
   long resets() const;
@@ -119,14 +119,14 @@ class OfflineLoops {
 
   OfflineOptions options_;
   std::uint64_t period_ns_ = 0;
-  std::unique_ptr<World> world_;
-  DeviceLink link_;
-  std::unique_ptr<TripleBuffer<HapticSnapshot>> snapshots_;
-  std::unique_ptr<TripleBuffer<ProxyTargets>> targets_;
+  std::unique_ptr<world::World> world_;
+  haptic::DeviceLink link_;
+  std::unique_ptr<haptic::TripleBuffer<haptic::HapticSnapshot>> snapshots_;
+  std::unique_ptr<haptic::TripleBuffer<haptic::ProxyTargets>> targets_;
   std::unique_ptr<Wire> wire_;
-  std::unique_ptr<HapticCore> core_;
-  std::unique_ptr<TickSolverPreparer> preparer_;
-  std::unique_ptr<VisualStep> visual_;
+  std::unique_ptr<haptic::HapticCore> core_;
+  std::unique_ptr<haptic::TickSolverPreparer> preparer_;
+  std::unique_ptr<haptic::VisualStep> visual_;
   protocol::Encoder encoder_;
   std::unique_ptr<protocol::Message> pose_, received_;
   std::uint64_t session_ = 0;
@@ -221,4 +221,4 @@ OfflineTrace run_offline(OfflineLoops& loops, OfflineDevice& device, long ticks)
 OfflineTrace run_offline(OfflineLoops& loops, OfflineDevice& device, long ticks,
                          const std::function<void(long tick)>& after_tick);
 
-}  // namespace hapticd
+}  // namespace hapticd::offline

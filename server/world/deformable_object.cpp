@@ -8,7 +8,7 @@
 #include "hand_models/box_mesh.hpp"
 #include "hand_models/mesh_io.hpp"
 
-namespace hapticd {
+namespace hapticd::world {
 namespace {
 
 // A deformable box is meshed with about this many cubic cells (6 tets each):
@@ -92,7 +92,7 @@ hand::EmbeddedBody boundary_body(hand::TetMesh mesh) {
 hand::EmbeddedBody load_body(const ShapeDesc& s) {
   if (s.type == ShapeType::box) {
     const Eigen::Vector3d& size = s.size;
-    return boundary_body(hand::make_box_mesh(size, deformable_box_cells(size), -0.5 * size));
+    return boundary_body(hand::make_box_mesh(size, detail::deformable_box_cells(size), -0.5 * size));
   }
   hand::TetMesh mesh = hand::load_tet_mesh(s.file);
   for (Eigen::Vector3d& X : mesh.X) X *= s.scale;
@@ -104,6 +104,8 @@ hand::EmbeddedBody load_body(const ShapeDesc& s) {
 }
 
 }  // namespace
+
+namespace detail {
 
 std::array<int, 3> deformable_box_cells(const Eigen::Vector3d& size) {
   const double h = std::cbrt(size.prod() / kBoxCells);
@@ -140,6 +142,8 @@ hand::ContactBody rigid_proxy(const DeformableObject& o) {
   b.w_W = b.inertia_W.ldlt().solve(angular_momentum);
   return b;
 }
+
+}  // namespace detail
 
 std::unique_ptr<DeformableObject> make_deformable_object(const ObjectDesc& desc, const DeformableBuild& build) {
   auto o = std::make_unique<DeformableObject>();
@@ -208,4 +212,4 @@ std::unique_ptr<DeformableObject> make_deformable_object(const ObjectDesc& desc,
   return o;
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::world

@@ -14,7 +14,7 @@
 #include "server/world/deformed_mesh_query.hpp"
 #include "server/world/scene.hpp"
 
-namespace hapticd {
+namespace hapticd::world {
 
 struct DeformableObject {
   std::string name;
@@ -52,6 +52,9 @@ struct DeformableBuild {
 // body cannot be built.
 std::unique_ptr<DeformableObject> make_deformable_object(const ObjectDesc& desc, const DeformableBuild& build);
 
+// Internals of the world's deformable stages.
+namespace detail {
+
 // Cells of the grid a deformable box of this size is meshed with (6 tets per cell).
 std::array<int, 3> deformable_box_cells(const Eigen::Vector3d& size_m);
 
@@ -63,4 +66,6 @@ Eigen::Vector3d surface_point(const DeformableObject& object, int v);
 // and angular momentum.
 hand::ContactBody rigid_proxy(const DeformableObject& object);
 
-}  // namespace hapticd
+}  // namespace detail
+
+}  // namespace hapticd::world

@@ -5,7 +5,7 @@
 #include <cmath>
 #include <limits>
 
-namespace hapticd {
+namespace hapticd::world {
 namespace {
 
 // The grid has about one tet-sized cell per tet bounding box, but never more
@@ -128,4 +128,4 @@ bool DeformedMeshQuery::penetration(const Eigen::Vector3d& p, double margin_m, M
   return out.depth_m > -margin_m;
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::world

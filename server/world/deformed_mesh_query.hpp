@@ -18,7 +18,7 @@
 #include "hand_models/tet_mesh.hpp"
 #include "server/world/mesh_sdf.hpp"
 
-namespace hapticd {
+namespace hapticd::world {
 
 struct MeshPenetration {
   int tet = -1;                                      // the tet holding the point
@@ -39,7 +39,8 @@ class DeformedMeshQuery {
   // `surface`: closed and outward, in the coordinates of mesh.X (the rest shape).
   // Its signed distance grid has cells of `sdf_cell_m` and is exact within
   // `sdf_band_cells` cells of the surface (deeper points keep that depth).
-  DeformedMeshQuery(const hand::TetMesh& mesh, const hand::SurfaceMesh& surface, double sdf_cell_m, int sdf_band_cells = 6);
+  DeformedMeshQuery(const hand::TetMesh& mesh, const hand::SurfaceMesh& surface, double sdf_cell_m,
+                    int sdf_band_cells = 6);
 
   // Rebuilds the grid at deformed node positions x (3n); allocates only when the
   // grid outgrows its largest earlier size.
@@ -74,4 +75,4 @@ class DeformedMeshQuery {
   std::vector<Eigen::AlignedBox3i> tet_cells_;  // per tet, its range of grid cells
 };
 
-}  // namespace hapticd
+}  // namespace hapticd::world

@@ -4,7 +4,7 @@
 #include <algorithm>
 #include <cmath>
 
-namespace hapticd {
+namespace hapticd::world {
 namespace {
 
 // Closest point on triangle abc to p (Ericson, Real-Time Collision Detection 5.1.5).
@@ -115,4 +115,4 @@ bool MeshSdf::query(const Eigen::Vector3d& p, double& distance, Eigen::Vector3d&
   return true;
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::world

@@ -8,7 +8,7 @@
 
 #include "hand_models/embedded_surface.hpp"
 
-namespace hapticd {
+namespace hapticd::world {
 
 class MeshSdf {
  public:
@@ -31,4 +31,4 @@ class MeshSdf {
   std::vector<double> values_;
 };
 
-}  // namespace hapticd
+}  // namespace hapticd::world

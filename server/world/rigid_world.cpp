@@ -7,7 +7,7 @@
 
 #include "hand_models/embedded_surface.hpp"
 
-namespace hapticd {
+namespace hapticd::world {
 namespace {
 
 constexpr int kMaxContactsPerPair = 8;
@@ -56,6 +56,8 @@ Eigen::Matrix3d geom_rotation(dGeomID g) {
 }
 
 }  // namespace
+
+namespace detail {
 
 bool point_penetration(dGeomID geom, const Eigen::Vector3d& p, double& depth, Eigen::Vector3d& n,
                        const Eigen::Vector3d& entry_n, double margin) {
@@ -133,6 +135,7 @@ bool point_penetration(dGeomID geom, const Eigen::Vector3d& p, double& depth, Ei
   return depth > -margin;
 }
 
+}  // namespace detail
 
 void ensure_ode_for_this_thread() {
   static std::once_flag once;
@@ -339,7 +342,7 @@ Eigen::Vector3d RigidWorld::point_velocity(int i, const Eigen::Vector3d& p) cons
 bool RigidWorld::penetration(int i, const Eigen::Vector3d& p, double& depth, Eigen::Vector3d& n,
                              const Eigen::Vector3d& entry_n, double margin) const {
   const Object& o = objects_[i];
-  if (o.sdf.empty()) return point_penetration(o.geom, p, depth, n, entry_n, margin);
+  if (o.sdf.empty()) return detail::point_penetration(o.geom, p, depth, n, entry_n, margin);
   // Into the geom's frame (the mesh's own coordinates).
   const dReal* gp = dGeomGetPosition(o.geom);
   dQuaternion q;
@@ -514,4 +517,4 @@ void RigidWorld::step(double dt) {
   check_bodies();  // divergence in the step
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::world

@@ -14,7 +14,7 @@
 #include "server/world/mesh_sdf.hpp"
 #include "server/world/scene.hpp"
 
-namespace hapticd {
+namespace hapticd::world {
 
 // Calls dInitODE2 once per process and dAllocateODEDataForThread for the calling thread.
 void ensure_ode_for_this_thread();
@@ -152,10 +152,14 @@ class RigidWorld {
   long resets_ = 0;
 };
 
+namespace detail {
+
 // Penetration of point p_W into a primitive ODE geom (plane, sphere, box,
 // capsule, cylinder): depth > 0 and the unit normal out of the geom; false when
 // outside or for other geom classes.
 bool point_penetration(dGeomID geom, const Eigen::Vector3d& p_W, double& depth_m, Eigen::Vector3d& n_W,
                        const Eigen::Vector3d& entry_n_W = Eigen::Vector3d::Zero(), double margin_m = 0);
 
-}  // namespace hapticd
+}  // namespace detail
+
+}  // namespace hapticd::world

@@ -10,7 +10,7 @@
 #include <string_view>
 #include <vector>
 
-namespace hapticd {
+namespace hapticd::world {
 
 // Bounds of scene values that other code builds on (scene_loader.cpp holds the rest; every field
 // below states its range). The loader refuses whatever lies outside, so whatever it accepts builds
@@ -248,4 +248,4 @@ inline std::string_view to_string(HandleSet v) { return enum_name(kHandleSetName
 inline std::string_view to_string(DeviceKind v) { return enum_name(kDeviceKindNames, v); }
 inline std::string_view to_string(ContactModel v) { return enum_name(kContactModelNames, v); }
 
-}  // namespace hapticd
+}  // namespace hapticd::world

@@ -22,7 +22,7 @@
 #include "protocol/limits.hpp"
 #include "server/world/rigid_world.hpp"
 
-namespace hapticd {
+namespace hapticd::world {
 
 namespace {
 
@@ -881,4 +881,4 @@ SceneDesc load_scene(const std::string& path) {
   return parse_scene_text(text, fs::absolute(path, ec).parent_path().string(), path);
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::world

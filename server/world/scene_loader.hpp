@@ -65,7 +65,7 @@
 
 #include "server/world/scene.hpp"
 
-namespace hapticd {
+namespace hapticd::world {
 
 // what(): "<file>: <key path>: <problem>", e.g.
 // "stylus_bunny.json: objects[2].material.friction: must be >= 0, got -0.2". JSON syntax
@@ -100,4 +100,4 @@ SceneDesc parse_scene(const nlohmann::json& doc, const std::string& base_dir, co
 // validates it as parse_scene does.
 SceneDesc parse_scene_text(const std::string& text, const std::string& base_dir, const std::string& source_name);
 
-}  // namespace hapticd
+}  // namespace hapticd::world

@@ -7,7 +7,7 @@
 #include <stdexcept>
 #include <unordered_map>
 
-namespace hapticd {
+namespace hapticd::world {
 namespace {
 
 using Clock = std::chrono::steady_clock;
@@ -62,7 +62,8 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
     config.coupling.damping_ns_m = d.coupling_damping_ns_m;
     config.handles = procedural_handles(h->shape, handle_count(d.handles));
     // A glove hand's joints are soft flesh between its bones: bending a finger costs little work.
-    config.element_stiffness = procedural_joint_stiffness(h->shape, handle_count(d.handles), hand::kGloveJointStiffness);
+    config.element_stiffness =
+        procedural_joint_stiffness(h->shape, handle_count(d.handles), hand::kGloveJointStiffness);
     config.drive = options.drive;
     h->friction = d.material.friction;
     h->model = std::make_unique<hand::HandModel>(h->shape.mesh, config);
@@ -188,4 +189,4 @@ void World::step(double dt_s) {
   snapshot_.timings = timings;
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::world

@@ -27,7 +27,7 @@
 #include "server/world/rigid_world.hpp"
 #include "server/world/scene.hpp"
 
-namespace hapticd {
+namespace hapticd::world {
 
 struct WorldOptions {
   double contact_stiffness_n_m = 1000.0;  // per skin point in contact
@@ -232,4 +232,4 @@ class World {
   WorldSnapshot snapshot_;
 };
 
-}  // namespace hapticd
+}  // namespace hapticd::world

@@ -8,7 +8,7 @@
 
 #include "server/world/world.hpp"
 
-namespace hapticd {
+namespace hapticd::world {
 namespace {
 
 constexpr double kSpeculativeMargin_m = 0.002;
@@ -42,7 +42,8 @@ void World::collide_all() {
     DeformableObject& o = *deformables_[d];
     if (o.query) o.query->update(o.state.x);
     o.surface_bounds.setEmpty();
-    for (int v = 0; v < static_cast<int>(o.body.surface_tet.size()); ++v) o.surface_bounds.extend(surface_point(o, v));
+    for (int v = 0; v < static_cast<int>(o.body.surface_tet.size()); ++v)
+      o.surface_bounds.extend(detail::surface_point(o, v));
     collide(soft_[num_hands() + d]);
   }
   find_hand_hits();
@@ -355,7 +356,7 @@ void World::collide_with_hands(SoftBody& b, std::unordered_map<std::uint64_t, in
 // own step takes the hand's impulses (step_deformables()).
 int World::add_rigid_proxy(hand::HandState& s, int d) {
   const int index = static_cast<int>(s.bodies.size());
-  s.bodies.push_back(rigid_proxy(*deformables_[d]));
+  s.bodies.push_back(detail::rigid_proxy(*deformables_[d]));
   s.bodies.back().gravity_W = gravity_m_s2_;
   const SoftBody& own = soft_[num_hands() + d];
   for (size_t k = 0; k < own.state->contacts.size(); ++k) {
@@ -378,4 +379,4 @@ void World::remember_impulses(SoftBody& b) {
   for (size_t k = 0; k < b.keys.size(); ++k) b.warm_impulse[b.keys[k]] = b.state->contacts[k].f_W * step_dt_;
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::world

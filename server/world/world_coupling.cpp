@@ -7,7 +7,7 @@
 
 #include "server/world/world.hpp"
 
-namespace hapticd {
+namespace hapticd::world {
 
 // Hand-deformable contact by operator splitting. A rigid body a hand touches
 // joins the hand's system as one 6-DOF block; a deformable object would bring
@@ -157,4 +157,4 @@ void World::apply_reactions() {
   }
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::world

@@ -6,7 +6,7 @@
 
 #include "server/world/world.hpp"
 
-namespace hapticd {
+namespace hapticd::world {
 
 // The contacts the bodies hold, with the forces of the step that solved them
 // (before collide() replaces them with the next step's).
@@ -75,7 +75,7 @@ void World::publish() {
     const DeformableObject& o = *deformables_[d];
     DeformableSnapshot& out = snapshot_.deformables[d];
     out.surface_W.resize(o.body.surface_tet.size());
-    for (size_t v = 0; v < out.surface_W.size(); ++v) out.surface_W[v] = surface_point(o, static_cast<int>(v));
+    for (size_t v = 0; v < out.surface_W.size(); ++v) out.surface_W[v] = detail::surface_point(o, static_cast<int>(v));
     out.nodes_W.resize(o.model->num_nodes());
     for (int i = 0; i < o.model->num_nodes(); ++i) out.nodes_W[i] = o.state.x.segment<3>(3 * i);
   }
@@ -84,4 +84,4 @@ void World::publish() {
     for (int i = 0; i < rigid_->num_objects(); ++i) snapshot_.bodies.push_back(rigid_->state(i));
 }
 
-}  // namespace hapticd
+}  // namespace hapticd::world

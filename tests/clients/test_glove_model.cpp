@@ -39,8 +39,8 @@ Eigen::Vector3d vee(const Eigen::Matrix3d& S) { return {S(2, 1), S(0, 2), S(1, 0
 
 // The 6 x 20 Jacobian of phalanx i by central differences of skeleton_pose: linear rows from the
 // segment centre, angular rows from vee(dR/dq R^T).
-Eigen::Matrix<double, 6, hand::kHandJointDofs> finite_difference_jacobian(const hand::HandJointAngles& a, bool left, int i,
-                                                                    double h = 1e-6) {
+Eigen::Matrix<double, 6, hand::kHandJointDofs> finite_difference_jacobian(const hand::HandJointAngles& a, bool left,
+                                                                          int i, double h = 1e-6) {
   Eigen::Matrix<double, 6, hand::kHandJointDofs> J;
   const hand::SkeletonPose at = hand::skeleton_pose(a, left);
   for (int j = 0; j < hand::kHandJointDofs; ++j) {
@@ -144,7 +144,8 @@ TEST(GloveJacobian, MatchesFiniteDifferencesOfTheSkeletonForBothHands) {
       const auto J = phalanx_jacobians(a, hand::skeleton_pose(a, left), left);
       for (int i = 0; i < hand::kHandPhalanges; ++i) {
         const Eigen::Matrix<double, 6, hand::kHandJointDofs> fd = finite_difference_jacobian(a, left, i);
-        Eigen::Matrix<double, 6, hand::kHandJointDofs> analytic = Eigen::Matrix<double, 6, hand::kHandJointDofs>::Zero();
+        Eigen::Matrix<double, 6, hand::kHandJointDofs> analytic =
+            Eigen::Matrix<double, 6, hand::kHandJointDofs>::Zero();
         analytic.block<6, 4>(0, 4 * (i / 3)) = J[i];
         // Central differences of h = 1e-6 rad: O(h^2) truncation, ~1e-10 round-off.
         const double error = (analytic - fd).cwiseAbs().maxCoeff();

@@ -61,32 +61,33 @@ const std::string& base_dir() {
 }
 
 // Only primitives and fem hands: nothing but the scene's numbers decides whether it builds.
-bool must_build(const hapticd::SceneDesc& scene) {
-  for (const hapticd::ObjectDesc& o : scene.objects)
-    if (o.shape.type == hapticd::ShapeType::mesh || o.shape.type == hapticd::ShapeType::tet_mesh) return false;
-  for (const hapticd::HandDesc& h : scene.hands)
-    if (h.model != hapticd::HandModelKind::fem) return false;
+bool must_build(const hapticd::world::SceneDesc& scene) {
+  for (const hapticd::world::ObjectDesc& o : scene.objects)
+    if (o.shape.type == hapticd::world::ShapeType::mesh || o.shape.type == hapticd::world::ShapeType::tet_mesh)
+      return false;
+  for (const hapticd::world::HandDesc& h : scene.hands)
+    if (h.model != hapticd::world::HandModelKind::fem) return false;
   return true;
 }
 
-void check_finite(const hapticd::World& world) {
-  const hapticd::WorldSnapshot& s = world.snapshot();
+void check_finite(const hapticd::world::World& world) {
+  const hapticd::world::WorldSnapshot& s = world.snapshot();
   for (const auto& hand : s.handles)
     for (const hapticd::hand::HandleState& h : hand)
       if (!h.p_WH.allFinite() || !h.q_WH.coeffs().allFinite())
         finding("non-finite handle pose", "step " + std::to_string(s.step));
-  for (const hapticd::RigidBodyState& b : s.bodies)
+  for (const hapticd::world::RigidBodyState& b : s.bodies)
     if (!b.p_WO.allFinite() || !b.q_WO.coeffs().allFinite() || !b.v_WO.allFinite() || !b.w_W.allFinite())
       finding("non-finite body state", "step " + std::to_string(s.step));
 }
 
 // The Welcome the haptic core sends for this link (fill_welcome, as its handshake), encoded.
-void check_welcome(const hapticd::DeviceLink& link, hapticd::protocol::Encoder& encoder) {
+void check_welcome(const hapticd::haptic::DeviceLink& link, hapticd::protocol::Encoder& encoder) {
   namespace protocol = hapticd::protocol;
-  std::uint16_t ids[hapticd::kMaxHapticHandles];
+  std::uint16_t ids[hapticd::haptic::kMaxHapticHandles];
   for (int j = 0; j < link.handles; ++j) ids[j] = static_cast<std::uint16_t>(j);
   protocol::Welcome w;
-  hapticd::fill_welcome(link, 1, 1000, {ids, static_cast<std::size_t>(link.handles)}, w);
+  hapticd::haptic::fill_welcome(link, 1, 1000, {ids, static_cast<std::size_t>(link.handles)}, w);
   const protocol::EncodeResult r = encoder.encode(w);
   if (!r.ok())
     finding("the Welcome of device " + link.name + " does not encode",
@@ -98,32 +99,32 @@ void check_welcome(const hapticd::DeviceLink& link, hapticd::protocol::Encoder& 
 // Only scenes that build and step within the 10 s limit under the sanitizers on a loaded 2-core
 // machine: no mesh object (its distance grid alone took over 60 s for the shipped bunny) and only
 // palm-handled hands (a 16-handle glove's world took 56 s). The others are fuzzed through the loader.
-bool cheap_to_build(const hapticd::SceneDesc& scene) {
+bool cheap_to_build(const hapticd::world::SceneDesc& scene) {
   if (!must_build(scene)) return false;
-  for (const hapticd::HandDesc& h : scene.hands)
-    if (h.handles != hapticd::HandleSet::palm) return false;
+  for (const hapticd::world::HandDesc& h : scene.hands)
+    if (h.handles != hapticd::world::HandleSet::palm) return false;
   return true;
 }
 
-void build_and_step(hapticd::SceneDesc scene) {
+void build_and_step(hapticd::world::SceneDesc scene) {
   if (!cheap_to_build(scene)) return;
-  for (hapticd::HandDesc& h : scene.hands)
-    if (h.resolution_tets > 4 * hapticd::kMinHandTets) h.resolution_tets = hapticd::kMinHandTets;
-  hapticd::WorldOptions options;
+  for (hapticd::world::HandDesc& h : scene.hands)
+    if (h.resolution_tets > 4 * hapticd::world::kMinHandTets) h.resolution_tets = hapticd::world::kMinHandTets;
+  hapticd::world::WorldOptions options;
   options.contact.reset();  // the scene's contact model: both get fuzzed
   // The flesh distance grids (1-3 mm cells) take tens of seconds under the sanitizers: hands pass
   // through each other, and touch deformable objects only in a scene without two hands.
   options.hand_hand_contacts = false;
   if (scene.needs_deformable_objects()) options.hand_contacts = false;
   try {
-    hapticd::World world(scene, options);
+    hapticd::world::World world(scene, options);
     check_finite(world);
     for (int k = 0; k < 3; ++k) {
       world.step();
       check_finite(world);
     }
     static hapticd::protocol::Encoder encoder;
-    for (const hapticd::DeviceDesc& d : scene.devices) check_welcome(hapticd::make_device_link(world, d, 1000.0), encoder);
+    for (const hapticd::world::DeviceDesc& d : scene.devices) check_welcome(hapticd::haptic::make_device_link(world, d, 1000.0), encoder);
   } catch (const std::exception& e) {
     finding("a scene of primitives and fem hands did not build", e.what());
   }
@@ -133,10 +134,10 @@ void build_and_step(hapticd::SceneDesc scene) {
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   const std::string text(hapticd::fuzz::as_text(data, size));
-  hapticd::SceneDesc scene;
+  hapticd::world::SceneDesc scene;
   try {
-    scene = hapticd::parse_scene_text(text, base_dir(), "fuzz.json");
-  } catch (const hapticd::SceneError&) {
+    scene = hapticd::world::parse_scene_text(text, base_dir(), "fuzz.json");
+  } catch (const hapticd::world::SceneError&) {
     return 0;
   }
   build_and_step(std::move(scene));

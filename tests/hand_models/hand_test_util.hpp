@@ -22,7 +22,8 @@ inline hand::HandModel slab_hand(int handles, hand::HandConfig config = {}, std:
 }
 
 // Target of handle j moved by `offset` from its rest pose and rotated by `angle` about z.
-inline hand::HandleTarget offset_target(const hand::HandModel& model, int j, const Eigen::Vector3d& offset, double angle = 0.0) {
+inline hand::HandleTarget offset_target(const hand::HandModel& model, int j, const Eigen::Vector3d& offset,
+                                        double angle = 0.0) {
   hand::HandleTarget t;
   t.p_W = model.handles()[j].p_WH_rest + offset;
   t.q_W = Eigen::Quaterniond(Eigen::AngleAxisd(angle, Eigen::Vector3d::UnitZ()));

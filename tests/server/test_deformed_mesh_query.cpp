@@ -11,7 +11,7 @@
 #include "hand_models/box_mesh.hpp"
 #include "server/world/deformed_mesh_query.hpp"
 
-namespace hapticd {
+namespace hapticd::world {
 namespace {
 
 constexpr double kHalf = 0.02;  // the cube is [-2 cm, 2 cm]^3
@@ -137,4 +137,4 @@ TEST(DeformedMeshQuery, LocatesEveryPointLikeABruteForceSearch) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::world

@@ -7,7 +7,7 @@
 #include "server/world/scene_loader.hpp"
 #include "server/world/world.hpp"
 
-namespace hapticd {
+namespace hapticd::world {
 namespace {
 
 TEST(FemHand, SkinPointsAreTheRestSkinPlacedByTheScenePoseAndCarryTheirHandles) {
@@ -40,4 +40,4 @@ TEST(FemHand, SkinPointsAreTheRestSkinPlacedByTheScenePoseAndCarryTheirHandles) 
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::world

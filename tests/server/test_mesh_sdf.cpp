@@ -6,7 +6,7 @@
 
 #include "server/world/mesh_sdf.hpp"
 
-namespace hapticd {
+namespace hapticd::world {
 namespace {
 
 // A UV sphere of radius r, outward triangles.
@@ -60,4 +60,4 @@ TEST(MeshSdf, SignedDistanceAndNormalMatchASphereWithinTheGridError) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::world

@@ -7,7 +7,7 @@
 
 #include "server/world/rigid_world.hpp"
 
-namespace hapticd {
+namespace hapticd::world {
 namespace {
 
 // A static slab tilted by theta about x, a 10 cm box resting on it, both with friction mu.
@@ -248,4 +248,4 @@ TEST(RigidWorld, FastButBoundedBodiesAreNotReset) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::world

@@ -18,7 +18,7 @@
 #include "server/world/scene_loader.hpp"
 #include "server/world/world.hpp"
 
-namespace hapticd {
+namespace hapticd::world {
 namespace {
 
 namespace fs = std::filesystem;
@@ -1013,16 +1013,16 @@ TEST_F(SceneLoaderTest, SceneAtTheEdgeOfEveryRangeBuildsStepsAndServes) {
   }
   protocol::Encoder encoder;
   for (const DeviceDesc& d : scene.devices) {
-    const DeviceLink link = make_device_link(world, d, 1000.0);
+    const haptic::DeviceLink link = haptic::make_device_link(world, d, 1000.0);
     // As HapticCore's handshake fills it.
-    std::uint16_t ids[kMaxHapticHandles];
+    std::uint16_t ids[haptic::kMaxHapticHandles];
     for (int j = 0; j < link.handles; ++j) ids[j] = static_cast<std::uint16_t>(j);
     protocol::Welcome w;
-    fill_welcome(link, 1, 1000, {ids, static_cast<std::size_t>(link.handles)}, w);
+    haptic::fill_welcome(link, 1, 1000, {ids, static_cast<std::size_t>(link.handles)}, w);
     const protocol::EncodeResult r = encoder.encode(w);
     EXPECT_TRUE(r.ok()) << d.name << ": " << protocol::to_string(r.reason);
   }
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::world

@@ -11,7 +11,7 @@
 #include "server/world/world.hpp"
 #include "world_test_util.hpp"
 
-namespace hapticd {
+namespace hapticd::world {
 namespace {
 
 SceneDesc floor_scene(double box_mass_kg) {
@@ -196,4 +196,4 @@ TEST(World, ShippedScenesStepOrSayWhatIsMissing) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::world

@@ -10,7 +10,7 @@
 #include "server/world/world.hpp"
 #include "world_test_util.hpp"
 
-namespace hapticd {
+namespace hapticd::world {
 namespace {
 
 class DeformableWorld : public testing::TestWithParam<ContactModel> {
@@ -260,4 +260,4 @@ INSTANTIATE_TEST_SUITE_P(Contact, DeformableWorld, testing::Values(ContactModel:
                          [](const testing::TestParamInfo<ContactModel>& i) { return std::string(to_string(i.param)); });
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::world

@@ -37,7 +37,7 @@
 #include "server/world/scene_loader.hpp"
 #include "server/world/world.hpp"
 
-namespace hapticd {
+namespace hapticd::world {
 namespace {
 
 constexpr double kDeg = std::numbers::pi / 180.0;
@@ -669,4 +669,4 @@ INSTANTIATE_TEST_SUITE_P(Contact, WorldGloveHardCases, testing::Values(ContactMo
                          });
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::world

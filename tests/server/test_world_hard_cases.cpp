@@ -9,7 +9,7 @@
 #include "server/world/world.hpp"
 #include "world_test_util.hpp"
 
-namespace hapticd {
+namespace hapticd::world {
 namespace {
 
 // A static slab (top face at z = 0) under a 350-tet hand resting 3 cm above it,
@@ -28,7 +28,8 @@ SceneDesc slab_scene(double slab_thickness, double box_mass_kg) {
   return scene;
 }
 
-hand::HandleTarget target_at(const hand::HandleState& start, const Eigen::Vector3d& offset, const Eigen::Vector3d& v = {0, 0, 0}) {
+hand::HandleTarget target_at(const hand::HandleState& start, const Eigen::Vector3d& offset,
+                             const Eigen::Vector3d& v = {0, 0, 0}) {
   hand::HandleTarget t;
   t.p_W = start.p_WH + offset;
   t.q_W = start.q_WH;
@@ -205,4 +206,4 @@ INSTANTIATE_TEST_SUITE_P(Contact, WorldHardCases, testing::Values(ContactModel::
                          });
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::world

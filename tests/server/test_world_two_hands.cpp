@@ -18,7 +18,7 @@
 #include "server/world/world.hpp"
 #include "world_test_util.hpp"
 
-namespace hapticd {
+namespace hapticd::world {
 namespace {
 
 constexpr int kTets = 700;
@@ -357,4 +357,4 @@ TEST(TwoHandsScene, LoadsAndSteps) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::world

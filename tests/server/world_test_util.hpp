@@ -6,8 +6,8 @@
 namespace hapticd::testing_util {
 
 // A 350-tet right hand whose palm centre is 3 cm above z = 0.
-inline void add_test_hand(SceneDesc& scene) {
-  HandDesc hand;
+inline void add_test_hand(world::SceneDesc& scene) {
+  world::HandDesc hand;
   hand.name = "right";
   hand.resolution_tets = 350;
   hand.pose.p_W = {0, 0, 0.03};
@@ -15,10 +15,10 @@ inline void add_test_hand(SceneDesc& scene) {
 }
 
 // A 5 cm rigid box on z = 0, in front of the test hand's fingertips.
-inline void add_push_box(SceneDesc& scene, double mass_kg, double friction = 0.5) {
-  ObjectDesc box;
+inline void add_push_box(world::SceneDesc& scene, double mass_kg, double friction = 0.5) {
+  world::ObjectDesc box;
   box.name = "box";
-  box.shape.type = ShapeType::box;
+  box.shape.type = world::ShapeType::box;
   box.shape.size = {0.05, 0.05, 0.05};
   box.mass_kg = mass_kg;
   box.pose.p_W = {0.0, 0.16, 0.025};

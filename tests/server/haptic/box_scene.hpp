@@ -7,13 +7,13 @@
 
 namespace hapticd::test {
 
-inline SceneDesc static_box_scene() {
-  SceneDesc scene = load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json");
+inline world::SceneDesc static_box_scene() {
+  world::SceneDesc scene = world::load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json");
   scene.objects.clear();
-  ObjectDesc box;
+  world::ObjectDesc box;
   box.name = "box";
-  box.kind = BodyKind::static_body;
-  box.shape.type = ShapeType::box;
+  box.kind = world::BodyKind::static_body;
+  box.shape.type = world::ShapeType::box;
   box.shape.size = {0.3, 0.3, 0.04};
   box.pose.p_W = {0.08, 0.1, 0.847};
   scene.objects.push_back(box);

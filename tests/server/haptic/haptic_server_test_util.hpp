@@ -23,14 +23,14 @@ using protocol::Message;
 using protocol::MessageType;
 
 // A wall z <= 0 in world space (see test_virtual_coupling.cpp), 3000 N/m.
-inline HapticSnapshot wall_snapshot() {
-  HapticSnapshot s;
+inline haptic::HapticSnapshot wall_snapshot() {
+  haptic::HapticSnapshot s;
   s.hands = 1;
-  HapticModel& m = s.model[0];
+  haptic::HapticModel& m = s.model[0];
   m.handles = 1;
-  m.F0 = HapticVector::Zero(6);
-  m.K = HapticMatrix::Zero(6, 6);
-  m.D = HapticMatrix::Zero(6, 6);
+  m.F0 = haptic::HapticVector::Zero(6);
+  m.K = haptic::HapticMatrix::Zero(6, 6);
+  m.D = haptic::HapticMatrix::Zero(6, 6);
   m.K(2, 2) = -3000.0;
   m.v0[0].setZero();
   m.w0[0].setZero();
@@ -38,12 +38,12 @@ inline HapticSnapshot wall_snapshot() {
   return s;
 }
 
-inline DeviceLink stylus_link() {
-  DeviceLink l;
+inline haptic::DeviceLink stylus_link() {
+  haptic::DeviceLink l;
   l.name = "stylus";
   l.mass_kg[0] = 0.05;
   l.inertia_B[0] = 1e-5 * Eigen::Matrix3d::Identity();
-  l.gains = coupling_gains_for(1000.0, 1.0, 1e-3);
+  l.gains = haptic::coupling_gains_for(1000.0, 1.0, 1e-3);
   return l;
 }
 
@@ -53,10 +53,11 @@ inline DeviceLink stylus_link() {
 struct RunningServer {
   // `world`: the snapshot the stand-in visual loop publishes (a stylus on the wall by default),
   // for the device `link`.
-  explicit RunningServer(const ServerOptions& options = {}, bool visual = true,
-                         HapticSnapshot (*world_fn)() = wall_snapshot, const DeviceLink& link = stylus_link())
+  explicit RunningServer(const haptic::ServerOptions& options = {}, bool visual = true,
+                         haptic::HapticSnapshot (*world_fn)() = wall_snapshot,
+                         const haptic::DeviceLink& link = stylus_link())
       : world(world_fn),
-        snapshots_storage(std::make_unique<TripleBuffer<HapticSnapshot>>(world_fn())),
+        snapshots_storage(std::make_unique<haptic::TripleBuffer<haptic::HapticSnapshot>>(world_fn())),
         snapshots(*snapshots_storage),
         server({link}, options, snapshots, targets) {
     thread = std::thread([this] {
@@ -81,13 +82,13 @@ struct RunningServer {
     if (thread.joinable()) thread.join();
     if (visual_thread.joinable()) visual_thread.join();
   }
-  HapticSnapshot (*world)();
+  haptic::HapticSnapshot (*world)();
   // Three snapshots of four hands' models are 4 MB: on the heap, as hapticd keeps them, not on a
   // test's stack (two servers in one test overflowed it under ASan).
-  std::unique_ptr<TripleBuffer<HapticSnapshot>> snapshots_storage;
-  TripleBuffer<HapticSnapshot>& snapshots;
-  TripleBuffer<ProxyTargets> targets;
-  HapticServer server;
+  std::unique_ptr<haptic::TripleBuffer<haptic::HapticSnapshot>> snapshots_storage;
+  haptic::TripleBuffer<haptic::HapticSnapshot>& snapshots;
+  haptic::TripleBuffer<haptic::ProxyTargets> targets;
+  haptic::HapticServer server;
   std::atomic<bool> stop{false};
   std::atomic<long> allocations{-1};
   std::thread thread, visual_thread;

@@ -9,20 +9,20 @@
 #include "server/haptic/device_link.hpp"
 #include "server/world/world.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 namespace {
 
-SceneDesc glove_scene(HandleSet handles, const Pose& hand_pose) {
-  SceneDesc scene;
-  HandDesc hand;
+world::SceneDesc glove_scene(world::HandleSet handles, const world::Pose& hand_pose) {
+  world::SceneDesc scene;
+  world::HandDesc hand;
   hand.name = "right";
   hand.resolution_tets = 350;
   hand.handles = handles;
   hand.pose = hand_pose;
   scene.hands.push_back(hand);
-  DeviceDesc glove;
+  world::DeviceDesc glove;
   glove.name = "glove";
-  glove.kind = DeviceKind::glove;
+  glove.kind = world::DeviceKind::glove;
   glove.hand = "right";
   // Device space is the glove's tracker space: the hand frame at the device origin maps onto the scene's hand.
   glove.workspace.offset_W = hand_pose.p_W;
@@ -32,14 +32,14 @@ SceneDesc glove_scene(HandleSet handles, const Pose& hand_pose) {
 }
 
 TEST(DeviceLink, GloveFramesAtRestLandOnTheHandles) {
-  Pose pose;
+  world::Pose pose;
   pose.p_W = {0.1, -0.2, 0.8};
   pose.q_W = Eigen::Quaterniond(Eigen::AngleAxisd(0.6, Eigen::Vector3d(0.3, 1, 0.2).normalized()));
-  for (HandleSet set : {HandleSet::fingertips, HandleSet::phalanges}) {
-    const SceneDesc scene = glove_scene(set, pose);
-    WorldOptions options;
+  for (world::HandleSet set : {world::HandleSet::fingertips, world::HandleSet::phalanges}) {
+    const world::SceneDesc scene = glove_scene(set, pose);
+    world::WorldOptions options;
     options.hand_gravity = false;
-    const World world(scene, options);
+    const world::World world(scene, options);
     const DeviceLink link = make_device_link(world, scene.devices[0], 1000);
     const hand::HandState& s = world.hand(0).state;
     ASSERT_EQ(link.handles, static_cast<int>(s.handles.size()));
@@ -135,4 +135,4 @@ TEST(DeviceLink, FingerLinesProjectEachFingersForcesOntoItsActuator) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::haptic

@@ -14,7 +14,7 @@
 
 #include "haptic_server_test_util.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 namespace {
 
 using protocol::Message;
@@ -178,4 +178,4 @@ TEST(HapticServer, TheHapticThreadNeverAllocates) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::haptic

@@ -14,7 +14,7 @@
 #include "haptic_server_test_util.hpp"
 #include "protocol/auth.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 namespace {
 
 using protocol::Message;
@@ -427,4 +427,4 @@ TEST(HapticServerAuth, TheClientLibraryTellsAKeyMismatchAndAMissingKeyApart) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::haptic

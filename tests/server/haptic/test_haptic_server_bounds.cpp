@@ -21,7 +21,7 @@
 #include "haptic_server_test_util.hpp"
 #include "protocol/percentile.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 namespace {
 
 using protocol::Message;
@@ -211,4 +211,4 @@ TEST(HapticServerBounds, SessionSlotsAreCappedAndEverySessionsMemoryIsAllocatedB
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::haptic

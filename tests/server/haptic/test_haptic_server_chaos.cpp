@@ -28,7 +28,7 @@
 #include "clients/sim/trajectory.hpp"
 #include "haptic_server_test_util.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 namespace {
 
 using protocol::RejectReason;
@@ -207,4 +207,4 @@ TEST(HapticServerChaos, EveryCorruptedDatagramIsRefusedByItsMacAndTheServerCarri
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::haptic

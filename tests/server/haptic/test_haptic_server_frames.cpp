@@ -14,7 +14,7 @@
 
 #include "haptic_server_test_util.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 namespace {
 
 using protocol::Message;
@@ -180,4 +180,4 @@ TEST(HapticServerFrames, AGloveOfASideTheSceneDoesNotHaveIsRefusedWithTheReason)
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::haptic

@@ -19,7 +19,7 @@
 
 #include "haptic_server_test_util.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 namespace {
 
 using protocol::MessageType;
@@ -220,4 +220,4 @@ TEST(HapticServerWatchdog, AStalledHapticLoopIsCountedAsAnOverrunAndResumesWitho
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::haptic

@@ -12,7 +12,7 @@
 
 #include "clients/sim/child_process.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 namespace {
 
 using namespace std::chrono_literals;
@@ -80,4 +80,4 @@ TEST(HapticdCli, BadKeyFilesAndAnUnprotectedBindAreRefusedWithTheReason) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::haptic

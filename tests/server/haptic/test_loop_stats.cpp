@@ -10,7 +10,7 @@
 #include "protocol/percentile.hpp"
 #include "server/haptic/loop_stats.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 namespace {
 
 constexpr double kPercents[] = {0, 1, 10, 25, 50, 75, 90, 99, 99.9, 100};
@@ -54,4 +54,4 @@ TEST(MicrosecondHistogram, AgreesWithThePercentileWithinOneBin) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::haptic

@@ -15,7 +15,7 @@
 #include "server/offline/offline_run.hpp"
 #include "server/world/scene_loader.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 namespace {
 
 // A settled moment of a run: the device's force and position (device space), the
@@ -35,22 +35,22 @@ struct LoopRun {
 // `command(t)`: where the user's arm pulls the device tip (device space), from where it starts (on the handle).
 // `delay_ticks`: how long after its step a model reaches the haptic loop (the visual step's compute time).
 // `settle_at`: times (s) at which to record a Settled (z components).
-LoopRun run_loops(double seconds, const SimulatedStylus::Command& command, int delay_ticks = 0,
-                  SceneDesc scene = load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json"),
+LoopRun run_loops(double seconds, const offline::SimulatedStylus::Command& command, int delay_ticks = 0,
+                  world::SceneDesc scene = world::load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json"),
                   const std::vector<double>& settle_at = {}) {
-  OfflineOptions options;
+  offline::OfflineOptions options;
   options.visual_every_ticks = 17;  // 17 ticks of 1 ms: world time keeps pace with the proxies
   options.model_delay_ticks = delay_ticks;
-  OfflineLoops loops(scene, options);
+  offline::OfflineLoops loops(scene, options);
   const double period = options.haptic_period_s;
   // The device starts where the handle is (no jump to excite the flesh); `command` is an offset from there.
   const hand::HandleState h0 = loops.world().snapshot().handles[0][0];
   Eigen::Vector3d start_D;
   Eigen::Quaterniond q_D;
   loops.frame_pose_at_handle(0, start_D, q_D);
-  SimulatedStylus device(start_D, command, period);
-  DeviceFrames sample;
-  DeviceReply reply;
+  offline::SimulatedStylus device(start_D, command, period);
+  offline::DeviceFrames sample;
+  offline::DeviceReply reply;
   Eigen::Vector3d f = Eigen::Vector3d::Zero();  // the force the device holds
   LoopRun out;
   for (int k = 0; k < static_cast<int>(seconds / period); ++k) {
@@ -65,7 +65,7 @@ LoopRun run_loops(double seconds, const SimulatedStylus::Command& command, int d
     if (t > 0.5 * seconds) out.max_force_late_n = std::max(out.max_force_late_n, f.norm());
     for (double at : settle_at)
       if (k == static_cast<int>(std::lround(at / period))) {
-        const WorldHand& hand = loops.world().hand(0);
+        const world::WorldHand& hand = loops.world().hand(0);
         out.settled.push_back({f.z(), sample.p_D[0].z(), loops.proxy().proxy(0).p_W.z() - h0.p_WH.z(),
                                coupling_wrench(*hand.model, hand.state.x, hand.state.v, hand.state.handles)[2]});
       }
@@ -137,5 +137,5 @@ TEST(LoopsOffline, PressAndStrokeOnTheBunnyWithModelsArrivingHalfAStepLateIsPass
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::haptic
 

@@ -9,7 +9,7 @@
 #include "allocation_counter.hpp"
 #include "server/haptic/source_rate_limiter.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 namespace {
 
 sockaddr_storage v4(const char* address, std::uint16_t port) {
@@ -93,4 +93,4 @@ TEST(SourceRateLimiter, AllowNeverAllocates) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::haptic

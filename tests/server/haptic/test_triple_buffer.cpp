@@ -10,7 +10,7 @@
 
 #include "server/haptic/triple_buffer.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 namespace {
 
 // Large enough that a torn copy (a read while the slot is being written) would mix two writes.
@@ -80,4 +80,4 @@ TEST(TripleBuffer, AReaderWithNothingNewKeepsItsValue) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::haptic

@@ -13,7 +13,7 @@
 #include "server/haptic/visual_loop.hpp"
 #include "server/world/scene_loader.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 namespace {
 
 constexpr double kPeriod = 1e-3;  // 1 kHz
@@ -78,16 +78,16 @@ TEST(VirtualCoupling, SteadyPressOnAWallGivesTheSeriesStiffnessTimesPenetration)
 
 TEST(VirtualCoupling, DeviceInFreeSpaceOfTheShippedSceneFeelsLessThanFiveCentinewtons) {
   // The stylus scene's weightless hand in free space, its model from the world.
-  const SceneDesc scene = load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json");
-  WorldOptions options;
+  const world::SceneDesc scene = world::load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json");
+  world::WorldOptions options;
   options.hand_gravity = false;
-  World world(scene, options);
+  world::World world(scene, options);
   for (int k = 0; k < 5; ++k) world.step();
   HapticModel model;
   hand::HandleLinearization lin;
   fill_haptic_model(world, 0, lin, model);
   ASSERT_EQ(model.handles, 1);
-  const DeviceDesc& dev = scene.devices[0];
+  const world::DeviceDesc& dev = scene.devices[0];
   DeviceMap map{dev.workspace.scale, dev.workspace.offset_W, dev.workspace.R_WD};
   ProxyHand p = make_proxy(map, dev.stiffness_n_m, {dev.max_force_n, dev.max_torque_nm, dev.max_force_rate_n_s});
   // The device where the handle is.
@@ -640,4 +640,4 @@ TEST(VirtualCoupling, PrepareTickSolverRefusesWhatItCannotServe) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::haptic

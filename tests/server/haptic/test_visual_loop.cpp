@@ -16,7 +16,7 @@
 #include "server/offline/offline_run.hpp"
 #include "server/world/scene_loader.hpp"
 
-namespace hapticd {
+namespace hapticd::haptic {
 namespace {
 
 ProxyTargets moving_proxy(std::uint64_t t_ns) {
@@ -82,10 +82,10 @@ double press_depth_m(double t_s) { return 0.015 * std::clamp((t_s - 0.2) / 0.5, 
 // test::static_box_scene().
 struct Threads {
   explicit Threads(double visual_hz = 60) {
-    SceneDesc scene = test::static_box_scene();
+    world::SceneDesc scene = test::static_box_scene();
     scene.visual_rate_hz = visual_hz;
     scene.dt_s = 1.0 / visual_hz;
-    world = std::make_unique<World>(scene, served_world_options());
+    world = std::make_unique<world::World>(scene, served_world_options());
     link = make_device_link(*world, scene.devices[0], 1000.0);
     server = std::make_unique<HapticServer>(std::vector<DeviceLink>{link}, ServerOptions{}, *snapshots, *targets, &report);
     preparer = std::make_unique<TickSolverPreparer>(std::vector<DeviceLink>{link}, 1e-3);
@@ -111,7 +111,7 @@ struct Threads {
   std::unique_ptr<TripleBuffer<HapticSnapshot>> snapshots = std::make_unique<TripleBuffer<HapticSnapshot>>();
   std::unique_ptr<TripleBuffer<ProxyTargets>> targets = std::make_unique<TripleBuffer<ProxyTargets>>();
   VisualReport report;
-  std::unique_ptr<World> world;
+  std::unique_ptr<world::World> world;
   DeviceLink link;
   std::unique_ptr<HapticServer> server;
   std::unique_ptr<TickSolverPreparer> preparer;
@@ -246,21 +246,21 @@ TEST(VisualLoopThreads, TheRealTimeAndTheLockstepRunnersRenderTheSamePress) {
   const std::vector<Reply> threaded = press_and_hold(t, 2.0);
   t.halt();
 
-  OfflineOptions options;
+  offline::OfflineOptions options;
   options.visual_every_ticks = 17;
-  OfflineLoops loops(test::static_box_scene(), options);
+  offline::OfflineLoops loops(test::static_box_scene(), options);
   Eigen::Vector3d start_D;
   Eigen::Quaterniond q_D;
   loops.frame_pose_at_handle(0, start_D, q_D);
   EXPECT_LT((start_D - t.start_D).norm(), 1e-12) << "the two runners' hands start apart";
-  std::vector<DeviceFrames> poses(2000);
+  std::vector<offline::DeviceFrames> poses(2000);
   for (std::size_t k = 0; k < poses.size(); ++k) {
     poses[k].frames = 1;
     poses[k].p_D[0] = start_D - Eigen::Vector3d(0, 0, press_depth_m(1e-3 * static_cast<double>(k)));
     poses[k].q_D[0].setIdentity();
   }
-  RecordedDevice device(poses);
-  const OfflineTrace lockstep = run_offline(loops, device, static_cast<long>(poses.size()));
+  offline::RecordedDevice device(poses);
+  const offline::OfflineTrace lockstep = offline::run_offline(loops, device, static_cast<long>(poses.size()));
 
   auto held = [](auto time_of, auto force_of, std::size_t n) {
     double sum = 0;
@@ -292,4 +292,4 @@ TEST(VisualLoopThreads, TheRealTimeAndTheLockstepRunnersRenderTheSamePress) {
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::haptic

@@ -10,23 +10,24 @@
 #include "server/offline/multirate.hpp"
 #include "server/world/scene_loader.hpp"
 
-namespace hapticd {
+namespace hapticd::offline {
 namespace {
 
-SceneDesc stylus_scene() { return load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json"); }
+world::SceneDesc stylus_scene() { return world::load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json"); }
 
 // The press at 30 Hz, open loop, with the linearized model and the zero-order hold: the ratio of
 // their RMS force errors against the every-tick world, after the checks that the runs mean
 // something (the press loads the device; neither the reference nor the linearized run reset).
 double zoh_over_linearized_at_30_hz(const Interaction& press) {
-  const MultirateRuns runs = run_multirate(press, {33}, {HandleModelKind::linearized, HandleModelKind::zoh});
+  const MultirateRuns runs =
+      run_multirate(press, {33}, {haptic::HandleModelKind::linearized, haptic::HandleModelKind::zoh});
   if (runs.rows.size() != 2u) {
     ADD_FAILURE() << runs.rows.size() << " rows";
     return 0;
   }
   const MultirateRow &lin = runs.rows[0], &zoh = runs.rows[1];
-  EXPECT_EQ(lin.model, HandleModelKind::linearized);
-  EXPECT_EQ(zoh.model, HandleModelKind::zoh);
+  EXPECT_EQ(lin.model, haptic::HandleModelKind::linearized);
+  EXPECT_EQ(zoh.model, haptic::HandleModelKind::zoh);
   const double ratio = zoh.error.rms_n / lin.error.rms_n;
   std::printf(
       "30 Hz %s: reference RMS force %.3f N; RMS error linearized %.4f N (max %.4f), zoh %.4f N (max %.4f, %ld "
@@ -67,7 +68,7 @@ struct ClosedLoop {
   long resets = 0;
 };
 
-ClosedLoop closed_loop_press(HandleModelKind model, int visual_every_ticks) {
+ClosedLoop closed_loop_press(haptic::HandleModelKind model, int visual_every_ticks) {
   const Interaction press = stylus_press(stylus_scene(), 2.5);
   OfflineOptions options;
   options.visual_every_ticks = visual_every_ticks;
@@ -88,9 +89,9 @@ TEST(Multirate, At30HzOnlyTheLinearizedModelRendersTheStylusPressStablyInClosedL
   // The linearized model at 30 Hz renders the press as the world stepped at every tick does (run
   // here as the reference); holding the last visual force on the proxy puts energy in until resets
   // stop it. (Whether the 30 Hz rendering is passive is Issue17KnownFault's below.)
-  const ClosedLoop reference = closed_loop_press(HandleModelKind::linearized, 1);
-  const ClosedLoop lin = closed_loop_press(HandleModelKind::linearized, 33);
-  const ClosedLoop zoh = closed_loop_press(HandleModelKind::zoh, 33);
+  const ClosedLoop reference = closed_loop_press(haptic::HandleModelKind::linearized, 1);
+  const ClosedLoop lin = closed_loop_press(haptic::HandleModelKind::linearized, 33);
+  const ClosedLoop zoh = closed_loop_press(haptic::HandleModelKind::zoh, 33);
   ASSERT_EQ(reference.resets, 0);
   ASSERT_GT(reference.rms_force_n, 0.5);  // the press is felt
   EXPECT_EQ(lin.resets, 0);
@@ -102,11 +103,11 @@ TEST(Multirate, At30HzOnlyTheLinearizedModelRendersTheStylusPressStablyInClosedL
 TEST(Issue17KnownFault, At30HzTheLinearizedModelRendersTheStylusPressPassively) {
   // The reference (the world at every tick) takes energy out of the device (-0.004 J); at 30 Hz the
   // linearized model puts some in (+0.003 J): the contacts it holds bilaterally between visual steps.
-  const ClosedLoop reference = closed_loop_press(HandleModelKind::linearized, 1);
-  const ClosedLoop lin = closed_loop_press(HandleModelKind::linearized, 33);
+  const ClosedLoop reference = closed_loop_press(haptic::HandleModelKind::linearized, 1);
+  const ClosedLoop lin = closed_loop_press(haptic::HandleModelKind::linearized, 33);
   ASSERT_LE(reference.energy_j, 0.0);
   EXPECT_LE(lin.energy_j, 0.0) << "the rendering put energy into the device";
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::offline

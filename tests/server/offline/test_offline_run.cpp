@@ -11,11 +11,11 @@
 #include "server/offline/multirate.hpp"
 #include "server/world/scene_loader.hpp"
 
-namespace hapticd {
+namespace hapticd::offline {
 namespace {
 
-SceneDesc stylus_scene() { return load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json"); }
-SceneDesc glove_scene() { return load_scene(std::string(HAPTICD_SCENES_DIR) + "/glove_grasp.json"); }
+world::SceneDesc stylus_scene() { return world::load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json"); }
+world::SceneDesc glove_scene() { return world::load_scene(std::string(HAPTICD_SCENES_DIR) + "/glove_grasp.json"); }
 
 OfflineTrace run_closed_loop(const Interaction& in, int visual_every_ticks) {
   OfflineOptions options;
@@ -125,4 +125,4 @@ TEST(OfflineRun, ProxiesTimedAtTheEndOfTheirTickKeepAFreeSpaceSweepPassiveAtEver
 }
 
 }  // namespace
-}  // namespace hapticd
+}  // namespace hapticd::offline
