@@ -7,6 +7,8 @@
 // (Coulomb, maximal dissipation). The building block of constraint contact;
 // W comes from the implicit system's factorization (the Schur machinery).
 #include <Eigen/Core>
+#include <algorithm>
+#include <cmath>
 #include <vector>
 
 namespace hapticd::hand {
@@ -28,6 +30,65 @@ struct PgsResult {
   int iterations = 0;
   bool converged = false;
 };
+
+// Projects an impulse (normal, tangent 1, tangent 2) onto the friction cone: normal >= 0,
+// |tangent| <= mu normal.
+inline Eigen::Vector3d project_to_cone(Eigen::Vector3d l, double mu) {
+  l[0] = std::max(0.0, l[0]);
+  const double t = l.tail<2>().norm(), limit = mu * l[0];
+  if (t > limit) l.tail<2>() *= t > 0 ? limit / t : 0.0;
+  return l;
+}
+
+// Contact i's tangential step of the sweeps: 1 / lambda_max(W_tt), 0 when W_tt vanishes. A scalar
+// step (not the 2x2 block's inverse) makes every fixed point on the cone oppose the slide (maximal
+// dissipation) even when W_tt is anisotropic.
+template <class MatW>
+double pgs_tangent_step(const MatW& W, int i) {
+  const Eigen::Matrix2d Wtt = W.template block<2, 2>(3 * i + 1, 3 * i + 1);
+  const double mean = 0.5 * Wtt.trace(), spread = std::hypot(0.5 * (Wtt(0, 0) - Wtt(1, 1)), Wtt(0, 1));
+  return mean + spread > 0 ? 1.0 / (mean + spread) : 0.0;
+}
+
+// The sweeps of solve_contacts_pgs on the caller's storage, so that the haptic tick (fixed-capacity
+// matrices) and the hand step (dynamic ones) run one implementation and neither allocates here:
+// c contacts; W (3c x 3c), bias (c), mu (c), tangent_step (c, pgs_tangent_step); lambda (3c) the first
+// iterate (inside the cone) and the answer; u = u_free + W lambda on entry, kept so. Per contact: the
+// normal row with its own diagonal, then the tangent, each followed by its projection. Stops when a
+// sweep changes no impulse by more than `tolerance` times the largest. Returns the sweeps run.
+template <class MatW, class VecB, class VecU, class VecL>
+int pgs_sweeps(const MatW& W, const VecB& bias, const double* mu, const double* tangent_step, int c, VecU& u,
+               VecL& lambda, int max_iterations, double tolerance, bool& converged) {
+  converged = false;
+  int sweep = 1;
+  for (; sweep <= max_iterations; ++sweep) {
+    double change = 0, largest = 0;
+    for (int i = 0; i < c; ++i) {
+      const Eigen::Vector3d old = lambda.template segment<3>(3 * i);
+      Eigen::Vector3d l = old;
+      const double Wnn = W(3 * i, 3 * i);
+      if (Wnn > 0) l[0] = std::max(0.0, l[0] - (u[3 * i] - bias[i]) / Wnn);
+      // Tangential: the impulse that would stop sliding, clipped to the cone of the new normal.
+      const Eigen::Vector2d u_t =
+          u.template segment<2>(3 * i + 1) + W.template block<2, 1>(3 * i + 1, 3 * i) * (l[0] - old[0]);
+      l.tail<2>() -= tangent_step[i] * u_t;
+      l = project_to_cone(l, mu[i]);
+      const Eigen::Vector3d delta = l - old;
+      if (delta.squaredNorm() > 0) {
+        for (int d = 0; d < 3; ++d)
+          if (delta[d] != 0) u.head(3 * c) += W.col(3 * i + d).head(3 * c) * delta[d];
+        lambda.template segment<3>(3 * i) = l;
+      }
+      change = std::max(change, delta.cwiseAbs().maxCoeff());
+      largest = std::max(largest, l.cwiseAbs().maxCoeff());
+    }
+    if (change <= tolerance * std::max(largest, 1e-300)) {
+      converged = true;
+      break;
+    }
+  }
+  return std::min(sweep, max_iterations);
+}
 
 // `warm_start` (3c), when given, is the first iterate (the previous step's impulses).
 PgsResult solve_contacts_pgs(const ContactProblem& problem, const PgsOptions& options = {},

@@ -23,17 +23,108 @@ bool valid_support(const HandState& s, const BodySupport& b) {
          std::isfinite(b.friction) && b.friction >= 0;
 }
 
-// Constraint contacts on the solved free velocities: J (contact frames of the
-// relative velocity, sparse), A^-1 J^T by one block solve through the step's
-// factorization, W = J A^-1 J^T, projected Gauss-Seidel warm-started from each
-// contact's guess, V = V_free + A^-1 J^T lambda. The rows are the hand's
-// constraint contacts and the implicit bodies' supports. Reserve contacts the
-// solution would carry deeper than kReserveDepth_m then join as further rows
-// (appended to s.active_contacts; only their columns of A^-1 J^T are solved)
-// and Gauss-Seidel resumes, a few rounds at most. Hand impulses go to
-// `impulses` (world frame, per active contact); the pushing rows become s.held
-// for the linearization.
+// Builds rows of J^T, 3 columns per row (row = DOF, column = contact direction), in contact frames
+// of the relative velocity of the hand point (or body) against the other side.
+class RowBuilder {
+ public:
+  RowBuilder(const HandModel& model, const HandState& s)
+      : model_(model), s_(s), nh_(s.system.handle_dofs()), nt_(s.system.tool_dofs()), m_(model.num_handles()) {}
+  // Appends contact k's frame and J^T entries; fills its known relative velocity, bias, friction
+  // and warm start.
+  Eigen::Matrix3d add_point(const PointContact& pc, int k) {
+    const Tet& t = model_.mesh().tets[pc.tet];
+    const Eigen::Matrix3d F = contact_frame(pc.n_W);
+    for (int a = 0; a < 4; ++a)
+      if (pc.bary[a] != 0) add(nh_ + 3 * t[a], k, pc.bary[a] * F);
+    if (pc.body >= 0) add_body(pc.body, embedded_value(t, pc.bary, s_.x), k, -1.0, F);
+    return F;
+  }
+  Eigen::Matrix3d add_support(const BodySupport& b, int k) {
+    const Eigen::Matrix3d F = contact_frame(b.n_W);
+    add_body(b.body, b.p_W, k, 1.0, F);
+    return F;
+  }
+  // The rows added since the last call, as J^T.
+  Eigen::SparseMatrix<double> take(int count) {
+    Eigen::SparseMatrix<double> Jt(nh_ + nt_, 3 * count);
+    Jt.setFromTriplets(entries_.begin(), entries_.end());
+    entries_.clear();
+    return Jt;
+  }
+
+ private:
+  void add(int dof, int k, const Eigen::Matrix3d& block) {
+    for (int r = 0; r < 3; ++r)
+      for (int d = 0; d < 3; ++d) entries_.emplace_back(dof + r, 3 * k + d, block(r, d));
+  }
+  void add_body(int body, const Eigen::Vector3d& p_W, int k, double sign, const Eigen::Matrix3d& F) {
+    const Eigen::Vector3d rho = p_W - s_.bodies[body].p_com_W;
+    add(6 * (m_ + body), k, sign * F);
+    add(6 * (m_ + body) + 3, k, sign * skew(rho) * F);  // (w x rho) . f = w . (rho x f)
+  }
+  const HandModel& model_;
+  const HandState& s_;
+  const int nh_, nt_, m_;
+  std::vector<Eigen::Triplet<double>> entries_;
+};
+
+// A row's known relative velocity (a kinematic other side's, in the frame), bias and friction.
+void row_terms(const PointContact& pc, const Eigen::Matrix3d& F, double h, Eigen::Ref<Eigen::Vector3d> u_known,
+               double& bias, double& mu) {
+  u_known = -F.transpose() * (pc.body >= 0 ? Eigen::Vector3d::Zero() : pc.v_other_W);
+  // Penetrating: push out a fraction of the depth; a gap (speculative contact) may close fully.
+  bias = pc.depth_m > 0 ? kContactDepthRecovery * pc.depth_m / h : pc.depth_m / h;
+  mu = pc.friction;
+}
+void row_terms(const BodySupport& b, const Eigen::Matrix3d& F, double h, Eigen::Ref<Eigen::Vector3d> u_known,
+               double& bias, double& mu) {
+  u_known = -F.transpose() * b.v_other_W;
+  bias = b.depth_m > 0 ? kContactDepthRecovery * b.depth_m / h : b.depth_m / h;
+  mu = b.friction;
+}
+
 }  // namespace
+
+void contact_rows(const HandModel& model, const HandState& s, int max_contacts, ContactRows& out) {
+  struct Candidate {
+    const PointContact* contact = nullptr;
+    const BodySupport* support = nullptr;
+    double depth = 0;
+  };
+  std::vector<Candidate> candidates;
+  for (const PointContact& pc : s.active_contacts)
+    if (pc.constraint) candidates.push_back({&pc, nullptr, pc.depth_m});
+  for (const BodySupport& b : s.supports)
+    if (valid_support(s, b)) candidates.push_back({nullptr, &b, b.depth_m});
+  if (static_cast<int>(candidates.size()) > max_contacts) {
+    // The deepest first (a gap counts as negative depth): those that can push within the step.
+    std::stable_sort(candidates.begin(), candidates.end(),
+                     [](const Candidate& a, const Candidate& b) { return a.depth > b.depth; });
+    candidates.resize(std::max(0, max_contacts));
+  }
+  const int c = static_cast<int>(candidates.size());
+  const double h = step_length(model, s);
+  out.frames.resize(c);
+  out.u_known.resize(3 * c);
+  out.bias.resize(c);
+  out.mu.resize(c);
+  out.warm.resize(3 * c);
+  RowBuilder rows(model, s);
+  for (int k = 0; k < c; ++k) {
+    const Candidate& cand = candidates[k];
+    Eigen::Vector3d warm_W = Eigen::Vector3d::Zero();
+    if (cand.contact) {
+      out.frames[k] = rows.add_point(*cand.contact, k);
+      row_terms(*cand.contact, out.frames[k], h, out.u_known.segment<3>(3 * k), out.bias[k], out.mu[k]);
+      warm_W = cand.contact->warm_impulse_W;
+    } else {
+      out.frames[k] = rows.add_support(*cand.support, k);
+      row_terms(*cand.support, out.frames[k], h, out.u_known.segment<3>(3 * k), out.bias[k], out.mu[k]);
+    }
+    out.warm.segment<3>(3 * k) = out.frames[k].transpose() * warm_W;
+  }
+  out.Jt = rows.take(c);
+}
 
 bool solve_constraint_contacts(const HandModel& model, HandState& s, CoupledSolver& solver,
                                std::vector<Eigen::Vector3d>& impulses) {
@@ -52,36 +143,9 @@ bool solve_constraint_contacts(const HandModel& model, HandState& s, CoupledSolv
   s.held = HeldContacts{};
   const CoupledSystem& sys = s.system;
   const int nh = sys.handle_dofs(), nt = sys.tool_dofs();
-  const int m = model.num_handles();
   const double h = step_length(model, s);
   const Eigen::VectorXd V_free = (Eigen::VectorXd(nh + nt) << s.v_h_next, s.v_t_next).finished();
-
-  // J^T, 3 columns per row, from triplets (row = DOF, column = contact direction).
-  std::vector<Eigen::Triplet<double>> entries;
-  std::vector<Eigen::Matrix3d> frames;
-  auto add = [&](int dof, int k, const Eigen::Matrix3d& block) {
-    for (int r = 0; r < 3; ++r)
-      for (int d = 0; d < 3; ++d) entries.emplace_back(dof + r, 3 * k + d, block(r, d));
-  };
-  // The relative velocity of the hand point (or body) against the other side, in frame (n, t1, t2).
-  auto add_body = [&](int body, const Eigen::Vector3d& p_W, int k, double sign) {
-    const Eigen::Vector3d rho = p_W - s.bodies[body].p_com_W;
-    add(6 * (m + body), k, sign * frames[k]);
-    add(6 * (m + body) + 3, k, sign * skew(rho) * frames[k]);  // (w x rho) . f = w . (rho x f)
-  };
-  auto add_point = [&](const PointContact& pc, int k) {
-    const Tet& t = model.mesh().tets[pc.tet];
-    frames[k] = contact_frame(pc.n_W);
-    for (int a = 0; a < 4; ++a)
-      if (pc.bary[a] != 0) add(nh + 3 * t[a], k, pc.bary[a] * frames[k]);
-    if (pc.body >= 0) add_body(pc.body, embedded_value(t, pc.bary, s.x), k, -1.0);
-  };
-  auto transposed_rows = [&](int count) {
-    Eigen::SparseMatrix<double> Jt(nh + nt, 3 * count);
-    Jt.setFromTriplets(entries.begin(), entries.end());
-    entries.clear();
-    return Jt;
-  };
+  RowBuilder builder(model, s);
 
   // Rows [first, rows.size()) join the problem: their part of J^T, of A^-1 J^T and of the LCP.
   ContactProblem problem;
@@ -101,34 +165,28 @@ bool solve_constraint_contacts(const HandModel& model, HandState& s, CoupledSolv
   };
   auto append_rows = [&](int first) -> bool {
     const int c = static_cast<int>(rows.size()), added = c - first;
-    frames.assign(added, Eigen::Matrix3d::Identity());
     problem.u_free.conservativeResize(3 * c);
     problem.bias.conservativeResize(c);
     problem.mu.resize(c);
     lambda.conservativeResize(3 * c);
     for (int k = 0; k < added; ++k) {
       const Row& row = rows[first + k];
-      Eigen::Vector3d v_known, warm = Eigen::Vector3d::Zero();
-      double depth, mu;
+      const int i = first + k;
+      Eigen::Vector3d warm = Eigen::Vector3d::Zero();
+      Eigen::Matrix3d F;
       if (row.contact >= 0) {
         const PointContact& pc = s.active_contacts[row.contact];
-        add_point(pc, k);
-        v_known = pc.body >= 0 ? Eigen::Vector3d::Zero() : pc.v_other_W;
-        depth = pc.depth_m, mu = pc.friction, warm = pc.warm_impulse_W;
+        F = builder.add_point(pc, k);
+        row_terms(pc, F, h, problem.u_free.segment<3>(3 * i), problem.bias[i], problem.mu[i]);
+        warm = pc.warm_impulse_W;
       } else {
         const BodySupport& b = s.supports[row.support];
-        frames[k] = contact_frame(b.n_W);
-        add_body(b.body, b.p_W, k, 1.0);
-        v_known = b.v_other_W, depth = b.depth_m, mu = b.friction;
+        F = builder.add_support(b, k);
+        row_terms(b, F, h, problem.u_free.segment<3>(3 * i), problem.bias[i], problem.mu[i]);
       }
-      // A kinematic other side's known velocity is part of the free relative velocity.
-      problem.u_free.segment<3>(3 * (first + k)) = -frames[k].transpose() * v_known;
-      // Penetrating: push out a fraction of the depth; a gap (speculative contact) may close fully.
-      problem.bias[first + k] = depth > 0 ? kContactDepthRecovery * depth / h : depth / h;
-      problem.mu[first + k] = mu;
-      lambda.segment<3>(3 * (first + k)) = frames[k].transpose() * warm;
+      lambda.segment<3>(3 * i) = F.transpose() * warm;
     }
-    const Eigen::SparseMatrix<double> Jt_new = transposed_rows(added);
+    const Eigen::SparseMatrix<double> Jt_new = builder.take(added);
     problem.u_free.tail(3 * added) += Jt_new.transpose() * V_free;
     Eigen::MatrixXd X_h_new, X_t_new;
     const Eigen::MatrixXd* Y_round = nullptr;
@@ -170,9 +228,8 @@ bool solve_constraint_contacts(const HandModel& model, HandState& s, CoupledSolv
     if (round == kReserveRounds || reserves.empty()) break;
 
     // Reserves the solution carries deeper, and deeper than kReserveDepth_m, join the rows.
-    frames.assign(reserves.size(), Eigen::Matrix3d::Identity());
-    for (size_t k = 0; k < reserves.size(); ++k) add_point(*reserves[k], static_cast<int>(k));
-    const Eigen::VectorXd u = transposed_rows(static_cast<int>(reserves.size())).transpose() * V;
+    for (size_t k = 0; k < reserves.size(); ++k) builder.add_point(*reserves[k], static_cast<int>(k));
+    const Eigen::VectorXd u = builder.take(static_cast<int>(reserves.size())).transpose() * V;
     std::vector<const PointContact*> waiting;
     for (size_t k = 0; k < reserves.size(); ++k) {
       const PointContact& pc = *reserves[k];

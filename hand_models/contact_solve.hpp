@@ -16,6 +16,20 @@ namespace hapticd::hand {
 // carry deeper than kReserveDepth_m join as further rows for a few rounds. Hand impulses go to
 // `impulses` (world frame, per active contact); the pushing rows become s.held for the
 // linearization. False when the solve fails.
+// The constraint rows of the coming step as solve_constraint_contacts builds them (the hand's
+// constraint contacts in s.active_contacts, then the valid supports of its implicit bodies), for the
+// haptic loop's contact model: at most `max_contacts`, the deepest first (a gap is a negative depth).
+struct ContactRows {
+  Eigen::SparseMatrix<double> Jt;        // (handle + body + tool DOFs) x 3c, contact frames
+  Eigen::VectorXd u_known;               // 3c: the kinematic other side's part of the relative velocity, m/s
+  Eigen::VectorXd bias;                  // c: least normal velocity, m/s (ContactProblem::bias)
+  std::vector<double> mu;                // c: friction coefficients
+  Eigen::VectorXd warm;                  // 3c: the contacts' warm-start impulses in their frames, N s
+  std::vector<Eigen::Matrix3d> frames;   // c: (n, t1, t2) in world axes
+  int count() const { return static_cast<int>(mu.size()); }
+};
+void contact_rows(const HandModel& model, const HandState& s, int max_contacts, ContactRows& out);
+
 bool solve_constraint_contacts(const HandModel& model, HandState& s, CoupledSolver& solver,
                                std::vector<Eigen::Vector3d>& impulses);
 

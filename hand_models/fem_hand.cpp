@@ -50,8 +50,8 @@ void FemHand::recover(const Eigen::Vector3d& fallback_p_W, const Eigen::Quaterni
   }
 }
 
-bool FemHand::linearize_next_step(HandleLinearization& out) {
-  return hand::linearize_next_step(*model, state, *solver, out);
+bool FemHand::linearize_next_step(HandleLinearization& out, ContactLinearization contacts) {
+  return hand::linearize_next_step(*model, state, *solver, out, contacts);
 }
 
 Eigen::VectorXd FemHand::coupling_wrench() const {

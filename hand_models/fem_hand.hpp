@@ -26,7 +26,7 @@ class FemHand : public Hand {
   void step(HandleLinearization* model_out) override;
   void recover(const Eigen::Vector3d& fallback_p_W, const Eigen::Quaterniond& fallback_q_W) override;
   long resets() const override { return state.resets; }
-  bool linearize_next_step(HandleLinearization& out) override;
+  bool linearize_next_step(HandleLinearization& out, ContactLinearization contacts) override;
   Eigen::VectorXd coupling_wrench() const override;
   int num_skin_points() const override { return static_cast<int>(shape.skin_tet.size()); }
   Eigen::Vector3d skin_point(int i) const override;

@@ -60,8 +60,9 @@ class Hand {
 
   // --- What the haptic loop renders.
   // The handle-space model of the coming step from the current state (seed 004 section 3):
-  // F*(x, v) = F0 + K (x - x0) + D (v - v0); false when it cannot be built.
-  virtual bool linearize_next_step(HandleLinearization& out) = 0;
+  // F*(x, v) = F0 + K (x - x0) + D (v - v0), and with ContactLinearization::unilateral the contact
+  // rows the haptic tick solves (HandleContactModel); false when it cannot be built.
+  virtual bool linearize_next_step(HandleLinearization& out, ContactLinearization contacts) = 0;
   // The flesh's wrench on the handles now (seed 004 eq. 4-5), 6m: the zeroth order of that model.
   virtual Eigen::VectorXd coupling_wrench() const = 0;
 

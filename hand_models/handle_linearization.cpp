@@ -2,6 +2,9 @@
 
 #include <Eigen/Dense>
 
+#include "hand_models/contact_pgs.hpp"
+#include "hand_models/contact_solve.hpp"
+
 namespace hapticd::hand {
 
 Eigen::VectorXd coupling_wrench(const HandModel& model, const Eigen::VectorXd& x_t, const Eigen::VectorXd& v_t,
@@ -31,11 +34,25 @@ Eigen::VectorXd HandleLinearization::evaluate(const std::vector<HandleState>& ha
     dv.segment<3>(6 * j) = handles[j].v_WH - x0[j].v_WH;
     dv.segment<3>(6 * j + 3) = handles[j].w_WH - x0[j].w_WH;
   }
-  return F0 + K * dx + D * dv;
+  Eigen::VectorXd F = F0 + K * dx + D * dv;
+  if (contacts.count() > 0) {
+    ContactProblem p;
+    p.W = contacts.W;
+    p.u_free = contacts.u0 + contacts.U_K * dx + contacts.U_D * dv;
+    p.bias = contacts.bias;
+    p.mu = contacts.mu;
+    PgsOptions options;
+    options.max_iterations = 10000;
+    options.tolerance = 1e-12;
+    F += contacts.G * solve_contacts_pgs(p, options, &contacts.lambda0).lambda;
+  }
+  return F;
 }
 
 bool linearize_handles(const HandModel& model, const HandState& s, CoupledSolver& solver, HandleLinearization& out,
-                       const HeldContacts* held) {
+                       const HeldContacts* held, const ContactRows* rows) {
+  out.contacts = HandleContactModel{};
+  if (held && rows) return false;  // one or the other
   const CoupledSystem& sys = s.system;
   const int m = model.num_handles(), nh = 6 * m, nt = sys.tool_dofs();
   const int nb = (sys.handle_dofs() - nh) / 6;  // rigid bodies solved with the hand
@@ -71,14 +88,15 @@ bool linearize_handles(const HandModel& model, const HandState& s, CoupledSolver
   // Solves with everything but the handles: the tool and the implicit bodies
   // (block elimination of the bodies through the tool's A_t^-1). Columns: the
   // constant part, the K and D parts, then the held contact rows' J^T.
-  const int nc = held ? held->rows() : 0;
+  const int nc = held ? held->rows() : rows ? 3 * rows->count() : 0;
   const int nk = 1 + 2 * nh;
   Eigen::SparseMatrix<double> KD_ht(nh, nt);
   KD_ht.setFromTriplets(kd_ht.begin(), kd_ht.end());  // duplicates (a node in two springs) are summed
   Eigen::SparseMatrix<double> J_t(0, nt), J_b(0, 6 * nb);  // held rows on the tool and on the bodies
   if (nc > 0) {
-    J_t = held->J.rightCols(nt);
-    J_b = held->J.middleCols(nh, 6 * nb);
+    const Eigen::SparseMatrix<double> J = held ? held->J : Eigen::SparseMatrix<double>(rows->Jt.transpose());
+    J_t = J.rightCols(nt);
+    J_b = J.middleCols(nh, 6 * nb);
   }
   const Eigen::SparseMatrix<double> A_bt = sys.A_ht.bottomRows(6 * nb);
   // The tool solution Y (nt x (nk + nc + 6 nb)) is only ever looked at through three sparse
@@ -144,7 +162,30 @@ bool linearize_handles(const HandModel& model, const HandState& s, CoupledSolver
     // Y -= Y_b X_b, seen through O.
     OY.leftCols(nk + nc) -= OY.rightCols(6 * nb) * X_b;
   }
-  if (nc > 0) {
+  if (rows && nc > 0) {
+    // The rows' relative velocities J V for every column (their tool part, seen through O, and their
+    // bodies' part), and for the impulse columns W.
+    HandleContactModel& c = out.contacts;
+    const Eigen::MatrixXd JV = OY.block(nh, 0, nc, nk + nc) + J_b * X_b;
+    c.W = JV.rightCols(nc);
+    c.U_K = JV.middleCols(1, nh);
+    c.U_D = JV.middleCols(1 + nh, nh);
+    Eigen::VectorXd v0(nh);
+    for (int j = 0; j < m; ++j) v0.segment<6>(6 * j) << s.handles[j].v_WH, s.handles[j].w_WH;
+    c.u0 = rows->u_known + JV.col(0) + c.U_D * v0;
+    c.G = OY.block(0, nk, nh, nc);
+    c.bias = rows->bias;
+    c.mu = rows->mu;
+    c.frames = rows->frames;
+    ContactProblem p{c.W, c.u0, c.bias, c.mu};
+    PgsOptions options;
+    options.max_iterations = 500;
+    options.tolerance = 1e-10;
+    c.lambda0 = solve_contacts_pgs(p, options, &rows->warm).lambda;
+    if (!c.W.allFinite() || !c.u0.allFinite() || !c.U_K.allFinite() || !c.U_D.allFinite() || !c.G.allFinite() ||
+        !c.lambda0.allFinite())
+      return false;
+  } else if (nc > 0) {
     // Multipliers that keep J V = u for every column: W mu = u e0^T - J Y, with
     // W = J A^-1 J^T (handles held). Redundant rows (more contacts than a body
     // has DOFs) make W singular: a relative 1e-10 regularization picks the
@@ -171,12 +212,19 @@ bool linearize_handles(const HandModel& model, const HandState& s, CoupledSolver
   return out.F0.allFinite() && out.K.allFinite() && out.D.allFinite();
 }
 
-bool linearize_next_step(const HandModel& model, HandState& s, CoupledSolver& solver, HandleLinearization& out) {
+bool linearize_next_step(const HandModel& model, HandState& s, CoupledSolver& solver, HandleLinearization& out,
+                         ContactLinearization contacts) {
   assemble(model, s);
   Eigen::VectorXd v_h, v_t;
   SolveReport report;
-  const bool ok = solver.solve(s.system, v_h, v_t, report) &&
-                  linearize_handles(model, s, solver, out, s.held.rows() > 0 ? &s.held : nullptr);
+  bool ok = solver.solve(s.system, v_h, v_t, report);
+  if (ok && contacts == ContactLinearization::unilateral) {
+    ContactRows rows;
+    contact_rows(model, s, kMaxLinearizedContacts, rows);
+    ok = linearize_handles(model, s, solver, out, nullptr, rows.count() > 0 ? &rows : nullptr);
+  } else if (ok) {
+    ok = linearize_handles(model, s, solver, out, s.held.rows() > 0 ? &s.held : nullptr);
+  }
   if (!ok) out = HandleLinearization{};
   return ok;
 }
