@@ -21,7 +21,7 @@ struct MultirateArgs {
   std::string glove_scene = std::string(HAPTICD_SCENES_DIR) + "/glove_grasp.json";
   int glove_frames = 0;              // 0: the size's
   double stylus_s = 0, glove_s = 0;  // 0: the size's
-  std::vector<std::string> models = {"linearized", "zoh"};
+  std::vector<std::string> models = {"linearized", "bilateral", "zoh"};
   std::string json;
 };
 
@@ -73,7 +73,9 @@ void run_multirate_bench(const MultirateArgs& a) {
       offline::glove_grasp(glove_scene, a.glove_s > 0 ? a.glove_s : size.glove_s, frames)};
   std::vector<haptic::HandleModelKind> models;
   for (const std::string& m : a.models)
-    models.push_back(m == "linearized" ? haptic::HandleModelKind::linearized : haptic::HandleModelKind::zoh);
+    models.push_back(m == "linearized"  ? haptic::HandleModelKind::linearized
+                     : m == "bilateral" ? haptic::HandleModelKind::bilateral
+                                        : haptic::HandleModelKind::zoh);
 
   nlohmann::json rows = nlohmann::json::array(), meta = nlohmann::json::array(), ratios = nlohmann::json::object();
   std::printf(
@@ -136,7 +138,12 @@ void run_multirate_bench(const MultirateArgs& a) {
                          "first settles the rigid bodies 1 s at 1 ms; error per tick = sqrt(sum over frames "
                          "|f_D - f_D,ref|^2), RMS and max over the run"},
                         {"models",
-                         {{"linearized", "proxy under the coming step's handle-space linearization (hapticd)"},
+                         {{"linearized",
+                           "proxy under the coming step's handle-space linearization, its contacts solved each tick "
+                           "(hapticd)"},
+                          {"bilateral",
+                           "the same linearization with the last step's pushing contacts held bilaterally (the "
+                           "model before contacts released in the tick)"},
                           {"zoh", "proxy under the last visual step's coupling force, held (K = D = 0)"}}},
                         {"interactions", meta},
                         {"rows", rows},
@@ -159,8 +166,9 @@ void add_multirate_suite(CLI::App& app) {
       ->check(CLI::IsMember({6, 16}));
   sub->add_option("--stylus-seconds", args->stylus_s, "length of the stylus run (default: the size's)");
   sub->add_option("--glove-seconds", args->glove_s, "length of the glove run (default: the size's)");
-  sub->add_option("--models", args->models, "models compared: linearized, zoh (default: linearized zoh)")
-      ->check(CLI::IsMember({"linearized", "zoh"}));
+  sub->add_option("--models", args->models,
+                  "models compared: linearized, bilateral, zoh (default: linearized bilateral zoh)")
+      ->check(CLI::IsMember({"linearized", "bilateral", "zoh"}));
   sub->add_option("--json", args->json, "write the results as JSON to this file");
   sub->callback([args] { run_multirate_bench(*args); });
 }

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <random>
 
+#include "hand_models/contact_pgs.hpp"
 #include "hand_models/rigid_handle.hpp"
 
 namespace hapticd::haptic {
@@ -19,6 +20,11 @@ constexpr double kVelocityFilter = 0.6;
 // most this many corrections (then the dense LU).
 constexpr double kRefineTolerance = 1e-12;
 constexpr int kMaxRefinements = 6;
+
+// The tick's contact solve (TickContacts): projected Gauss-Seidel sweeps, at most this many, until no
+// impulse changes by more than this fraction of the largest.
+constexpr int kTickContactSweeps = 60;
+constexpr double kTickContactTolerance = 1e-10;
 
 // The time since the last reply the passivity controller divides by, s: from a tick at 10 kHz (the
 // fastest haptic rate hapticd accepts) to 100 ms (a reply after a pause is not a long tick).
@@ -114,6 +120,18 @@ bool prepare_tick_solver(HapticModel& model, int handles, const double* mass_kg,
   if (!s.G.allFinite() || !s.U.allFinite() || !H.allFinite() || !s.anchor_force.allFinite() || !s.ZB.allFinite() ||
       !s.ZC.allFinite())
     return false;
+  TickContacts& c = model.contacts;
+  c.proxy_prepared = false;
+  if (c.count > 0) {
+    // The contacts' Delassus operator with the proxies' response at the model's mid-step lookahead.
+    const double tau = std::max(0.5 * model.step_s, dt);
+    const HapticMatrix A = B - (tau * dt) * model.K;
+    const TickDofByRow X = Eigen::PartialPivLU<HapticMatrix>(A).solve(dt * c.G);
+    c.W_proxy = c.W;
+    c.W_proxy.noalias() += (tau * c.U_K + c.U_D) * X;
+    if (!c.W_proxy.allFinite()) return false;
+    c.proxy_prepared = true;
+  }
   s.dt_s = dt;
   s.gains = gains;
   s.prepared = true;
@@ -158,6 +176,9 @@ void ProxyHand::configure(int handles, const double* mass_kg, const Eigen::Matri
   r_.resize(n);
   c_.resize(n);
   dv_.resize(n);
+  x_look_.resize(n);
+  rhs_.resize(n);
+  lambda_.resize(0);
 
   lu_ = Eigen::PartialPivLU<HapticMatrix>(n);
   have_device_ = false;
@@ -269,7 +290,7 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
   }
   bool ok = b_.allFinite();
   for (int j = 0; ok && j < handles_; ++j) ok = std::isfinite(a_lin_[j]) && a_rot_[j].allFinite();
-  bool solved = false;
+  bool solved = false, dense = false;
   if (ok && handles_ >= kMinPreparedHandles) {
     if (!use_model) {
       // No model: A is block diagonal, each handle's blocks solved alone.
@@ -297,8 +318,11 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
     if (ok) {
       lu_.compute(A_);
       v_next_.noalias() = lu_.solve(b_);
+      dense = true;
     }
   }
+  const TickContacts& contacts = model.contacts;
+  if (ok && use_model && contacts.count > 0) ok = solve_contacts(model, h, tau, dense);
   if (ok) {
     ok = v_next_.allFinite();
     for (int j = 0; ok && j < handles_; ++j) ok = v_next_.segment<3>(6 * j).norm() < kMaxProxySpeed_m_s;
@@ -315,6 +339,99 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
     proxy_[j].p_W += dt * v_[j];
     proxy_[j].q_W = hand::rotate_by(proxy_[j].q_W, dt * w_[j]);
   }
+}
+
+bool ProxyHand::solve_contacts(const HapticModel& model, double h, double tau, bool dense) {
+  const TickContacts& c = model.contacts;
+  const int n = 6 * handles_, r = 3 * c.count;
+  if (c.count > kMaxTickContacts || c.G.rows() != n || c.G.cols() != r || c.W.rows() != r || c.U_K.cols() != n)
+    return false;
+  // The rows' velocities at the proxies' contact-free answer v: the model's pose is taken at the
+  // lookahead x + tau v as for F* (integrate).
+  x_look_.noalias() = x_rel_ + tau * v_next_;
+  dv_.noalias() = v_next_ - v0_;
+  u_.noalias() = c.u0;
+  u_.noalias() += c.U_K * x_look_;
+  u_.noalias() += c.U_D * dv_;
+  // Impulses lambda change the proxies' velocities by A^-1 h G lambda, and the rows' by that through
+  // tau U_K + U_D besides the flesh's W lambda: the Delassus operator of the proxies and the flesh.
+  if (dense) {
+    X_.noalias() = lu_.solve(c.G);
+    W_.noalias() = c.W;
+    UX_.noalias() = tau * c.U_K + c.U_D;
+    W_.noalias() += h * (UX_ * X_);
+  } else if (c.proxy_prepared) {
+    W_ = c.W_proxy;
+  } else {
+    return false;
+  }
+  // Warm start: the last tick's impulses under the same model, else the model's own at its anchor.
+  const bool same_model = model.t_end_ns == lambda_t_end_ns_ && model.resyncs == lambda_resyncs_ &&
+                          lambda_.size() == r;
+  if (!same_model) lambda_ = c.lambda0;
+  for (int i = 0; i < c.count; ++i) {
+    lambda_.segment<3>(3 * i) = hand::project_to_cone(lambda_.segment<3>(3 * i), c.mu[i]);
+    tangent_step_[i] = hand::pgs_tangent_step(W_, i);
+  }
+  u_.noalias() += W_ * lambda_;
+  bool converged = false;
+  contact_sweeps_ = hand::pgs_sweeps(W_, c.bias, c.mu, tangent_step_, c.count, u_, lambda_, kTickContactSweeps,
+                               kTickContactTolerance, converged);
+  if (!converged) ++contact_unconverged_;
+  if (!lambda_.allFinite()) return false;
+  polish_contacts(c);
+  lambda_t_end_ns_ = model.t_end_ns;
+  lambda_resyncs_ = model.resyncs;
+  // v += A^-1 h G lambda.
+  rhs_.noalias() = h * (c.G * lambda_);
+  if (dense) {
+    v_next_.noalias() += lu_.solve(rhs_);
+    return true;
+  }
+  b_ += rhs_;
+  return solve_prepared(model, h, tau);
+}
+
+void ProxyHand::polish_contacts(const TickContacts& c) {
+  // The active set the sweeps found: pushing normals, and both tangents of a contact inside its cone
+  // (sticking). A sliding contact's tangent impulse stays as the sweeps left it. On that set the
+  // problem is linear, W_AA lambda_A = target_A - (u - W lambda)_A, solved exactly; the answer
+  // replaces the sweeps' if it keeps every condition (PGS converges linearly, and slowly where the
+  // proxies' response makes the rows stiff).
+  const int r = 3 * c.count;
+  int a = 0;
+  for (int i = 0; i < c.count; ++i) {
+    const double ln = lambda_[3 * i];
+    if (ln <= 0) continue;
+    active_[a++] = 3 * i;
+    if (lambda_.segment<2>(3 * i + 1).norm() < (1 - 1e-9) * c.mu[i] * ln)
+      active_[a++] = 3 * i + 1, active_[a++] = 3 * i + 2;
+  }
+  if (a == 0) return;
+  W_aa_.resize(a, a);
+  rhs_a_.resize(a);
+  for (int i = 0; i < a; ++i) {
+    const int row = active_[i];
+    // The target: the bias on a normal row, no slip on a tangent row.
+    rhs_a_[i] = (row % 3 == 0 ? c.bias[row / 3] : 0.0) - u_[row];
+    for (int k = 0; k < a; ++k) W_aa_(i, k) = W_(row, active_[k]);
+  }
+  // rhs_a_ = target - u now; the correction d of the active impulses solves W_AA d = rhs_a_.
+  lu_rows_.compute(W_aa_);
+  delta_a_.noalias() = lu_rows_.solve(rhs_a_);
+  if (!delta_a_.allFinite()) return;
+  candidate_ = lambda_;
+  for (int i = 0; i < a; ++i) candidate_[active_[i]] += delta_a_[i];
+  u_candidate_ = u_;
+  for (int i = 0; i < a; ++i) u_candidate_.head(r) += W_.col(active_[i]).head(r) * delta_a_[i];
+  constexpr double kSlack = 1e-12;
+  for (int i = 0; i < c.count; ++i) {
+    const double ln = candidate_[3 * i];
+    if (ln < 0 || u_candidate_[3 * i] - c.bias[i] < -kSlack * (1 + std::abs(c.bias[i]))) return;
+    if (candidate_.segment<2>(3 * i + 1).norm() > c.mu[i] * ln * (1 + 1e-9) + 1e-300) return;
+  }
+  lambda_ = candidate_;
+  u_ = u_candidate_;
 }
 
 bool ProxyHand::solver_matches(const TickSolver& s, double dt) const {

@@ -62,6 +62,35 @@ struct TickSolver {
   const double* hessenberg_column(int j) const { return H + column_offset(j); }
 };
 
+// The contacts a model lets the tick make and break (the visual step's HandleContactModel, fixed
+// capacity): c contacts in frames (n, t1, t2), 3c rows; with row impulses lambda (N s over the model's
+// step) the model's wrench gains G lambda and the rows' relative velocities are
+// u = u0 + U_K dx + U_D (v - v0) + W lambda, with 0 <= lambda_n _|_ u_n - bias >= 0 and the Coulomb cone.
+// Each tick solves that complementarity problem together with the proxies' own implicit step
+// (ProxyHand::integrate), so a contact that would pull releases within the tick.
+constexpr int kMaxTickContacts = 16;
+constexpr int kMaxTickRows = 3 * kMaxTickContacts;
+using TickRowVector = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, kMaxTickRows, 1>;
+using TickRowMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kMaxTickRows, kMaxTickRows>;
+using TickRowByDof = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kMaxTickRows, kMaxHapticDofs>;
+using TickDofByRow = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kMaxHapticDofs, kMaxTickRows>;
+struct TickContacts {
+  int count = 0;  // c; 0: the model has no contact rows
+  TickDofByRow G;  // 6m x 3c
+  TickRowMatrix W;  // 3c x 3c
+  TickRowVector u0;  // 3c, at the anchor without impulses
+  TickRowByDof U_K, U_D;  // 3c x 6m
+  TickRowVector lambda0;  // 3c: the solution at the anchor, the first tick's warm start
+  double bias[kMaxTickContacts]{}, mu[kMaxTickContacts]{};
+  // The rows' Delassus operator with the proxies' own response for a model on kMinPreparedHandles or
+  // more handles, W + (tau U_K + U_D) A(tau)^-1 h G at the tick's full weight and tau = half the
+  // model's step (prepare_tick_solver; the tick cannot afford 3c solves of a glove's 96 DOFs). A tick
+  // with another lookahead solves its contacts on this one and its proxies exactly: its impulses stay
+  // in the cone (a contact never pulls), their gaps are off by the lookahead's share.
+  TickRowMatrix W_proxy;
+  bool proxy_prepared = false;
+};
+
 // One hand's handle-space model as the visual loop publishes it.
 struct HapticModel {
   int handles = 0;  // 0: no model yet (the proxy then feels only the device)
@@ -75,6 +104,8 @@ struct HapticModel {
   // the handle's state then: this is when that step ends (the proxy time base,
   // ns; 0 = unknown).
   std::uint64_t t_end_ns = 0;
+  double step_s = 0;  // the length of that step, s
+  TickContacts contacts;
   // The hand's re-sync count the visual loop had applied (ProxyTargets::resyncs):
   // a model from before a re-sync describes the hand where it no longer is.
   std::uint32_t resyncs = 0;
@@ -212,6 +243,11 @@ class ProxyHand {
   // Ticks whose prepared answer a probe objected to (TickSolver::Z), checked then against the exact
   // residual (and refined, or left to the dense LU).
   long solver_refinements() const { return solver_refinements_; }
+  // The last tick's contact impulses (N s over the model's step, in the model's rows), the sweeps
+  // it took, and the ticks whose contact solve stopped at its sweep limit.
+  const TickRowVector& contact_impulses() const { return lambda_; }
+  int contact_sweeps() const { return contact_sweeps_; }
+  long contact_unconverged() const { return contact_unconverged_; }
   // Replies the passivity controller added damping to.
   long passivity_actions() const { return passivity_actions_; }
   // The passivity observer's energy of frame j: the work its device has done on the rendering, J.
@@ -244,6 +280,24 @@ class ProxyHand {
   // y = A(tau)^-1 rhs through the prepared factors (TickSolver), into dv_.
   void apply_prepared(const TickSolver& s, double tau, const HapticVector& rhs);
   bool solver_matches(const TickSolver& s, double dt) const;
+  // The model's contacts (TickContacts) on the contact-free answer v_next_: the impulses of this
+  // tick into lambda_, v_next_ updated; `dense`: lu_ holds A(tau). False on a failure.
+  bool solve_contacts(const HapticModel& model, double h, double tau, bool dense);
+  // The active set of the sweeps' answer solved exactly, kept if it is a solution (solve_contacts).
+  void polish_contacts(const TickContacts& c);
+  TickRowVector u_, lambda_, candidate_, u_candidate_, rhs_a_, delta_a_;
+  int active_[kMaxTickRows]{};
+  TickRowMatrix W_aa_;
+  Eigen::PartialPivLU<TickRowMatrix> lu_rows_;
+  HapticVector x_look_, rhs_;
+  TickDofByRow X_;
+  TickRowByDof UX_;
+  TickRowMatrix W_;
+  double tangent_step_[kMaxTickContacts]{};
+  std::uint64_t lambda_t_end_ns_ = 0;
+  std::uint32_t lambda_resyncs_ = 0;
+  int contact_sweeps_ = 0;
+  long contact_unconverged_ = 0;
   // Workspace of the implicit step, sized once. The block diagonal part of A per handle:
   // translational (a multiple of the identity) and rotational.
   double a_lin_[kMaxHapticHandles]{};

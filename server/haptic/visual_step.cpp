@@ -18,6 +18,8 @@ const char* to_string(HandleModelKind kind) {
   switch (kind) {
     case HandleModelKind::linearized:
       return "linearized";
+    case HandleModelKind::bilateral:
+      return "bilateral";
     case HandleModelKind::zoh:
       return "zoh";
   }
@@ -38,14 +40,39 @@ void fill_contact_flags(const world::World& world, int h, HapticModel& out) {
   }
 }
 
-void fill_haptic_model(world::World& world, int h, hand::HandleLinearization& lin, HapticModel& out) {
+static_assert(kMaxTickContacts == hand::kMaxLinearizedContacts, "the tick holds every row a model carries");
+
+bool set_tick_contacts(const hand::HandleContactModel& in, int handles, TickContacts& out) {
+  out.count = 0;
+  out.proxy_prepared = false;
+  const int c = in.count(), n = 6 * handles, r = 3 * c;
+  if (c == 0) return true;
+  if (c > kMaxTickContacts || n > kMaxHapticDofs || in.G.rows() != n || in.G.cols() != r || in.W.rows() != r ||
+      in.W.cols() != r || in.u0.size() != r || in.U_K.rows() != r || in.U_K.cols() != n || in.U_D.rows() != r ||
+      in.U_D.cols() != n || in.lambda0.size() != r || in.bias.size() != c)
+    return false;
+  out.G = in.G;
+  out.W = in.W;
+  out.u0 = in.u0;
+  out.U_K = in.U_K;
+  out.U_D = in.U_D;
+  out.lambda0 = in.lambda0;
+  for (int i = 0; i < c; ++i) out.bias[i] = in.bias[i], out.mu[i] = in.mu[i];
+  out.count = c;
+  return true;
+}
+
+void fill_haptic_model(world::World& world, int h, hand::HandleLinearization& lin, HapticModel& out,
+                       hand::ContactLinearization contacts) {
   out.handles = 0;
   out.solver.prepared = false;
+  out.contacts.count = 0;
   hand::Hand& hand = world.hand(h);
   fill_contact_flags(world, h, out);
-  if (!hand.linearize_next_step(lin)) return;
+  if (!hand.linearize_next_step(lin, contacts)) return;
   const int m = static_cast<int>(lin.x0.size());
   if (m > kMaxHapticHandles || lin.F0.size() != 6 * m) return;
+  if (!set_tick_contacts(lin.contacts, m, out.contacts)) return;
   out.F0 = lin.F0;
   out.K = lin.K;
   out.D = lin.D;
@@ -63,6 +90,7 @@ namespace {
 void fill_held_model(world::World& world, int h, HapticModel& out) {
   out.handles = 0;
   out.solver.prepared = false;
+  out.contacts.count = 0;
   fill_contact_flags(world, h, out);
   const hand::Hand& hand = world.hand(h);
   const std::vector<hand::HandleState>& handles = hand.handles();
@@ -116,12 +144,15 @@ void VisualStep::build_models(std::uint64_t publish_ns, double dt_s) {
   out.hands = std::min(world_.num_hands(), kMaxHands);
   for (int h = 0; h < out.hands; ++h) {
     world_.hand(h).set_step_length(dt_s);
-    if (kind_ == HandleModelKind::linearized) {
-      fill_haptic_model(world_, h, scratch_, out.model[h]);
+    if (kind_ != HandleModelKind::zoh) {
+      fill_haptic_model(world_, h, scratch_, out.model[h],
+                        kind_ == HandleModelKind::linearized ? hand::ContactLinearization::unilateral
+                                                             : hand::ContactLinearization::held);
     } else {
       fill_held_model(world_, h, out.model[h]);
     }
     out.model[h].t_end_ns = publish_ns + static_cast<std::uint64_t>(1e9 * dt_s);
+    out.model[h].step_s = dt_s;
     out.model[h].resyncs = resyncs_seen_[h];
   }
 }

@@ -27,8 +27,13 @@ world::WorldOptions served_world_options();
 // What the visual step publishes for a hand between two steps.
 enum class HandleModelKind {
   // hapticd (seed 004 section 3): the coming step's handle-space linearization
-  // F*(x, v) = F0 + K (x - x0) + D (v - v0) (fill_haptic_model).
+  // F*(x, v) = F0 + K (x - x0) + D (v - v0) with its constraint contacts as unilateral rows the
+  // haptic tick solves (HandleContactModel, HapticModel::contacts; fill_haptic_model).
   linearized,
+  // The same linearization with the last step's pushing contacts held bilaterally in K and D (GO09;
+  // ContactLinearization::held): the model before contacts could release in the tick, the baseline
+  // of the contact-change suite.
+  bilateral,
   // The same pipeline with the model cut to its zeroth order, a baseline of the multirate suite:
   // the coupling wrench the last step ended with (the flesh on the handles, seed 004 eq. 4-5), held
   // until the next (K = D = 0). No linearization is built.
@@ -39,7 +44,11 @@ const char* to_string(HandleModelKind kind);
 // Fills `out` with hand h's model for the coming interval (linearize_next_step:
 // the step about to be taken from the world's current state; `lin` is scratch),
 // in_contact from the hand's contacts; out.handles = 0 when it cannot.
-void fill_haptic_model(world::World& world, int h, hand::HandleLinearization& lin, HapticModel& out);
+void fill_haptic_model(world::World& world, int h, hand::HandleLinearization& lin, HapticModel& out,
+                       hand::ContactLinearization contacts = hand::ContactLinearization::unilateral);
+// A linearization's contact rows into the fixed capacity of the tick (the proxy's part prepared later,
+// prepare_tick_solver); false when they do not fit or are not finite.
+bool set_tick_contacts(const hand::HandleContactModel& in, int handles, TickContacts& out);
 // Only its contact flags (in_contact, handle_in_contact) from the world's last contacts.
 void fill_contact_flags(const world::World& world, int h, HapticModel& out);
 

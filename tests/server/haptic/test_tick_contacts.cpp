@@ -1,0 +1,253 @@
+// The haptic tick's contacts (TickContacts, ProxyHand::integrate): each tick solves the model's
+// contact rows together with the proxies' implicit step. Checked against a dense reference of the
+// same tick (the system matrix written out, every active set of the normal rows enumerated), a
+// release within one tick, and no allocation.
+#include <gtest/gtest.h>
+
+#include <Eigen/Dense>
+#include <cmath>
+#include <random>
+#include <vector>
+
+#include "allocation_counter.hpp"
+#include "server/haptic/virtual_coupling.hpp"
+
+namespace hapticd::haptic {
+namespace {
+
+constexpr double kPeriod = 1e-3;
+constexpr double kMass = 0.05;
+
+Eigen::Matrix3d ball_inertia(double mass) { return 0.4 * mass * 0.015 * 0.015 * Eigen::Matrix3d::Identity(); }
+
+ProxyHand make_proxy(int handles) {
+  ProxyHand p;
+  std::vector<double> mass(handles, kMass);
+  std::vector<Eigen::Matrix3d> inertia(handles, ball_inertia(kMass));
+  p.configure(handles, mass.data(), inertia.data(), coupling_gains_for(1000.0, 1.0, kPeriod), DeviceLimits{}, {});
+  return p;
+}
+
+// Puts every proxy at rest on its device at `p` (two samples at the same pose: zero device velocity).
+void rest_on_device(ProxyHand& p, const std::vector<Eigen::Vector3d>& at, double& t) {
+  for (int k = 0; k < 2; ++k) {
+    t += kPeriod;
+    for (int j = 0; j < p.handles(); ++j) p.set_device_pose(j, at[j], Eigen::Quaterniond::Identity());
+    p.commit_sample(t, 0.05);
+  }
+}
+
+// A model on `handles` handles with a stiff, damped, coupled free part and c contact rows of the
+// structure the linearization gives (rows driven by the handles' motion through J, impulses acting
+// back through J^T, a positive definite flesh compliance W), frictionless.
+HapticModel random_model(int handles, int c, std::mt19937& rng, double step_s) {
+  std::normal_distribution<double> g;
+  const int n = 6 * handles, r = 3 * c;
+  HapticModel m;
+  m.handles = handles;
+  m.step_s = step_s;
+  m.t_end_ns = 1;
+  const Eigen::MatrixXd L = Eigen::MatrixXd::NullaryExpr(n, n, [&] { return g(rng); });
+  m.K = -(50.0 * (L * L.transpose() / n) + 20.0 * Eigen::MatrixXd::Identity(n, n));
+  m.D = 0.02 * m.K;
+  m.F0 = HapticVector::NullaryExpr(n, [&] { return 0.5 * g(rng); });
+  for (int j = 0; j < handles; ++j) {
+    m.x0[j].p_W = Eigen::Vector3d(0.003 * g(rng), 0.003 * g(rng), 0.003 * g(rng));
+    m.v0[j] = 0.01 * Eigen::Vector3d(g(rng), g(rng), g(rng));
+    m.w0[j] = 0.1 * Eigen::Vector3d(g(rng), g(rng), g(rng));
+  }
+  TickContacts& k = m.contacts;
+  k.count = c;
+  const Eigen::MatrixXd J = Eigen::MatrixXd::NullaryExpr(r, n, [&] { return g(rng); });
+  const Eigen::MatrixXd F = Eigen::MatrixXd::NullaryExpr(r, r, [&] { return g(rng); });
+  k.W = 0.05 * (F * F.transpose() / r) + 0.02 * Eigen::MatrixXd::Identity(r, r);
+  k.U_K = J / step_s;
+  k.U_D = 0.3 * J;
+  k.G = J.transpose() / step_s;
+  k.u0 = TickRowVector::NullaryExpr(r, [&] { return 0.02 * g(rng); });
+  k.lambda0 = TickRowVector::Zero(r);
+  for (int i = 0; i < c; ++i) k.bias[i] = 0.01 * g(rng), k.mu[i] = 0;
+  return m;
+}
+
+struct DenseTick {
+  Eigen::VectorXd v;       // the proxies' velocities after the tick
+  Eigen::VectorXd lambda;  // the rows' impulses
+};
+
+// The tick of ProxyHand::integrate written out for proxies at rest on their devices (identity
+// orientations), frictionless rows: A v = b + h G lambda with A and b as integrate documents them,
+// the rows' velocities u = u0 + U_K (x - x0 + tau v) + U_D (v - v0) + W lambda, and every subset of
+// the normal rows tried as the active set until one satisfies 0 <= lambda_n _|_ u_n - bias >= 0.
+DenseTick dense_tick(const HapticModel& m, const ProxyHand& p, const std::vector<Eigen::Vector3d>& at, double tau) {
+  const int handles = m.handles, n = 6 * handles, c = m.contacts.count, r = 3 * c;
+  const CouplingGains& gains = p.gains();
+  const double h = kPeriod;
+  Eigen::MatrixXd A = Eigen::MatrixXd::Zero(n, n);
+  Eigen::VectorXd x_rel(n), v0(n);
+  for (int j = 0; j < handles; ++j) {
+    A.block<3, 3>(6 * j, 6 * j).diagonal().setConstant(kMass + h * gains.b_ns_m + h * h * gains.k_n_m);
+    A.block<3, 3>(6 * j + 3, 6 * j + 3) = ball_inertia(kMass);
+    A.block<3, 3>(6 * j + 3, 6 * j + 3).diagonal().array() += h * gains.b_nms_rad + h * h * gains.k_nm_rad;
+    x_rel.segment<3>(6 * j) = at[j] - m.x0[j].p_W;
+    x_rel.segment<3>(6 * j + 3).setZero();  // both orientations identity
+    v0.segment<3>(6 * j) = m.v0[j];
+    v0.segment<3>(6 * j + 3) = m.w0[j];
+  }
+  const Eigen::MatrixXd K = m.K, D = m.D;
+  A -= h * D + h * tau * K;
+  const Eigen::VectorXd b = h * (Eigen::VectorXd(m.F0) + K * x_rel - D * v0);
+  const Eigen::PartialPivLU<Eigen::MatrixXd> lu(A);
+  const Eigen::VectorXd v_free = lu.solve(b);
+  const Eigen::MatrixXd G = m.contacts.G, U_K = m.contacts.U_K, U_D = m.contacts.U_D, W = m.contacts.W;
+  const Eigen::MatrixXd X = lu.solve(h * G);
+  const Eigen::MatrixXd M = W + (tau * U_K + U_D) * X;
+  const Eigen::VectorXd q = Eigen::VectorXd(m.contacts.u0) + U_K * (x_rel + tau * v_free) + U_D * (v_free - v0);
+  for (int set = 0; set < (1 << c); ++set) {
+    std::vector<int> active;
+    for (int i = 0; i < c; ++i)
+      if (set & (1 << i)) active.push_back(3 * i);
+    const int a = static_cast<int>(active.size());
+    Eigen::MatrixXd M_aa(a, a);
+    Eigen::VectorXd rhs(a);
+    for (int i = 0; i < a; ++i) {
+      rhs[i] = m.contacts.bias[active[i] / 3] - q[active[i]];
+      for (int k = 0; k < a; ++k) M_aa(i, k) = M(active[i], active[k]);
+    }
+    const Eigen::VectorXd l_a = a > 0 ? Eigen::VectorXd(M_aa.lu().solve(rhs)) : Eigen::VectorXd();
+    Eigen::VectorXd lambda = Eigen::VectorXd::Zero(r);
+    for (int i = 0; i < a; ++i) lambda[active[i]] = l_a[i];
+    const Eigen::VectorXd u = q + M * lambda;
+    bool ok = true;
+    for (int i = 0; i < c && ok; ++i) ok = lambda[3 * i] >= 0 && u[3 * i] - m.contacts.bias[i] >= -1e-12;
+    if (ok) return {v_free + X * lambda, lambda};
+  }
+  ADD_FAILURE() << "no active set solves the problem";
+  return {};
+}
+
+TEST(TickContacts, TheTickSolvesItsRowsAsTheEnumeratedLcpOfTheSameStepTo1e9) {
+  std::mt19937 rng(17);
+  int active_rows = 0, free_rows = 0;
+  for (int trial = 0; trial < 40; ++trial) {
+    const int handles = 1 + trial % 2, c = 1 + trial % 4;  // a stylus or two handles, 1 to 4 contacts
+    const HapticModel m = random_model(handles, c, rng, 1.0 / 30);
+    ProxyHand p = make_proxy(handles);
+    std::vector<Eigen::Vector3d> at(handles);
+    for (int j = 0; j < handles; ++j) at[j] = m.x0[j].p_W + Eigen::Vector3d(0.002, -0.001, 0.001 * (trial % 3 - 1));
+    double t = 0;
+    rest_on_device(p, at, t);
+    const double lookahead = 0.02;
+    p.integrate(m, kPeriod, lookahead);
+    const DenseTick ref = dense_tick(m, p, at, lookahead);
+    ASSERT_EQ(ref.lambda.size(), 3 * c);
+    const Eigen::VectorXd lambda = p.contact_impulses();
+    EXPECT_LT((lambda - ref.lambda).norm(), 1e-9 * (1 + ref.lambda.norm())) << "trial " << trial;
+    for (int j = 0; j < handles; ++j) {
+      EXPECT_LT((p.proxy_velocity(j) - ref.v.segment<3>(6 * j)).norm(), 1e-9 * (1 + ref.v.norm())) << "trial " << trial;
+      EXPECT_LT((p.proxy_angular_velocity(j) - ref.v.segment<3>(6 * j + 3)).norm(), 1e-9 * (1 + ref.v.norm()))
+          << "trial " << trial;
+    }
+    for (int i = 0; i < c; ++i) (ref.lambda[3 * i] > 0 ? active_rows : free_rows) += 1;
+  }
+  // The trials cover both sides of the complementarity.
+  EXPECT_GT(active_rows, 10);
+  EXPECT_GT(free_rows, 10);
+}
+
+// A rigid floor z >= 0 under a stylus as the rows of a model: the end-of-step gap z = z0 + h u_n
+// (U_K = 1 / h along z), an impulse lambda pushes the handle up by lambda / h, the flesh adds nothing
+// (W ~ 0).
+HapticModel floor_model(double step_s) {
+  HapticModel m;
+  m.handles = 1;
+  m.step_s = step_s;
+  m.t_end_ns = 1;
+  m.F0 = HapticVector::Zero(6);
+  m.K = HapticMatrix::Zero(6, 6);
+  m.D = HapticMatrix::Zero(6, 6);
+  m.v0[0].setZero();
+  m.w0[0].setZero();
+  TickContacts& k = m.contacts;
+  k.count = 1;
+  k.G = TickDofByRow::Zero(6, 3);
+  k.G(2, 0) = 1.0 / step_s;
+  k.U_K = TickRowByDof::Zero(3, 6);
+  k.U_K(0, 2) = 1.0 / step_s;
+  k.U_D = TickRowByDof::Zero(3, 6);
+  k.W = 1e-6 * TickRowMatrix::Identity(3, 3);
+  k.u0 = TickRowVector::Zero(3);
+  k.lambda0 = TickRowVector::Zero(3);
+  k.mu[0] = 0.5;
+  return m;
+}
+
+TEST(TickContacts, AContactReleasesWithinOneTickWhenTheDeviceLiftsAway) {
+  const HapticModel floor = floor_model(1.0 / 30);
+  HapticModel free_space = floor;
+  free_space.contacts.count = 0;
+  ProxyHand p = make_proxy(1), q = make_proxy(1);
+  double t = 0;
+  // Pressed 2 mm into the floor for 0.3 s: the proxy rests on it and the device feels the coupling.
+  std::vector<Eigen::Vector3d> at = {Eigen::Vector3d(0, 0, -0.002)};
+  rest_on_device(p, at, t);
+  ReplyWrench pressed;
+  for (int k = 0; k < 300; ++k) {
+    t += kPeriod;
+    p.set_device_pose(0, at[0], Eigen::Quaterniond::Identity());
+    p.commit_sample(t, 0.05);
+    pressed = p.reply(0, 1.0, kPeriod);
+    p.integrate(floor, kPeriod, 0.01);
+  }
+  EXPECT_NEAR(p.proxy(0).p_W.z(), 0.0, 5e-5) << "the proxy rests on the floor";
+  EXPECT_NEAR(pressed.f_D.z(), 1000.0 * 0.002, 0.1) << "the device feels the coupling's 2 mm";
+  EXPECT_GT(p.contact_impulses()[0], 0.0);
+  // The device leaves, 1 mm above the floor: the very next tick releases the contact, so the proxy
+  // moves as it would with no floor at all (a second proxy in the same state, free space).
+  q = p;
+  at[0] = Eigen::Vector3d(0, 0, 0.001);
+  t += kPeriod;
+  for (ProxyHand* x : {&p, &q}) {
+    x->set_device_pose(0, at[0], Eigen::Quaterniond::Identity());
+    x->commit_sample(t, 0.05);
+  }
+  p.integrate(floor, kPeriod, 0.01);
+  q.integrate(free_space, kPeriod, 0.01);
+  EXPECT_EQ(p.contact_impulses()[0], 0.0) << "released within the tick";
+  EXPECT_LT((p.proxy_velocity(0) - q.proxy_velocity(0)).norm(), 1e-12);
+  EXPECT_GT(p.proxy_velocity(0).z(), 0.0) << "the proxy follows the device up";
+}
+
+TEST(TickContacts, TheTickWithContactsAllocatesNothingForAStylusOrAPreparedGlove) {
+  std::mt19937 rng(3);
+  for (int handles : {1, 16}) {
+    HapticModel m = random_model(handles, kMaxTickContacts, rng, 1.0 / 30);
+    ProxyHand p = make_proxy(handles);
+    if (handles >= kMinPreparedHandles) {
+      std::vector<double> mass(handles, kMass);
+      std::vector<Eigen::Matrix3d> inertia(handles, ball_inertia(kMass));
+      ASSERT_TRUE(prepare_tick_solver(m, handles, mass.data(), inertia.data(), p.gains(), kPeriod));
+      ASSERT_TRUE(m.contacts.proxy_prepared);
+    }
+    std::vector<Eigen::Vector3d> at(handles);
+    for (int j = 0; j < handles; ++j) at[j] = m.x0[j].p_W;
+    double t = 0;
+    rest_on_device(p, at, t);
+    const long allocations = testing_util::allocations_in([&] {
+      for (int k = 0; k < 20; ++k) {
+        t += kPeriod;
+        for (int j = 0; j < handles; ++j) p.set_device_pose(j, at[j], Eigen::Quaterniond::Identity());
+        p.commit_sample(t, 0.05);
+        for (int j = 0; j < handles; ++j) p.reply(j, 1.0, kPeriod);
+        p.integrate(m, kPeriod, 0.02 - k * kPeriod);
+      }
+    });
+    EXPECT_EQ(allocations, 0) << handles << " handles";
+    EXPECT_EQ(p.resets(), 0);
+    EXPECT_EQ(p.solver_fallbacks(), 0) << handles << " handles";
+    EXPECT_EQ(p.contact_impulses().size(), 3 * kMaxTickContacts);
+  }
+}
+
+}  // namespace
+}  // namespace hapticd::haptic
