@@ -89,17 +89,23 @@ void contact_rows(const HandModel& model, const HandState& s, int max_contacts, 
   struct Candidate {
     const PointContact* contact = nullptr;
     const BodySupport* support = nullptr;
+    int rank = 0;  // 0: the hand's contacts, 1: its bodies' supports, 2: reserves
     double depth = 0;
   };
   std::vector<Candidate> candidates;
   for (const PointContact& pc : s.active_contacts)
-    if (pc.constraint) candidates.push_back({&pc, nullptr, pc.depth_m});
+    if (pc.constraint) candidates.push_back({&pc, nullptr, 0, pc.depth_m});
   for (const BodySupport& b : s.supports)
-    if (valid_support(s, b)) candidates.push_back({nullptr, &b, b.depth_m});
+    if (valid_support(s, b)) candidates.push_back({nullptr, &b, 1, b.depth_m});
+  // The step promotes a reserve that it would carry deeper (solve_constraint_contacts): the model
+  // holds them as rows of their own, or skin between the rows would sink in the tick.
+  for (const PointContact& pc : s.reserve_contacts)
+    if (pc.constraint && valid_contact(model, s, pc)) candidates.push_back({&pc, nullptr, 2, pc.depth_m});
   if (static_cast<int>(candidates.size()) > max_contacts) {
-    // The deepest first (a gap counts as negative depth): those that can push within the step.
-    std::stable_sort(candidates.begin(), candidates.end(),
-                     [](const Candidate& a, const Candidate& b) { return a.depth > b.depth; });
+    // By rank, then the deepest first (a gap is a negative depth).
+    std::stable_sort(candidates.begin(), candidates.end(), [](const Candidate& a, const Candidate& b) {
+      return a.rank != b.rank ? a.rank < b.rank : a.depth > b.depth;
+    });
     candidates.resize(std::max(0, max_contacts));
   }
   const int c = static_cast<int>(candidates.size());
@@ -137,6 +143,16 @@ bool solve_constraint_contacts(const HandModel& model, HandState& s, CoupledSolv
     if (s.active_contacts[i].constraint) rows.push_back({static_cast<int>(i), -1});
   for (size_t i = 0; i < s.supports.size(); ++i)
     if (valid_support(s, s.supports[i])) rows.push_back({-1, static_cast<int>(i)});
+  if (static_cast<int>(rows.size()) > kMaxStepContacts) {
+    // A body buried in another (an absurd scene) finds thousands: the deepest are kept, the rest
+    // left out of this step (StepTimings::contacts_dropped).
+    const auto depth = [&](const Row& r) {
+      return r.contact >= 0 ? s.active_contacts[r.contact].depth_m : s.supports[r.support].depth_m;
+    };
+    std::stable_sort(rows.begin(), rows.end(), [&](const Row& a, const Row& b) { return depth(a) > depth(b); });
+    s.timings.contacts_dropped += static_cast<int>(rows.size()) - kMaxStepContacts;
+    rows.resize(kMaxStepContacts);
+  }
   std::vector<const PointContact*> reserves;
   for (const PointContact& r : s.reserve_contacts)
     if (r.constraint && valid_contact(model, s, r)) reserves.push_back(&r);
@@ -235,7 +251,8 @@ bool solve_constraint_contacts(const HandModel& model, HandState& s, CoupledSolv
       const PointContact& pc = *reserves[k];
       const double u_n = u[3 * k] - (pc.body >= 0 ? 0.0 : pc.n_W.dot(pc.v_other_W));
       const double end_depth = pc.depth_m - h * u_n;
-      if (end_depth <= std::max(kReserveDepth_m, pc.depth_m)) {  // shallow enough, or already coming out
+      if (end_depth <= std::max(kReserveDepth_m, pc.depth_m) ||
+          static_cast<int>(rows.size()) >= kMaxStepContacts) {  // shallow enough, coming out, or no room
         waiting.push_back(&pc);
         continue;
       }

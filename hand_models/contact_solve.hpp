@@ -16,9 +16,10 @@ namespace hapticd::hand {
 // carry deeper than kReserveDepth_m join as further rows for a few rounds. Hand impulses go to
 // `impulses` (world frame, per active contact); the pushing rows become s.held for the
 // linearization. False when the solve fails.
-// The constraint rows of the coming step as solve_constraint_contacts builds them (the hand's
-// constraint contacts in s.active_contacts, then the valid supports of its implicit bodies), for the
-// haptic loop's contact model: at most `max_contacts`, the deepest first (a gap is a negative depth).
+// The constraint rows of the coming step as solve_constraint_contacts builds them, for the haptic
+// loop's contact model: the hand's constraint contacts in s.active_contacts, the valid supports of
+// its implicit bodies, then its reserve contacts (rows the step may promote); at most `max_contacts`,
+// in that order and the deepest first within each (a gap is a negative depth).
 struct ContactRows {
   Eigen::SparseMatrix<double> Jt;        // (handle + body + tool DOFs) x 3c, contact frames
   Eigen::VectorXd u_known;               // 3c: the kinematic other side's part of the relative velocity, m/s

@@ -73,6 +73,9 @@ struct PointContact {
   Eigen::Vector3d f_W = Eigen::Vector3d::Zero();
 };
 
+// The most constraint contacts one step solves (its contacts and supports, 3 rows each): W (3c x 3c)
+// and A^-1 J^T (the tool DOFs x 3c) are dense.
+constexpr int kMaxStepContacts = 256;
 // Constraint contacts push a penetrating point out at this fraction of its depth per step.
 constexpr double kContactDepthRecovery = 0.2;
 // A reserve constraint contact (HandState::reserve_contacts) joins the step's
@@ -192,6 +195,7 @@ struct StepTimings {
   int factorizations = 0;      // the solver's numeric factorizations (SolveReport::factorizations)
   int contact_iterations = 0;  // Gauss-Seidel sweeps of the constraint contacts (last round)
   int reserve_rounds = 0;      // constraint solves repeated for reserve contacts that joined
+  int contacts_dropped = 0;    // constraint rows beyond kMaxStepContacts left out
   bool contact_converged = true;
 };
 

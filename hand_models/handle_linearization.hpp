@@ -42,7 +42,7 @@ struct HandleContactModel {
 
 // The most contact rows a model carries (the deepest first; contact_rows): the haptic tick's
 // complementarity problem stays small enough for 1 kHz.
-constexpr int kMaxLinearizedContacts = 16;
+constexpr int kMaxLinearizedContacts = 24;
 
 // How linearize_next_step treats the constraint contacts of the coming step.
 enum class ContactLinearization {
