@@ -256,6 +256,9 @@ RejectReason read(const wire::Stats& w, Stats& m) noexcept {
   m.haptic_rate_hz = w.haptic_rate_hz();
   m.visual_rate_hz = w.visual_rate_hz();
   m.sessions_active = w.sessions_active();
+  m.passivity_energy_j = w.passivity_energy_j();
+  m.passivity_damped_j = w.passivity_damped_j();
+  m.passivity_actions = w.passivity_actions();
   return validate(m);
 }
 
@@ -385,9 +388,11 @@ RejectReason validate(const Stats& m) noexcept {
   if (const RejectReason r = check_session(m.session_id); r != RejectReason::kNone) return r;
   constexpr float kHuge = 3.0e38f;  // any finite, non-negative figure
   for (const float figure : {m.tick_compute_p50_us, m.tick_compute_p99_us, m.tick_jitter_p99_us,
-                             m.visual_step_median_ms, m.haptic_rate_hz, m.visual_rate_hz}) {
+                             m.visual_step_median_ms, m.haptic_rate_hz, m.visual_rate_hz, m.passivity_damped_j}) {
     if (const RejectReason r = check_figure(figure, 0.0f, kHuge); r != RejectReason::kNone) return r;
   }
+  // The observer's energy has either sign.
+  if (const RejectReason r = check_figure(m.passivity_energy_j, -kHuge, kHuge); r != RejectReason::kNone) return r;
   return RejectReason::kNone;
 }
 
@@ -555,7 +560,8 @@ EncodeResult Encoder::encode(const Stats& m) noexcept {
   const auto body =
       wire::CreateStats(b, m.session_id, m.packets_in, m.packets_out, m.packets_dropped, rejected, m.clamps, m.resets,
                         m.overruns, m.tick_compute_p50_us, m.tick_compute_p99_us, m.tick_jitter_p99_us,
-                        m.visual_step_median_ms, m.haptic_rate_hz, m.visual_rate_hz, m.sessions_active);
+                        m.visual_step_median_ms, m.haptic_rate_hz, m.visual_rate_hz, m.sessions_active,
+                        m.passivity_energy_j, m.passivity_damped_j, m.passivity_actions);
   return impl_->finish(wire::Body::Stats, body.Union());
 }
 

@@ -184,6 +184,12 @@ struct Stats {
   float haptic_rate_hz = 0.0f;
   float visual_rate_hz = 0.0f;
   std::uint32_t sessions_active = 0;
+  // The requesting session's passivity observer and controller, summed over its frames: the work its
+  // device has done on the rendering (J, may be negative), the energy the damping took back (J, >= 0),
+  // and the replies damped.
+  float passivity_energy_j = 0.0f;
+  float passivity_damped_j = 0.0f;
+  std::uint64_t passivity_actions = 0;
   bool operator==(const Stats&) const = default;
 };
 

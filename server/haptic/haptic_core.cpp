@@ -376,6 +376,11 @@ void HapticCore::dispatch(std::uint64_t now) {
       if (!s || s->peer != *peer_) return drop_foreign(s);
       fill_stats(reply_->stats, now);
       reply_->stats.session_id = s->id;
+      for (int j = 0; j < s->proxy.handles(); ++j) {
+        reply_->stats.passivity_energy_j += static_cast<float>(s->proxy.energy_in(j));
+        reply_->stats.passivity_damped_j += static_cast<float>(s->proxy.passivity_damped_j(j));
+      }
+      reply_->stats.passivity_actions = static_cast<std::uint64_t>(s->proxy.passivity_actions());
       send(encoder_.encode(reply_->stats), s);
       return;
     }
@@ -450,6 +455,7 @@ void HapticCore::on_hello(const protocol::Hello& hello, const protocol::Nonce* c
   s.frames = static_cast<int>(hello.frames.size());
   for (int j = 0; j < s.frames; ++j) s.frame_id[j] = hello.frames[j].id;
   s.proxy.configure(link.handles, link.mass_kg, link.inertia_B, link.gains, link.limits, link.map);
+  s.proxy.set_passivity_control(options_.passivity_control);
   s.last_seen_ns = now;
   ++stats_->sessions_opened;
   protocol::Welcome& w = reply_->welcome;

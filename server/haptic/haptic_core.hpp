@@ -71,6 +71,8 @@ struct ServerOptions {
   // influence (F0, K, D) fades smoothly over model_fade_s to the safe model, where the proxy feels
   // only its device (the replies are flagged stale); when models flow again it comes back over the
   // same time, so neither way has a force jump.
+  // Every session's passivity controller (ProxyHand::set_passivity_control, kPassivityBudget_J).
+  bool passivity_control = true;
   double model_stale_after_s = 0.1;
   double model_fade_s = 0.1;
   // Per-source limit (a token bucket per address and port, before anything is decoded): datagrams

@@ -185,7 +185,7 @@ void ProxyHand::configure(int handles, const double* mass_kg, const Eigen::Matri
   for (int j = 0; j < kMaxHapticHandles; ++j) {
     v_[j].setZero(), w_[j].setZero(), v_dev_[j].setZero(), w_dev_[j].setZero();
     last_f_D_[j].setZero(), last_tau_D_[j].setZero();
-    energy_in_[j] = 0;
+    energy_in_[j] = 0, damped_j_[j] = 0;
   }
 }
 
@@ -322,7 +322,7 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
     }
   }
   const TickContacts& contacts = model.contacts;
-  if (ok && use_model && contacts.count > 0) ok = solve_contacts(model, h, tau, dense);
+  if (ok && use_model && contacts.count > 0) ok = solve_contacts(model, dt, weight, tau, dense);
   if (ok) {
     ok = v_next_.allFinite();
     for (int j = 0; ok && j < handles_; ++j) ok = v_next_.segment<3>(6 * j).norm() < kMaxProxySpeed_m_s;
@@ -341,7 +341,7 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
   }
 }
 
-bool ProxyHand::solve_contacts(const HapticModel& model, double h, double tau, bool dense) {
+bool ProxyHand::solve_contacts(const HapticModel& model, double dt, double weight, double tau, bool dense) {
   const TickContacts& c = model.contacts;
   const int n = 6 * handles_, r = 3 * c.count;
   if (c.count > kMaxTickContacts || c.G.rows() != n || c.G.cols() != r || c.W.rows() != r || c.U_K.cols() != n)
@@ -353,13 +353,15 @@ bool ProxyHand::solve_contacts(const HapticModel& model, double h, double tau, b
   u_.noalias() = c.u0;
   u_.noalias() += c.U_K * x_look_;
   u_.noalias() += c.U_D * dv_;
-  // Impulses lambda change the proxies' velocities by A^-1 h G lambda, and the rows' by that through
-  // tau U_K + U_D besides the flesh's W lambda: the Delassus operator of the proxies and the flesh.
+  // Impulses lambda change the proxies' velocities by A^-1 dt G lambda, and the rows' by that through
+  // tau U_K + U_D besides the flesh's W lambda: the Delassus operator of the proxies and the flesh. A
+  // fading model (weight < 1) solves its contacts as at full weight and applies weight times their
+  // impulses: a faded contact is a weaker force, not a weaker constraint that still holds rigidly.
   if (dense) {
     X_.noalias() = lu_.solve(c.G);
     W_.noalias() = c.W;
     UX_.noalias() = tau * c.U_K + c.U_D;
-    W_.noalias() += h * (UX_ * X_);
+    W_.noalias() += dt * (UX_ * X_);
   } else if (c.proxy_prepared) {
     W_ = c.W_proxy;
   } else {
@@ -382,14 +384,14 @@ bool ProxyHand::solve_contacts(const HapticModel& model, double h, double tau, b
   polish_contacts(c);
   lambda_t_end_ns_ = model.t_end_ns;
   lambda_resyncs_ = model.resyncs;
-  // v += A^-1 h G lambda.
-  rhs_.noalias() = h * (c.G * lambda_);
+  // v += A^-1 h G lambda, h = weight dt.
+  rhs_.noalias() = (weight * dt) * (c.G * lambda_);
   if (dense) {
     v_next_.noalias() += lu_.solve(rhs_);
     return true;
   }
   b_ += rhs_;
-  return solve_prepared(model, h, tau);
+  return solve_prepared(model, weight * dt, tau);
 }
 
 void ProxyHand::polish_contacts(const TickContacts& c) {
@@ -555,8 +557,9 @@ ReplyWrench ProxyHand::reply(int j, double output_scale, double dt_since_last_s)
   // Passivity controller: the damping that brings the observer's deficit back to zero this tick,
   // shared by the two channels in proportion to what each can take.
   const double v2 = v_D.squaredNorm() + kPassivityRotationWeight_m2 * w_D.squaredNorm();
-  if (passivity_control_ && energy_in_[j] < 0 && v2 > kMinPassivitySpeed2_m2_s2) {
+  if (passivity_control_ && energy_in_[j] < -kPassivityBudget_J && v2 > kMinPassivitySpeed2_m2_s2) {
     const double b = std::min(-energy_in_[j] / (dt * v2), kMaxPassivityDamping_ns_m);
+    damped_j_[j] += b * v2 * dt;
     f -= b * v_D;  // at the handle, so about the frame's origin with its moment
     tau -= b * kPassivityRotationWeight_m2 * w_D + r_D.cross(b * v_D);
     ++passivity_actions_;

@@ -68,7 +68,7 @@ struct TickSolver {
 // u = u0 + U_K dx + U_D (v - v0) + W lambda, with 0 <= lambda_n _|_ u_n - bias >= 0 and the Coulomb cone.
 // Each tick solves that complementarity problem together with the proxies' own implicit step
 // (ProxyHand::integrate), so a contact that would pull releases within the tick.
-constexpr int kMaxTickContacts = 16;
+constexpr int kMaxTickContacts = 24;
 constexpr int kMaxTickRows = 3 * kMaxTickContacts;
 using TickRowVector = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, kMaxTickRows, 1>;
 using TickRowMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kMaxTickRows, kMaxTickRows>;
@@ -160,6 +160,12 @@ constexpr double kCouplingDampingMargin = 1.5;
 // a fast haptic rate) the coupling still damps.
 constexpr double kMinCouplingDamping_ns_m = 0.5;
 
+// The passivity controller's energy budget per frame, J: it damps while the observer's energy is below
+// minus this (the rendering has given out more than it took), taking the whole deficit back within the
+// damping it may add (kMaxPassivityDamping_ns_m: a strongly active rendering can run the deficit past
+// the budget for a while, less far than without it). The observer's sampling noise (a few uJ) stays
+// inside the budget and triggers no damping.
+constexpr double kPassivityBudget_J = 1e-4;
 // Device-space damping the passivity controller may add, N s/m (a Phantom-class
 // device renders a few N s/m stably at 1 kHz).
 constexpr double kMaxPassivityDamping_ns_m = 5.0;
@@ -182,10 +188,8 @@ class ProxyHand {
   // `mass_kg` and `inertia_kg_m2` per handle (the simulated handles'); `handles` <= kMaxHapticHandles.
   void configure(int handles, const double* mass_kg, const Eigen::Matrix3d* inertia_B, const CouplingGains& gains,
                  const DeviceLimits& limits, const DeviceMap& map);
-  // The passivity controller of reply(). Off by default: its observer works on
-  // the filtered device velocity, and on loopback runs of the stylus scene it
-  // left 0.5-1 mJ in the device in some runs where the plain coupling left
-  // none; it is not switched on until that is understood.
+  // The passivity controller of reply(), on by default (kPassivityBudget_J). Off: the rendering's
+  // own passivity, unguarded (the tests of the model switch it off).
   void set_passivity_control(bool on) { passivity_control_ = on; }
 
   // A pose sample: the device pose of every handle in device space (set_device_pose
@@ -218,9 +222,9 @@ class ProxyHand {
   // clamped and rate-limited against the last reply for this handle,
   // `dt_since_last_s` ago. With set_passivity_control(true), a time-domain
   // passivity controller (Hannaford and Ryu) guards the device port: an
-  // observer sums the work the device does on the rendering, and while it is
-  // negative (the rendering has given out more than it took: multi-rate lag,
-  // gating, a model that changed under the finger) the reply adds the damping
+  // observer sums the work the device does on the rendering, and while the
+  // rendering has given out more than it took by over kPassivityBudget_J (multi-rate
+  // lag, gating, a model that changed under the finger) the reply adds the damping
   // that takes the deficit back, up to kMaxPassivityDamping.
   ReplyWrench reply(int j, double output_scale, double dt_since_last_s);
 
@@ -252,6 +256,8 @@ class ProxyHand {
   long passivity_actions() const { return passivity_actions_; }
   // The passivity observer's energy of frame j: the work its device has done on the rendering, J.
   double energy_in(int j) const { return energy_in_[j]; }
+  // The energy the controller's damping took back at frame j, J.
+  double passivity_damped_j(int j) const { return damped_j_[j]; }
   bool has_device_pose() const { return have_device_; }
   const CouplingGains& gains() const { return gains_; }
 
@@ -271,8 +277,9 @@ class ProxyHand {
   double t_dev_ = 0;
   bool have_device_ = false;
   Eigen::Vector3d last_f_D_[kMaxHapticHandles], last_tau_D_[kMaxHapticHandles];
-  double energy_in_[kMaxHapticHandles]{};
-  bool passivity_control_ = false;  // passivity observer: work the device has done on the rendering, J
+  double energy_in_[kMaxHapticHandles]{};  // passivity observer: work the device has done on the rendering, J
+  double damped_j_[kMaxHapticHandles]{};
+  bool passivity_control_ = true;
   long resets_ = 0, clamps_ = 0, passivity_actions_ = 0, solver_fallbacks_ = 0, solver_refinements_ = 0;
   // The prepared solve of A(tau) v = b (TickSolver), refined against the exact matrix; false
   // when it does not converge (v_next_ is then to be recomputed).
@@ -281,8 +288,9 @@ class ProxyHand {
   void apply_prepared(const TickSolver& s, double tau, const HapticVector& rhs);
   bool solver_matches(const TickSolver& s, double dt) const;
   // The model's contacts (TickContacts) on the contact-free answer v_next_: the impulses of this
-  // tick into lambda_, v_next_ updated; `dense`: lu_ holds A(tau). False on a failure.
-  bool solve_contacts(const HapticModel& model, double h, double tau, bool dense);
+  // tick into lambda_, v_next_ updated by weight times their effect; `dense`: lu_ holds A(tau).
+  // False on a failure.
+  bool solve_contacts(const HapticModel& model, double dt, double weight, double tau, bool dense);
   // The active set of the sweeps' answer solved exactly, kept if it is a solution (solve_contacts).
   void polish_contacts(const TickContacts& c);
   TickRowVector u_, lambda_, candidate_, u_candidate_, rhs_a_, delta_a_;

@@ -97,6 +97,7 @@ MultirateRuns run_multirate(const Interaction& interaction, const std::vector<in
   options.haptic_period_s = haptic_period_s;
   options.visual_every_ticks = 1;
   options.settle_s = interaction.settle_s;
+  options.passivity_control = false;  // the models' own rendering, unguarded
   {
     OfflineLoops loops(interaction.scene, options);
     const std::unique_ptr<OfflineDevice> device = interaction.device(loops);

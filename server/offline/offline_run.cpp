@@ -73,6 +73,7 @@ OfflineLoops::OfflineLoops(world::SceneDesc scene, const OfflineOptions& options
   link_ = haptic::make_device_link(*world_, scene.devices[options_.device], 1.0 / options_.haptic_period_s);
   haptic::ServerOptions server;  // hapticd's defaults at this haptic rate
   server.haptic_rate_hz = 1.0 / options_.haptic_period_s;
+  server.passivity_control = options_.passivity_control;
   core_ = std::make_unique<haptic::HapticCore>(std::vector<haptic::DeviceLink>{link_}, server, *snapshots_, *targets_,
                                                *wire_);
   preparer_ =

@@ -50,6 +50,8 @@ struct OfflineOptions {
   // a free-space sweep at 60 Hz puts energy into the device, and at 240 Hz the loops
   // go unstable.
   bool targets_one_tick_stale = false;
+  // The sessions' passivity controller (ServerOptions::passivity_control), on as in hapticd.
+  bool passivity_control = true;
   // The hands' contact model (WorldOptions::contact; unset: the scene's). Penalty by default, as hapticd.
   std::optional<world::ContactModel> contact = world::ContactModel::penalty;
 };

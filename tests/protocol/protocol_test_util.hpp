@@ -155,6 +155,9 @@ inline Stats sample_stats() {
   m.haptic_rate_hz = 999.5f;
   m.visual_rate_hz = 60.25f;
   m.sessions_active = 2;
+  m.passivity_energy_j = -0.0125f;
+  m.passivity_damped_j = 0.5f;
+  m.passivity_actions = 77;
   return m;
 }
 

@@ -205,6 +205,9 @@ TEST(CodecRoundTrip, StatsKeepsEveryCounterAndFigure) {
   EXPECT_EQ(out.haptic_rate_hz, 999.5f);
   EXPECT_EQ(out.visual_rate_hz, 60.25f);
   EXPECT_EQ(out.sessions_active, 2u);
+  EXPECT_EQ(out.passivity_energy_j, -0.0125f);  // the observer's energy may be negative
+  EXPECT_EQ(out.passivity_damped_j, 0.5f);
+  EXPECT_EQ(out.passivity_actions, 77u);
 }
 
 TEST(CodecRoundTrip, ByeKeepsTheSession) {

@@ -41,6 +41,7 @@ LoopRun run_loops(double seconds, const offline::SimulatedStylus::Command& comma
   offline::OfflineOptions options;
   options.visual_every_ticks = 17;  // 17 ticks of 1 ms: world time keeps pace with the proxies
   options.model_delay_ticks = delay_ticks;
+  options.passivity_control = false;  // the loops' own passivity
   offline::OfflineLoops loops(scene, options);
   const double period = options.haptic_period_s;
   // The device starts where the handle is (no jump to excite the flesh); `command` is an offset from there.

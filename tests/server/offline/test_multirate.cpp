@@ -65,6 +65,7 @@ ClosedLoop closed_loop_press(haptic::HandleModelKind model, int visual_every_tic
   OfflineOptions options;
   options.visual_every_ticks = visual_every_ticks;
   options.model = model;
+  options.passivity_control = false;  // the model's own passivity
   options.settle_s = press.settle_s;
   OfflineLoops loops(press.scene, options);
   const std::unique_ptr<OfflineDevice> device = press.device(loops);
