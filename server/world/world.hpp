@@ -46,10 +46,12 @@ struct WorldOptions {
   // False: no handle-space model in the snapshot (a caller that builds the model
   // of the coming step itself, as the server's visual loop does, skips the cost).
   bool linearize = true;
-  // Hand contact model. Penalty by default for now: constraint contacts (PGS on the
-  // step's Delassus operator, speculative contacts within 2 mm, clustered rows
-  // with reserves) penetrate far less, but cost 2-5x the contact-free step
-  // (haptic-bench world). Unset: follow the scene.
+  // Hand contact model. Penalty by default for now: constraint contacts (PGS on the step's Delassus
+  // operator, speculative contacts within 2 mm, clustered rows with reserves, the rows the haptic tick
+  // makes and breaks) penetrate far less and are the scenes' default, but cost 2-5x the contact-free
+  // step (haptic-bench world), and with them a stylus held 2 cm deep in a box through a 0.6 s
+  // visual-step fault was pulled down (-4 N) after the world recovered in 1 of 2 runs of
+  // VisualLoopThreads' fault test (issue 17). Unset: follow the scene.
   std::optional<ContactModel> contact = ContactModel::penalty;
   // Constraint contacts keep the deepest skin point per object and cell of this size.
   double contact_cluster_m = 0.01;
