@@ -87,7 +87,7 @@ bool linearize_handles(const HandModel& model, const HandState& s, CoupledSolver
   }
   // Solves with everything but the handles: the tool and the implicit bodies
   // (block elimination of the bodies through the tool's A_t^-1). Columns: the
-  // constant part, the K and D parts, then the held contact rows' J^T.
+  // constant part, the K and D parts, then the held (or the model's) contact rows' J^T.
   const int nc = held ? held->rows() : rows ? 3 * rows->count() : 0;
   const int nk = 1 + 2 * nh;
   Eigen::SparseMatrix<double> KD_ht(nh, nt);
@@ -176,7 +176,6 @@ bool linearize_handles(const HandModel& model, const HandState& s, CoupledSolver
     c.G = OY.block(0, nk, nh, nc);
     c.bias = rows->bias;
     c.mu = rows->mu;
-    c.frames = rows->frames;
     ContactProblem p{c.W, c.u0, c.bias, c.mu};
     PgsOptions options;
     options.max_iterations = 500;

@@ -36,7 +36,6 @@ struct HandleContactModel {
   Eigen::VectorXd bias;      // c, m/s
   std::vector<double> mu;    // c
   Eigen::VectorXd lambda0;   // 3c: the solution at the anchor, N s
-  std::vector<Eigen::Matrix3d> frames;  // c, world axes
   int count() const { return static_cast<int>(mu.size()); }
 };
 

@@ -378,7 +378,7 @@ bool ProxyHand::solve_contacts(const HapticModel& model, double dt, double weigh
   u_.noalias() += W_ * lambda_;
   bool converged = false;
   contact_sweeps_ = hand::pgs_sweeps(W_, c.bias, c.mu, tangent_step_, c.count, u_, lambda_, kTickContactSweeps,
-                               kTickContactTolerance, converged);
+                                     kTickContactTolerance, converged);
   if (!converged) ++contact_unconverged_;
   if (!lambda_.allFinite()) return false;
   polish_contacts(c);
