@@ -10,12 +10,13 @@
 // The passivity controller is off: these are the model's own. Each run is printed beside the same
 // motion in free space (40 cm above everything), for what the hand's own inertia and damping give.
 //
-// A known fault of issue 17, run by tests/CMakeLists.txt as one ctest expected to fail: measured at
-// this commit, the contacts release (the force after the lift is the free-space run's to a few
-// hundredths of a newton), but lifting the served hand at 5 cm/s (device) costs 0.35-0.55 N of
-// its inertia and damping, 1.1-1.6 N at 15 cm/s, and it settles to 0.02-0.16 N a second later, in
-// free space as on the objects; on the deformable bunny at 15 Hz the loop is unstable (+0.34 J, the
-// force at the device's 8 N limit).
+// A known fault of issue 17, run by tests/CMakeLists.txt as one ctest expected to fail. Measured
+// when it was written: lifting the served hand at 5 cm/s (device) costs 0.35-0.55 N of its own
+// inertia and damping, 1.1-1.6 N at 15 cm/s, and a second later it still carries 0.02-0.16 N, in
+// free space as on the objects; on the objects the force after the lift is mostly the free-space
+// run's (the contacts release; the largest excess, 0.9 N, on the fixed bunny at 15 Hz after the deep
+// press). The deformable bunny at 15 Hz is unstable (+0.34 J, the force at the device's 8 N limit),
+// and the deep press on the movable bunny at 15 Hz puts +0.003 J into the device.
 #include <gtest/gtest.h>
 
 #include <algorithm>
