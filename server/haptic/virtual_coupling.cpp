@@ -23,7 +23,7 @@ constexpr int kMaxRefinements = 6;
 
 // The tick's contact solve (TickContacts): projected Gauss-Seidel sweeps, at most this many, until no
 // impulse changes by more than this fraction of the largest.
-constexpr int kTickContactSweeps = 60;
+constexpr int kTickContactSweeps = 8;
 constexpr double kTickContactTolerance = 1e-10;
 
 // The time since the last reply the passivity controller divides by, s: from a tick at 10 kHz (the
