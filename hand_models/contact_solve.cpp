@@ -29,8 +29,7 @@ class RowBuilder {
  public:
   RowBuilder(const HandModel& model, const HandState& s)
       : model_(model), s_(s), nh_(s.system.handle_dofs()), nt_(s.system.tool_dofs()), m_(model.num_handles()) {}
-  // Appends contact k's frame and J^T entries; fills its known relative velocity, bias, friction
-  // and warm start.
+  // Appends row k's J^T entries (a hand point, or a body's support) and returns its frame (n, t1, t2).
   Eigen::Matrix3d add_point(const PointContact& pc, int k) {
     const Tet& t = model_.mesh().tets[pc.tet];
     const Eigen::Matrix3d F = contact_frame(pc.n_W);
@@ -68,18 +67,23 @@ class RowBuilder {
   std::vector<Eigen::Triplet<double>> entries_;
 };
 
+// A row's least normal velocity: penetrating, push out a fraction of the depth; a gap (speculative
+// contact) may close fully.
+double contact_bias(double depth_m, double h) {
+  return depth_m > 0 ? kContactDepthRecovery * depth_m / h : depth_m / h;
+}
+
 // A row's known relative velocity (a kinematic other side's, in the frame), bias and friction.
 void row_terms(const PointContact& pc, const Eigen::Matrix3d& F, double h, Eigen::Ref<Eigen::Vector3d> u_known,
                double& bias, double& mu) {
   u_known = -F.transpose() * (pc.body >= 0 ? Eigen::Vector3d::Zero() : pc.v_other_W);
-  // Penetrating: push out a fraction of the depth; a gap (speculative contact) may close fully.
-  bias = pc.depth_m > 0 ? kContactDepthRecovery * pc.depth_m / h : pc.depth_m / h;
+  bias = contact_bias(pc.depth_m, h);
   mu = pc.friction;
 }
 void row_terms(const BodySupport& b, const Eigen::Matrix3d& F, double h, Eigen::Ref<Eigen::Vector3d> u_known,
                double& bias, double& mu) {
   u_known = -F.transpose() * b.v_other_W;
-  bias = b.depth_m > 0 ? kContactDepthRecovery * b.depth_m / h : b.depth_m / h;
+  bias = contact_bias(b.depth_m, h);
   mu = b.friction;
 }
 
