@@ -319,6 +319,11 @@ int main(int argc, char** argv) {
   } catch (const client::ClientError& e) {
     spdlog::warn("no server stats: {}", e.what());
   }
+  // Datagrams still on their way (a relay's copy of the Stats reply, a late ForceSample) are read
+  // until 50 ms pass quietly, so the client's counters cover everything the server or a relay sent.
+  while (client.poll_force(std::chrono::milliseconds(50))) {
+  }
+  result.counters = client.counters();
   client.bye();
 
   const sim::RttSummary rtt = sim::summarize_rtt(result.rtt_us);
