@@ -12,6 +12,9 @@ namespace hapticd::world {
 namespace {
 
 constexpr double kSpeculativeMargin_m = 0.002;
+// The farthest a point is looked for ahead of a surface, whatever its speed (a teleport would
+// otherwise make every point near every object a contact of the step).
+constexpr double kMaxReach_m = 0.05;
 // A cell's constraint contact moves to another point only when that one is deeper by this much.
 constexpr double kClusterHysteresis_m = 1e-4;
 
@@ -130,40 +133,62 @@ void World::collide(SoftBody& b) {
   const hand::TetMesh& mesh = b.model->mesh();
   const std::vector<int>& point_tet = *b.point_tet;
   const std::vector<Eigen::Vector4d>& point_bary = *b.point_bary;
-  // Constraint contacts also take points just outside (speculative: the step may not cross the gap).
-  const double margin = constraint_contact_ ? kSpeculativeMargin_m : 0.0;
+  // A deformable object's point is looked for as far ahead of a surface as it can come over the
+  // coming step (taken as long as the last): 2 mm, plus its speed and the object's, plus gravity's,
+  // over the step. Within that reach it remembers the face it approaches, so that a step that
+  // carries it deep (a slow visual loop: gravity alone moves 4.4 cm in a 67 ms step) pushes it back
+  // out that face, not through a thin plate; constraint contacts also make it a speculative row if
+  // it closes the gap within the step (penalty contacts act once it is inside). A hand's points,
+  // driven by their handles, look 2 mm ahead: more speculative rows there slowed the contact solve
+  // of a finger driven into the table to a few millimetres' penetration (WorldGloveHardCases).
+  const bool free_body = b.hand < 0;
+  const double h = step_dt_, fall = 0.5 * gravity_m_s2_.norm() * h;
   std::vector<int> body_of_object(rigid_ ? rigid_->num_objects() : 0, -1);
   for (int g = 0; rigid_ && g < rigid_->num_objects(); ++g) {
     dGeomID geom = rigid_->geom(g);
     dReal aabb[6];
     const bool bounded = dGeomGetClass(geom) != dPlaneClass;
     if (bounded) dGeomGetAABB(geom, aabb);
+    double object_speed = 0;  // a bound on the speed of the object's points
+    if (bounded && rigid_->is_dynamic(g)) {
+      const RigidBodyState body = rigid_->state(g);
+      const double radius = 0.5 * Eigen::Vector3d(aabb[1] - aabb[0], aabb[3] - aabb[2], aabb[5] - aabb[4]).norm();
+      object_speed = body.v_WO.norm() + body.w_W.norm() * radius;
+    }
     for (size_t v = 0; v < point_tet.size(); ++v) {
       const hand::Tet& t = mesh.tets[point_tet[v]];
       const Eigen::Vector4d& w = point_bary[v];
-      Eigen::Vector3d p = Eigen::Vector3d::Zero();
-      for (int k = 0; k < 4; ++k) p += w[k] * s.x.segment<3>(3 * t[k]);
+      Eigen::Vector3d p = Eigen::Vector3d::Zero(), p_v = Eigen::Vector3d::Zero();
+      for (int k = 0; k < 4; ++k) p += w[k] * s.x.segment<3>(3 * t[k]), p_v += w[k] * s.v.segment<3>(3 * t[k]);
+      const double reach = free_body ? std::min(kSpeculativeMargin_m + (p_v.norm() + object_speed + fall) * h, kMaxReach_m)
+                                     : (constraint_contact_ ? kSpeculativeMargin_m : 0.0);
       LastContact& last = b.last[v];
-      // The box grown by the margin: a point just above a face is a speculative contact.
-      if (bounded && (p.x() < aabb[0] - margin || p.x() > aabb[1] + margin || p.y() < aabb[2] - margin ||
-                      p.y() > aabb[3] + margin || p.z() < aabb[4] - margin || p.z() > aabb[5] + margin)) {
+      if (bounded && (p.x() < aabb[0] - reach || p.x() > aabb[1] + reach || p.y() < aabb[2] - reach ||
+                      p.y() > aabb[3] + reach || p.z() < aabb[4] - reach || p.z() > aabb[5] + reach)) {
         if (last.object == g) last = LastContact{};
         continue;
       }
       double depth;
       Eigen::Vector3d n;
       const Eigen::Vector3d entry = last.object == g ? last.n_W : Eigen::Vector3d::Zero();
-      if (!rigid_->penetration(g, p, depth, n, entry, margin)) {
+      if (!rigid_->penetration(g, p, depth, n, entry, reach)) {
         if (last.object == g) last = LastContact{};
         continue;
       }
-      if (depth > 0) last = LastContact{g, n};
+      last = LastContact{g, n};
+      const Eigen::Vector3d v_other = rigid_->point_velocity(g, p);
+      // Outside: a contact only if it closes the gap within the step (its mean velocity toward the
+      // surface over the step, under gravity, times the step; 2 mm more for what the step adds).
+      if (depth <= 0 && (!constraint_contact_ ||
+                         (free_body && -depth > kSpeculativeMargin_m +
+                                                    std::max(0.0, -(p_v - v_other + 0.5 * h * gravity_m_s2_).dot(n)) * h)))
+        continue;
       hand::PointContact c;
       c.tet = point_tet[v];
       c.bary = w;
       c.n_W = n;
       c.depth_m = depth;
-      c.v_other_W = rigid_->point_velocity(g, p);
+      c.v_other_W = v_other;
       if (rigid_->is_dynamic(g)) {
         // Dynamic bodies join this body's implicit system for the step.
         if (body_of_object[g] < 0) {
