@@ -1,5 +1,6 @@
 #include "server/world/rigid_world.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <mutex>
 #include <numbers>
@@ -502,18 +503,22 @@ void RigidWorld::check_bodies() {
 void RigidWorld::step(double dt) {
   if (world_ == nullptr) return;
   ensure_ode_for_this_thread();
-  contacts_last_step_ = 0;
   ++steps_;
   check_bodies();  // states set from outside since the last step
-  dSpaceCollide(space_, this, &RigidWorld::near_callback);
   int bodies = 0;
   for (const Object& o : objects_) bodies += o.body != nullptr;
-  if (bodies <= kExactStepMaxBodies) {
-    dWorldStep(world_, dt);
-  } else {
-    dWorldQuickStep(world_, dt);
+  // 1e-9: a step of exactly kMaxSubstep_s (rounded) stays one substep.
+  const int substeps = std::max(1, static_cast<int>(std::ceil(dt / kMaxSubstep_s - 1e-9)));
+  for (int k = 0; k < substeps; ++k) {
+    contacts_last_step_ = 0;  // the last substep's
+    dSpaceCollide(space_, this, &RigidWorld::near_callback);
+    if (bodies <= kExactStepMaxBodies) {
+      dWorldStep(world_, dt / substeps);
+    } else {
+      dWorldQuickStep(world_, dt / substeps);
+    }
+    dJointGroupEmpty(contacts_);
   }
-  dJointGroupEmpty(contacts_);
   check_bodies();  // divergence in the step
 }
 
