@@ -383,6 +383,10 @@ void RigidWorld::add_velocity(int i, const Eigen::Vector3d& dv_W, const Eigen::V
   dBodySetAngularVel(body, w.x(), w.y(), w.z());
 }
 
+void RigidWorld::hold_gravity_for_next_step(int i) {
+  if (objects_[i].body) objects_[i].gravity_held = true;
+}
+
 void RigidWorld::contacts_of(int i, std::vector<BodyContact>& out) const {
   out.clear();
   struct Query {
@@ -507,18 +511,22 @@ void RigidWorld::step(double dt) {
   check_bodies();  // states set from outside since the last step
   int bodies = 0;
   for (const Object& o : objects_) bodies += o.body != nullptr;
-  // 1e-9: a step of exactly kMaxSubstep_s (rounded) stays one substep.
-  const int substeps = std::max(1, static_cast<int>(std::ceil(dt / kMaxSubstep_s - 1e-9)));
-  for (int k = 0; k < substeps; ++k) {
+  const int n = substeps(dt);
+  for (int k = 0; k < n; ++k) {
+    if (k == 1)
+      for (const Object& o : objects_)
+        if (o.gravity_held) dBodySetGravityMode(o.body, 0);
     contacts_last_step_ = 0;  // the last substep's
     dSpaceCollide(space_, this, &RigidWorld::near_callback);
     if (bodies <= kExactStepMaxBodies) {
-      dWorldStep(world_, dt / substeps);
+      dWorldStep(world_, dt / n);
     } else {
-      dWorldQuickStep(world_, dt / substeps);
+      dWorldQuickStep(world_, dt / n);
     }
     dJointGroupEmpty(contacts_);
   }
+  for (Object& o : objects_)
+    if (o.gravity_held) dBodySetGravityMode(o.body, 1), o.gravity_held = false;
   check_bodies();  // divergence in the step
 }
 

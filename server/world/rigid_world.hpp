@@ -6,6 +6,8 @@
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <algorithm>
+#include <cmath>
 #include <memory>
 #include <string>
 #include <vector>
@@ -79,6 +81,12 @@ class RigidWorld {
   void set_state(int i, const RigidBodyState& s);
   // Changes body i's velocity (centre of mass, m/s) and angular velocity (rad/s) by these amounts now.
   void add_velocity(int i, const Eigen::Vector3d& dv_W, const Eigen::Vector3d& dw_W);
+  // Body i's velocity was solved to its end-of-step value with the step's gravity in it (a hand
+  // solved it implicitly with its supports) and handed over less one substep's gravity: the coming
+  // step adds gravity to it in its first substep only.
+  void hold_gravity_for_next_step(int i);
+  // How many substeps step(dt) takes (1e-9: a step of kMaxSubstep_s, rounded, is one).
+  static int substeps(double dt) { return std::max(1, static_cast<int>(std::ceil(dt / kMaxSubstep_s - 1e-9))); }
   // Mass, world inertia, centre of mass and velocity of rigid body i, for a hand
   // that solves its contacts with the body implicitly.
   hand::ContactBody contact_body(int i) const;
@@ -132,6 +140,7 @@ class RigidWorld {
     MeshSdf sdf;  // meshes only
     std::vector<double> vertices;
     std::vector<dTriIndex> indices;
+    bool gravity_held = false;  // hold_gravity_for_next_step()
   };
   static void near_callback(void* data, dGeomID a, dGeomID b);
   void collide(dGeomID a, dGeomID b);

@@ -142,8 +142,13 @@ void World::sum_hand_forces(int h) {
 void World::apply_reactions() {
   // Each body a hand or a deformable object touched was solved implicitly with
   // it, with its gravity and supports: its end-of-step velocity is the result,
-  // handed to ODE less the gravity ODE adds again (ODE's own contacts then find
-  // nothing to correct where the soft body's solve already satisfied them).
+  // handed to ODE less the gravity ODE adds again in the step's first substep,
+  // the only one that adds it (ODE's own contacts then find nothing to correct
+  // where the soft body's solve already satisfied them). Less the whole step's
+  // gravity, RigidWorld's substeps saw the body move into its supports at g h
+  // and bounce: the bunny at rest jumped 1.5 cm as a hand's first contact
+  // reached it at a 15 Hz step.
+  const double first_substep_s = step_dt_ / RigidWorld::substeps(step_dt_);
   for (const SoftBody& b : soft_) {
     const hand::HandState& s = *b.state;
     std::vector<int> object_of_body(s.bodies.size(), -1);
@@ -152,7 +157,8 @@ void World::apply_reactions() {
     for (size_t i = 0; i < s.bodies.size(); ++i) {
       if (object_of_body[i] < 0) continue;
       const hand::ContactBody& B = s.bodies[i];
-      rigid_->add_velocity(object_of_body[i], B.dv_W - step_dt_ * gravity_m_s2_, B.dw_W);
+      rigid_->add_velocity(object_of_body[i], B.dv_W - first_substep_s * gravity_m_s2_, B.dw_W);
+      rigid_->hold_gravity_for_next_step(object_of_body[i]);
     }
   }
 }
