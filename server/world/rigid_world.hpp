@@ -76,6 +76,9 @@ class RigidWorld {
   int find(const std::string& name) const;
   const std::string& name(int i) const { return objects_[i].name; }
   bool is_dynamic(int i) const { return objects_[i].body != nullptr; }
+  bool is_mesh(int i) const { return !objects_[i].sdf.empty(); }
+  // A mesh's vertices in its geom's frame (x, y, z after one another); empty for other objects.
+  const std::vector<double>& mesh_vertices(int i) const { return objects_[i].vertices; }
   double mass_kg(int i) const;
   RigidBodyState state(int i) const;
   void set_state(int i, const RigidBodyState& s);

@@ -112,7 +112,11 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
   // flesh as a point-location query on its deformed tets, depths from the
   // signed distance of its rest skin (3 mm cells as for the deformable
   // objects; exact within 1.8 cm of the skin, deeper than half the palm is thick).
-  if (num_hands() >= 2 && options.hand_contacts && options.hand_hand_contacts) {
+  // The same query finds the vertices of rigid meshes in a hand's flesh.
+  hand_hand_ = num_hands() >= 2 && options.hand_contacts && options.hand_hand_contacts;
+  bool meshes = false;
+  for (int g = 0; rigid_ && g < rigid_->num_objects(); ++g) meshes = meshes || rigid_->is_mesh(g);
+  if (hand_hand_ || (meshes && options.hand_contacts)) {
     for (const std::unique_ptr<WorldHand>& h : hands_) {
       const hand::SurfaceMesh skin{h->shape.skin_vertices, h->shape.skin_triangles};
       Eigen::AlignedBox3d box;
@@ -156,16 +160,16 @@ void World::step(double dt_s) {
   snapshot_.linear_model_valid.assign(hands_.size(), false);
   for (int h = 0; h < num_hands(); ++h) {
     WorldHand& hand = *hands_[h];
-    if (hand.query && constraint_contact_) {
+    if (hand_hand_ && constraint_contact_) {
       take_hand_reactions(h);  // in index order: the impulses of the hands that stepped before this one
-    } else if (hand.query) {
+    } else if (hand_hand_) {
       anchor_hand_contacts(h, step_dt_);
     }
     hand.step(options_.linearize ? &snapshot_.linear_models[h] : nullptr);
     snapshot_.linear_model_valid[h] = snapshot_.linear_models[h].K.size() > 0;
     timings.linearize_ms += hand.state.timings.linearize_ms;
     timings.contact_ms += hand.state.timings.contact_ms;
-    if (hand.query) sum_hand_forces(h);
+    if (hand_hand_) sum_hand_forces(h);
     remember_impulses(soft_[h]);
   }
   timings.hands_ms = ms_since(t0) - timings.linearize_ms - timings.contact_ms;

@@ -65,9 +65,9 @@ struct WorldOptions {
 // A hand of the world: the FEM hand (the only model built so far), and what the world keeps of it
 // for hand-hand contact.
 struct WorldHand : hand::FemHand {
-  // Hand-hand contact (a scene with two hands or more, hand contacts on): where
-  // a point lies in this hand's deformed flesh and how deep it is inside its
-  // skin; null otherwise (one hand builds nothing for it).
+  // Where a point lies in this hand's deformed flesh and how deep it is inside
+  // its skin: for hand-hand contact (a scene with two hands or more) and for the
+  // vertices of rigid meshes (a scene with one), hand contacts on; null otherwise.
   std::unique_ptr<DeformedMeshQuery> query;
   Eigen::AlignedBox3d skin_bounds;  // of the deformed skin, at the last collision
   // The other hands' contact forces on the nodes over the last step, N, 3n
@@ -198,6 +198,13 @@ class World {
   void collide_with_deformables(SoftBody& body, std::unordered_map<std::uint64_t, int>& cluster);
   void find_hand_hits();
   void collide_with_hands(SoftBody& body, std::unordered_map<std::uint64_t, int>& cluster);
+  // Vertices of rigid meshes inside the hand's flesh (its query): a thin part (an ear) between the
+  // skin points, which only the skin points would not find.
+  void collide_mesh_vertices(SoftBody& body, std::vector<int>& body_of_object,
+                             std::unordered_map<std::uint64_t, int>& cluster);
+  // Rigid object g as a body of the soft body's implicit step (joined once, with its gravity):
+  // its index in state.bodies, -1 for static geometry.
+  int implicit_body(hand::HandState& state, std::vector<int>& body_of_object, int g);
   // Hand-hand: before hand h steps, the constraint impulses of the hands
   // stepping before it, or its penalty contacts' forces from their far end's
   // motion (over a step of dt); after, what the other hands did to it.
@@ -217,6 +224,7 @@ class World {
   double step_dt_ = 0, t_s_ = 0;
   Eigen::Vector3d gravity_m_s2_;
   bool constraint_contact_ = true;
+  bool hand_hand_ = false;  // hand-hand contact built (WorldHand::query)
   long steps_ = 0;
   WorldOptions options_;
   std::vector<std::unique_ptr<WorldHand>> hands_;

@@ -93,17 +93,20 @@ TEST(Multirate, At30HzOnlyTheLinearizedModelRendersTheStylusPressStablyInClosedL
   EXPECT_GT(zoh.resets, 100);
 }
 
-TEST(Multirate, At30HzTheLinearizedModelRendersTheStylusPressPassivelyWhereTheBilateralOneDoesNot) {
+TEST(Multirate, At30HzTheLinearizedModelRendersTheStylusPressPassively) {
   // The reference (the world at every tick) takes energy out of the device; at 30 Hz the linearized
   // model, its contacts solved each tick, must too. The bilateral model (the same linearization with
-  // the last step's pushing contacts held between visual steps) is run as the baseline: it puts
-  // energy in, which is what this test exists to keep out.
+  // the last step's pushing contacts held between visual steps) is run beside it for the record: it
+  // put +0.285 J into the device here while the bunny's ear tips could pass between the palm's skin
+  // points and the palm held them by friction; since rigid meshes' vertices are found in the flesh
+  // (World::collide_mesh_vertices) it is passive on this press too (-0.0019 J). Its pull on a lift
+  // is UnilateralLinearization's and the press-hold-lift's to show.
   const ClosedLoop reference = closed_loop_press(haptic::HandleModelKind::linearized, 1);
   const ClosedLoop lin = closed_loop_press(haptic::HandleModelKind::linearized, 33);
   const ClosedLoop bilateral = closed_loop_press(haptic::HandleModelKind::bilateral, 33);
   ASSERT_LE(reference.energy_j, 0.0);
   EXPECT_LE(lin.energy_j, 0.0) << "the rendering put energy into the device";
-  EXPECT_GT(bilateral.energy_j, 0.0) << "the baseline's fault is no longer reproduced";
+  std::printf("bilateral baseline: %+.4f J\n", bilateral.energy_j);
 }
 
 }  // namespace
