@@ -4,19 +4,24 @@
 // and at visual rates of 15, 30 and 60 Hz. What a user's hand must never feel:
 //   - energy put into the device over the run (the work of the rendered forces on the tip; the run
 //     ends with the tip in free space, so nothing is held elastically);
+//   - any force, or the InContact flag, one second after the lift;
 //   - a pull toward the object once the commanded tip is back above the height where it first
-//     touched, after one haptic period plus one visual period;
-//   - any force, or the InContact flag, one second after the lift.
-// The passivity controller is off: these are the model's own. Each run is printed beside the same
-// motion in free space (40 cm above everything), for what the hand's own inertia and damping give.
+//     touched, after one haptic period plus one visual period.
+// The passivity controller is off: these are the model's own.
 //
-// A known fault of issue 17, run by tests/CMakeLists.txt as one ctest expected to fail. Measured
-// when it was written: lifting the served hand at 5 cm/s (device) costs 0.35-0.55 N of its own
-// inertia and damping, 1.1-1.6 N at 15 cm/s, and a second later it still carries 0.02-0.16 N, in
-// free space as on the objects; on the objects the force after the lift is mostly the free-space
-// run's (the contacts release; the largest excess, 0.9 N, on the fixed bunny at 15 Hz after the deep
-// press). The deformable bunny at 15 Hz is unstable (+0.34 J, the force at the device's 8 N limit),
-// and the deep press on the movable bunny at 15 Hz puts +0.003 J into the device.
+// PressHoldLift asserts the energy, the flag one second after the lift and that nothing resets: it
+// holds on every case. Measured before rigid meshes' vertices were found in the hand's flesh, ODE
+// stepped in substeps and deformable objects looked ahead by their step: at 15 Hz the movable bunny
+// held the stylus 3.3 N toward it 2 s after the lift (InContact), the deformable bunny took +0.46 J
+// and the device's 8 N force limit, and the deep press on the movable bunny +0.021 J.
+//
+// Issue17KnownFault/PressHoldLift asserts the issue's force bounds too (no pull above 0.3 N after the
+// lift, under 0.01 N a second later), beside the same motion in free space (40 cm above everything):
+// a known fault of issue 17, run by tests/CMakeLists.txt as one ctest expected to fail. Measured:
+// lifting the served hand at 5 cm/s (device) costs 0.26-0.55 N of its own inertia and damping in
+// free space, 1.1-1.6 N at 15 cm/s, and a second later it still carries 0.006-0.16 N; on the objects
+// the pull is the free-space one within 0.25 N, except the deep press on the deformable bunny at
+// 15 Hz (2.29 N against 1.11 N).
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -132,9 +137,48 @@ PressRun press_hold_lift(const Case& c, const std::string& object, const Schedul
   return r;
 }
 
+// What a run ended with after the lift.
+struct AfterLift {
+  long touch = -1;       // the first tick flagged InContact
+  double largest = 0;    // the largest force of the run, N
+  double after = 0;      // the largest force one second after the lift, N
+  bool flagged = false;  // InContact then
+};
+
+AfterLift after_lift(const OfflineTrace& trace, const Schedule& schedule) {
+  AfterLift a;
+  const long ticks = static_cast<long>(trace.replies.size());
+  for (long k = 0; k < ticks; ++k) {
+    a.largest = std::max(a.largest, trace.replies[k].wrench[0].f_D.norm());
+    if (a.touch < 0 && trace.replies[k].in_contact[0]) a.touch = k;
+  }
+  for (long k = std::lround((schedule.up_end + 1.0) / kPeriod); k < ticks; ++k) {
+    a.after = std::max(a.after, trace.replies[k].wrench[0].f_D.norm());
+    a.flagged = a.flagged || trace.replies[k].in_contact[0];
+  }
+  return a;
+}
+
 class PressHoldLift : public ::testing::TestWithParam<Case> {};
 
-TEST_P(PressHoldLift, PutsNoEnergyIntoTheDevicePullsNothingAfterTheLiftAndLetsGo) {
+TEST_P(PressHoldLift, TakesEnergyOutOfTheDeviceAndLetsGo) {
+  const Case& c = GetParam();
+  const Schedule schedule(c.press);
+  const PressRun run = press_hold_lift(c, c.object, schedule);
+  ASSERT_EQ(static_cast<long>(run.trace.replies.size()), std::lround(schedule.end / kPeriod));
+  const AfterLift a = after_lift(run.trace, schedule);
+  ASSERT_GE(a.touch, 0) << "the press never touched";
+  std::printf("%s at %d ticks: touch at %.1f mm, largest %.2f N, energy %+.5f J, 1 s after the lift %.4f N%s\n",
+              c.object.c_str(), c.visual_every_ticks, 1e3 * schedule.z(a.touch * kPeriod), a.largest, run.energy_j,
+              a.after, a.flagged ? ", InContact" : "");
+  EXPECT_EQ(run.trace.resets, 0);
+  EXPECT_LE(run.energy_j, 0.0) << "the rendering put energy into the device";
+  EXPECT_FALSE(a.flagged) << "InContact one second after the lift";
+}
+
+class PressHoldLiftForces : public ::testing::TestWithParam<Case> {};
+
+TEST_P(PressHoldLiftForces, PullNothingAfterTheLiftAndFallQuiet) {
   const Case& c = GetParam();
   const Schedule schedule(c.press);
   const long ticks = std::lround(schedule.end / kPeriod);
@@ -143,21 +187,11 @@ TEST_P(PressHoldLift, PutsNoEnergyIntoTheDevicePullsNothingAfterTheLiftAndLetsGo
   const PressRun free = press_hold_lift(c, "free_space", schedule);
   const OfflineTrace& trace = run.trace;
   ASSERT_EQ(static_cast<long>(trace.replies.size()), ticks);
-  EXPECT_EQ(trace.resets, 0);
-
-  // Where the tool first touched (commanded height: the first reply flagged InContact), and the
-  // largest force of the run.
-  long touch = -1;
-  double largest = 0;
-  for (long k = 0; k < ticks; ++k) {
-    largest = std::max(largest, trace.replies[k].wrench[0].f_D.norm());
-    if (touch < 0 && trace.replies[k].in_contact[0]) touch = k;
-  }
-  ASSERT_GE(touch, 0) << "the press never touched";
-  const double touch_z = schedule.z(touch * kPeriod);
-  // After the lift: once the commanded tip is above the touch height for a haptic and a visual
-  // period, the force toward the object; and, for the record, what the same motion feels in free
-  // space (the hand's own inertia and damping: not asserted here, see the file comment).
+  const AfterLift a = after_lift(trace, schedule), free_a = after_lift(free.trace, schedule);
+  ASSERT_GE(a.touch, 0) << "the press never touched";
+  const double touch_z = schedule.z(a.touch * kPeriod);
+  // Once the commanded tip is above the touch height for a haptic and a visual period, the force
+  // toward the object, and the free-space run's at the same ticks.
   const double grace = kPeriod + c.visual_every_ticks * kPeriod;
   double pull = 0, free_pull = 0;
   long above = -1;
@@ -165,27 +199,15 @@ TEST_P(PressHoldLift, PutsNoEnergyIntoTheDevicePullsNothingAfterTheLiftAndLetsGo
     const double t = k * kPeriod;
     if (above < 0 && schedule.z(t) > touch_z) above = k;
     if (above < 0 || t < above * kPeriod + grace) continue;
-    const double f_z = trace.replies[k].wrench[0].f_D.z(), f_free = free.trace.replies[k].wrench[0].f_D.z();
-    pull = std::max(pull, -f_z);
-    free_pull = std::max(free_pull, -f_free);
+    pull = std::max(pull, -trace.replies[k].wrench[0].f_D.z());
+    free_pull = std::max(free_pull, -free.trace.replies[k].wrench[0].f_D.z());
   }
-  // One second after the lift: the force, and the flag.
-  double after = 0, free_after = 0;
-  bool flagged = false;
-  for (long k = std::lround((schedule.up_end + 1.0) / kPeriod); k < ticks; ++k) {
-    const Eigen::Vector3d f = trace.replies[k].wrench[0].f_D, f_free = free.trace.replies[k].wrench[0].f_D;
-    after = std::max(after, f.norm());
-    free_after = std::max(free_after, f_free.norm());
-    flagged = flagged || trace.replies[k].in_contact[0];
-  }
-  std::printf("%s at %d ticks: touch at %.1f mm, largest %.2f N, energy %+.5f J (free %+.5f J), pull after lift "
-              "%.3f N (free space %.3f N), 1 s later %.4f N (free space %.4f N)%s\n",
-              c.object.c_str(), c.visual_every_ticks, 1e3 * touch_z, largest, run.energy_j, free.energy_j, pull,
-              free_pull, after, free_after, flagged ? ", InContact" : "");
-  EXPECT_LE(run.energy_j, 0.0) << "the rendering put energy into the device";
+  std::printf("%s at %d ticks: touch at %.1f mm, energy %+.5f J (free %+.5f J), pull after lift %.3f N (free space "
+              "%.3f N), 1 s later %.4f N (free space %.4f N)\n",
+              c.object.c_str(), c.visual_every_ticks, 1e3 * touch_z, run.energy_j, free.energy_j, pull, free_pull,
+              a.after, free_a.after);
   EXPECT_LE(pull, kMaxPullN) << "pulled toward the object after the lift";
-  EXPECT_LE(after, kQuietN);
-  EXPECT_FALSE(flagged) << "InContact one second after the lift";
+  EXPECT_LE(a.after, kQuietN);
 }
 
 std::vector<Case> cases() {
@@ -197,7 +219,8 @@ std::vector<Case> cases() {
   return out;
 }
 
-INSTANTIATE_TEST_SUITE_P(Issue17KnownFault, PressHoldLift, ::testing::ValuesIn(cases()), case_name);
+INSTANTIATE_TEST_SUITE_P(Touch, PressHoldLift, ::testing::ValuesIn(cases()), case_name);
+INSTANTIATE_TEST_SUITE_P(Issue17KnownFault, PressHoldLiftForces, ::testing::ValuesIn(cases()), case_name);
 
 }  // namespace
 }  // namespace hapticd::offline
