@@ -70,6 +70,7 @@ struct WorldHand : hand::FemHand {
   // vertices of rigid meshes (a scene with one), hand contacts on; null otherwise.
   std::unique_ptr<DeformedMeshQuery> query;
   Eigen::AlignedBox3d skin_bounds;  // of the deformed skin, at the last collision
+  bool query_current = false;       // query rebuilt for the last collision (another hand or a mesh near)
   // The other hands' contact forces on the nodes over the last step, N, 3n
   // (World::step): with query only, else empty.
   Eigen::VectorXd f_hands_W;
@@ -205,6 +206,8 @@ class World {
   // Rigid object g as a body of the soft body's implicit step (joined once, with its gravity):
   // its index in state.bodies, -1 for static geometry.
   int implicit_body(hand::HandState& state, std::vector<int>& body_of_object, int g);
+  // Rigid mesh g's box meets these skin bounds, grown by the speculative margin.
+  bool mesh_overlaps(int g, const Eigen::AlignedBox3d& skin_bounds) const;
   // Hand-hand: before hand h steps, the constraint impulses of the hands
   // stepping before it, or its penalty contacts' forces from their far end's
   // motion (over a step of dt); after, what the other hands did to it.

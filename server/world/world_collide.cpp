@@ -259,6 +259,14 @@ void World::collide_with_deformables(SoftBody& b, std::unordered_map<std::uint64
   }
 }
 
+bool World::mesh_overlaps(int g, const Eigen::AlignedBox3d& skin_bounds) const {
+  const Eigen::Vector3d grow = Eigen::Vector3d::Constant(constraint_contact_ ? kSpeculativeMargin_m : 0.0);
+  dReal aabb[6];
+  dGeomGetAABB(rigid_->geom(g), aabb);
+  return Eigen::AlignedBox3d(skin_bounds.min() - grow, skin_bounds.max() + grow)
+      .intersects(Eigen::AlignedBox3d(Eigen::Vector3d(aabb[0], aabb[2], aabb[4]), Eigen::Vector3d(aabb[1], aabb[3], aabb[5])));
+}
+
 int World::implicit_body(hand::HandState& s, std::vector<int>& body_of_object, int g) {
   if (!rigid_->is_dynamic(g)) return -1;
   // Dynamic bodies join this body's implicit system for the step.
@@ -280,20 +288,15 @@ void World::collide_mesh_vertices(SoftBody& b, std::vector<int>& body_of_object,
                                   std::unordered_map<std::uint64_t, int>& cluster) {
   hand::HandState& s = *b.state;
   const WorldHand& hand = *hands_[b.hand];
-  if (!hand.query || hand.query->empty() || hand.skin_bounds.isEmpty()) return;
+  if (!hand.query || !hand.query_current || hand.query->empty() || hand.skin_bounds.isEmpty()) return;
   const double margin = constraint_contact_ ? kSpeculativeMargin_m : 0.0;
   const Eigen::Vector3d grow = Eigen::Vector3d::Constant(margin);
   const Eigen::AlignedBox3d skin(hand.skin_bounds.min() - grow, hand.skin_bounds.max() + grow);
   // Keys of their own: a cell's deepest skin point must not stand in for a vertex.
   const int first_key = (rigid_ ? rigid_->num_objects() : 0) + num_deformables() + 2 * num_hands();
   for (int g = 0; rigid_ && g < rigid_->num_objects(); ++g) {
-    if (!rigid_->is_mesh(g)) continue;
+    if (!rigid_->is_mesh(g) || !mesh_overlaps(g, hand.skin_bounds)) continue;
     dGeomID geom = rigid_->geom(g);
-    dReal aabb[6];
-    dGeomGetAABB(geom, aabb);
-    if (!skin.intersects(Eigen::AlignedBox3d(Eigen::Vector3d(aabb[0], aabb[2], aabb[4]),
-                                             Eigen::Vector3d(aabb[1], aabb[3], aabb[5]))))
-      continue;
     const dReal* gp = dGeomGetPosition(geom);
     dQuaternion gq;
     dGeomGetQuaternion(geom, gq);
@@ -331,11 +334,16 @@ void World::find_hand_hits() {
   for (int h = 0; h < num_hands(); ++h) {
     WorldHand& hand = *hands_[h];
     if (!hand.query) continue;
-    hand.query->update(hand.state.x);
     hand.skin_bounds.setEmpty();
     for (size_t v = 0; v < hand.shape.skin_tet.size(); ++v)
       hand.skin_bounds.extend(
           embedded_at(hand.model->mesh(), hand.state.x, hand.shape.skin_tet[v], hand.shape.skin_bary[v]));
+    // Rebuilt (a few ms for a glove's flesh) only when it is asked: another hand, or a mesh near.
+    bool mesh_near = false;
+    for (int g = 0; rigid_ && g < rigid_->num_objects() && !mesh_near; ++g)
+      mesh_near = rigid_->is_mesh(g) && mesh_overlaps(g, hand.skin_bounds);
+    hand.query_current = hand_hand_ || mesh_near;
+    if (hand.query_current) hand.query->update(hand.state.x);
   }
   if (!hand_hand_) return;  // the queries serve the mesh vertices only
   const double margin = constraint_contact_ ? kSpeculativeMargin_m : 0.0;
