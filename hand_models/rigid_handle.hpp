@@ -76,6 +76,19 @@ Eigen::Matrix<double, 3, 4> d_rotated_d_quaternion(const Eigen::Quaterniond& q, 
 // The G of eq. 10: dq/dt = G w for a world-frame angular velocity w (q ordered x, y, z, s).
 Eigen::Matrix<double, 4, 3> quaternion_rate_matrix(const Eigen::Quaterniond& q);
 
+// The nearest surface a handle's part of the skin could reach that is not among its contacts: skin
+// point r_W from the handle, gap_m from a surface whose normal n_W points out of it toward the
+// point. Moved by (dx, dtheta), the point closes the gap by -n . (dx + dtheta x r) (the haptic
+// tick's bound, ProxyHand::limit_to_clearance).
+struct ClearancePlane {
+  Eigen::Vector3d n_W = Eigen::Vector3d::UnitZ(), r_W = Eigen::Vector3d::Zero();
+  double gap_m = 0;
+};
+// The planes kept per handle: the nearest surfaces in directions at least kClearanceSpread apart
+// (the cosine between their normals below it).
+constexpr int kClearancePlanes = 4;
+constexpr double kClearanceSpread = 0.87;
+
 // q advanced by a world-frame rotation vector: exp(theta) q, renormalised.
 Eigen::Quaterniond rotate_by(const Eigen::Quaterniond& q, const Eigen::Vector3d& theta);
 // Rotation vector of q_a q_b^-1 (shortest way), rad.

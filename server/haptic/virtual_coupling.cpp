@@ -185,14 +185,15 @@ void ProxyHand::configure(int handles, const double* mass_kg, const Eigen::Matri
   for (int j = 0; j < kMaxHapticHandles; ++j) {
     v_[j].setZero(), w_[j].setZero(), v_dev_[j].setZero(), w_dev_[j].setZero();
     last_f_D_[j].setZero(), last_tau_D_[j].setZero();
-    energy_in_[j] = 0, damped_j_[j] = 0;
+    energy_in_[j] = 0, damped_j_[j] = 0, passivity_b_[j] = 0;
   }
 }
 
 void ProxyHand::reset() {
   ++resets_;
   resync();
-  for (int j = 0; j < handles_; ++j) last_f_D_[j].setZero(), last_tau_D_[j].setZero(), energy_in_[j] = 0;
+  for (int j = 0; j < handles_; ++j)
+    last_f_D_[j].setZero(), last_tau_D_[j].setZero(), energy_in_[j] = 0, passivity_b_[j] = 0;
 }
 
 void ProxyHand::resync() {
@@ -251,11 +252,19 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
     a_lin_[j] = mass_[j] + dt * gains_.b_ns_m + dt * dt * gains_.k_n_m;
     a_rot_[j] = I_W;
     a_rot_[j].diagonal().array() += dt * gains_.b_nms_rad + dt * dt * gains_.k_nm_rad;
-    b_.segment<3>(6 * j) = mass_[j] * v_[j] + dt * (gains_.k_n_m * (device_[j].p_W - proxy_[j].p_W) +
-                                                     gains_.b_ns_m * v_dev_[j]);
-    b_.segment<3>(6 * j + 3) =
-        I_W * w_[j] + dt * (gains_.k_nm_rad * hand::rotation_difference(device_[j].q_W, proxy_[j].q_W) +
-                            gains_.b_nms_rad * w_dev_[j]);
+    // The coupling saturates at the device's limits (issue 17, item 3): the proxy, and through it the
+    // hand, is never pulled harder than the device can push back (reply() clamps the same wrench), so a
+    // user pressing past the limit moves the device, not the hand through the object. The explicit
+    // wrench at the tick's start is scaled down to the limit; A keeps the full b + h k (the tick's
+    // matrix does not change), which only damps the proxy's velocity change within the tick.
+    const Eigen::Vector3d f_c = gains_.k_n_m * (device_[j].p_W - proxy_[j].p_W) + gains_.b_ns_m * (v_dev_[j] - v_[j]);
+    const Eigen::Vector3d tau_c =
+        gains_.k_nm_rad * hand::rotation_difference(device_[j].q_W, proxy_[j].q_W) + gains_.b_nms_rad * (w_dev_[j] - w_[j]);
+    const double f_max = limits_.max_force_n / map_.scale;
+    const double sat = f_c.norm() > f_max ? f_max / f_c.norm() : 1.0;
+    const double sat_rot = tau_c.norm() > limits_.max_torque_nm ? limits_.max_torque_nm / tau_c.norm() : 1.0;
+    b_.segment<3>(6 * j) = mass_[j] * v_[j] + dt * (sat * f_c + gains_.b_ns_m * v_[j]);
+    b_.segment<3>(6 * j + 3) = I_W * w_[j] + dt * (sat_rot * tau_c + gains_.b_nms_rad * w_[j]);
     if (safe > 0) {
       // The safe model, implicit like the coupling: spring and damper toward the device.
       const double k = safe * safe_k_n_m_, b = safe * safe_b_ns_m_[j];
@@ -327,6 +336,7 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
     ok = v_next_.allFinite();
     for (int j = 0; ok && j < handles_; ++j) ok = v_next_.segment<3>(6 * j).norm() < kMaxProxySpeed_m_s;
   }
+  if (ok && use_model) limit_to_clearance(model, dt);
   if (!ok) {
     // Safety (DESIGN.md section 5): a non-finite or absurd state never propagates;
     // the proxies restart on the device and the force drops to zero at once.
@@ -334,10 +344,45 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
     return;
   }
   for (int j = 0; j < handles_; ++j) {
-    v_[j] = v_next_.segment<3>(6 * j);
-    w_[j] = v_next_.segment<3>(6 * j + 3);
+    // The passivity controller's damping on the proxy's side (reply()), implicit: it only slows
+    // the proxy, so it takes energy out whatever the coupling between handles.
+    const double b_W = passivity_b_[j] / (map_.scale * map_.scale);
+    const double b_rot = passivity_b_[j] * kPassivityRotationWeight_m2;
+    v_[j] = v_next_.segment<3>(6 * j) / (1.0 + dt * b_W / mass_[j]);
+    w_[j] = v_next_.segment<3>(6 * j + 3) / (1.0 + dt * b_rot * 3.0 / inertia_B_[j].trace());
     proxy_[j].p_W += dt * v_[j];
     proxy_[j].q_W = hand::rotate_by(proxy_[j].q_W, dt * w_[j]);
+  }
+}
+
+void ProxyHand::limit_to_clearance(const HapticModel& model, double dt) {
+  // The model knows the contacts its step found and nothing beyond them: carried past the nearest
+  // skin point that is not one of them, the proxy could pass through a surface (a hard press that
+  // slides off a body and falls onto the table within one slow visual step), and the world, driven
+  // to it, would follow. Each plane bounds how far the handle's displacement from x0 closes its gap;
+  // a velocity that would pass one is scaled down, the handle's whole velocity, so that kinetic
+  // energy only goes down (pushing back along the normal instead would spin a phalanx proxy, whose
+  // rotational inertia is tiny, when a turn closes the gap).
+  for (int j = 0; j < handles_; ++j) {
+    const int planes = std::min(model.clearance_count[j], hand::kClearancePlanes);
+    if (planes <= 0) continue;
+    const Eigen::Vector3d dx = proxy_[j].p_W - model.x0[j].p_W;
+    const Eigen::Vector3d dtheta = hand::rotation_difference(proxy_[j].q_W, model.x0[j].q_W);
+    const Eigen::Vector3d v = v_next_.segment<3>(6 * j), w = v_next_.segment<3>(6 * j + 3);
+    double keep = 1.0;
+    for (int k = 0; k < planes; ++k) {
+      const hand::ClearancePlane& c = model.clearance[j][k];
+      // How much a displacement closes the gap: -n . (dx + dtheta x r).
+      const Eigen::Vector3d g_lin = -c.n_W, g_rot = -c.r_W.cross(c.n_W);
+      const double closed = g_lin.dot(dx) + g_rot.dot(dtheta);
+      const double rate = g_lin.dot(v) + g_rot.dot(w);
+      const double room = std::max(c.gap_m, closed) - closed;  // a handle already past may only come back
+      if (rate * dt > room) keep = std::min(keep, room / (rate * dt));
+    }
+    if (keep < 1.0) {
+      v_next_.segment<6>(6 * j) *= keep;
+      ++clearance_limits_;
+    }
   }
 }
 
@@ -557,9 +602,11 @@ ReplyWrench ProxyHand::reply(int j, double output_scale, double dt_since_last_s)
   // Passivity controller: the damping that brings the observer's deficit back to zero this tick,
   // shared by the two channels in proportion to what each can take.
   const double v2 = v_D.squaredNorm() + kPassivityRotationWeight_m2 * w_D.squaredNorm();
+  passivity_b_[j] = 0;
   if (passivity_control_ && energy_in_[j] < -kPassivityBudget_J && v2 > kMinPassivitySpeed2_m2_s2) {
     const double b = std::min(-energy_in_[j] / (dt * v2), kMaxPassivityDamping_ns_m);
     damped_j_[j] += b * v2 * dt;
+    passivity_b_[j] = b;
     f -= b * v_D;  // at the handle, so about the frame's origin with its moment
     tau -= b * kPassivityRotationWeight_m2 * w_D + r_D.cross(b * v_D);
     ++passivity_actions_;

@@ -10,6 +10,8 @@
 #include <Eigen/LU>
 #include <cstdint>
 
+#include "hand_models/rigid_handle.hpp"
+
 namespace hapticd::haptic {
 
 constexpr int kMaxHapticHandles = 16;
@@ -93,6 +95,7 @@ struct TickContacts {
 
 // One hand's handle-space model as the visual loop publishes it.
 struct HapticModel {
+
   int handles = 0;  // 0: no model yet (the proxy then feels only the device)
   HapticVector F0;  // 6m, N and N m on each handle
   HapticMatrix K, D;
@@ -106,6 +109,10 @@ struct HapticModel {
   std::uint64_t t_end_ns = 0;
   double step_s = 0;  // the length of that step, s
   TickContacts contacts;
+  // Per handle, the nearest surfaces the model does not hold (WorldHand::clearance): the tick
+  // carries the handle from x0 no closer to them than their gaps.
+  hand::ClearancePlane clearance[kMaxHapticHandles][hand::kClearancePlanes];
+  int clearance_count[kMaxHapticHandles]{};
   // The hand's re-sync count the visual loop had applied (ProxyTargets::resyncs):
   // a model from before a re-sync describes the hand where it no longer is.
   std::uint32_t resyncs = 0;
@@ -225,7 +232,9 @@ class ProxyHand {
   // observer sums the work the device does on the rendering, and while the
   // rendering has given out more than it took by over kPassivityBudget_J (multi-rate
   // lag, gating, a model that changed under the finger) the reply adds the damping
-  // that takes the deficit back, up to kMaxPassivityDamping.
+  // that takes the deficit back, up to kMaxPassivityDamping. The same damping acts on the
+  // proxy at the next integrate(): the coupling saturates at the device's limits, so an active
+  // model could otherwise carry the proxy away from the device (a two-port controller).
   ReplyWrench reply(int j, double output_scale, double dt_since_last_s);
 
   // Puts every proxy on its device pose and zeroes velocities.
@@ -254,6 +263,8 @@ class ProxyHand {
   long contact_unconverged() const { return contact_unconverged_; }
   // Replies the passivity controller added damping to.
   long passivity_actions() const { return passivity_actions_; }
+  // Ticks at which a handle was held at its model's clearance (HapticModel::clearance).
+  long clearance_limits() const { return clearance_limits_; }
   // The passivity observer's energy of frame j: the work its device has done on the rendering, J.
   double energy_in(int j) const { return energy_in_[j]; }
   // The energy the controller's damping took back at frame j, J.
@@ -279,14 +290,19 @@ class ProxyHand {
   Eigen::Vector3d last_f_D_[kMaxHapticHandles], last_tau_D_[kMaxHapticHandles];
   double energy_in_[kMaxHapticHandles]{};  // passivity observer: work the device has done on the rendering, J
   double damped_j_[kMaxHapticHandles]{};
+  double passivity_b_[kMaxHapticHandles]{};  // the controller's last damping, device units N s/m
   bool passivity_control_ = true;
   long resets_ = 0, clamps_ = 0, passivity_actions_ = 0, solver_fallbacks_ = 0, solver_refinements_ = 0;
+  long clearance_limits_ = 0;
   // The prepared solve of A(tau) v = b (TickSolver), refined against the exact matrix; false
   // when it does not converge (v_next_ is then to be recomputed).
   bool solve_prepared(const HapticModel& model, double h, double tau);
   // y = A(tau)^-1 rhs through the prepared factors (TickSolver), into dv_.
   void apply_prepared(const TickSolver& s, double tau, const HapticVector& rhs);
   bool solver_matches(const TickSolver& s, double dt) const;
+  // Takes out of each handle's v_next_ what would carry it past its model's clearance planes
+  // (HapticModel::clearance): a handle already past one may only come back.
+  void limit_to_clearance(const HapticModel& model, double dt);
   // The model's contacts (TickContacts) on the contact-free answer v_next_: the impulses of this
   // tick into lambda_, v_next_ updated by weight times their effect; `dense`: lu_ holds A(tau).
   // False on a failure.

@@ -74,6 +74,11 @@ struct WorldHand : hand::FemHand {
   // The other hands' contact forces on the nodes over the last step, N, 3n
   // (World::step): with query only, else empty.
   Eigen::VectorXd f_hands_W;
+  // Per handle, at the last collision: the nearest static or rigid surfaces its part of the skin
+  // could reach that are not among its contacts, measured up to 5 cm, at most kClearancePlanes
+  // (hand::ClearancePlane, nearest first in each direction): the haptic tick carries the handle no
+  // farther before the next step finds them. Deformable objects and other hands are not measured.
+  std::vector<std::vector<hand::ClearancePlane>> clearance;
 };
 
 // One contact of a point of flesh: a hand's skin point (hand >= 0) or a

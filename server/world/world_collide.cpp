@@ -15,6 +15,9 @@ constexpr double kSpeculativeMargin_m = 0.002;
 // The farthest a point is looked for ahead of a surface, whatever its speed (a teleport would
 // otherwise make every point near every object a contact of the step).
 constexpr double kMaxReach_m = 0.05;
+// The least a clearance plane lets a handle come toward a surface within one visual step: thinner
+// than any object it guards against passing through, more than the speculative margin.
+constexpr double kClearanceFloor_m = 0.005;
 // A cell's constraint contact moves to another point only when that one is deeper by this much.
 constexpr double kClusterHysteresis_m = 1e-4;
 
@@ -35,6 +38,39 @@ std::uint64_t cluster_key(int object, const Eigen::Vector3d& p_W, double cell_m)
 // A point embedded in a tet of `mesh` by barycentric weights w, at nodal values x (positions or velocities).
 Eigen::Vector3d embedded_at(const hand::TetMesh& mesh, const Eigen::VectorXd& x, int tet, const Eigen::Vector4d& w) {
   return hand::embedded_value(mesh.tets[tet], w, x);
+}
+
+// A bound on the speed of rigid object g's points (0 for a static one), from its AABB.
+double speed_bound(const RigidWorld& rigid, int g, const dReal aabb[6]) {
+  if (!rigid.is_dynamic(g)) return 0.0;
+  const RigidBodyState body = rigid.state(g);
+  const double radius = 0.5 * Eigen::Vector3d(aabb[1] - aabb[0], aabb[3] - aabb[2], aabb[5] - aabb[4]).norm();
+  return body.v_WO.norm() + body.w_W.norm() * radius;
+}
+
+// Skin point i of the hand, at p, is `gap` from a surface with normal n (out of it) and not a
+// contact: it becomes one of its handle's clearance planes if it is the nearest in its direction.
+void note_clearance(WorldHand& hand, int i, const Eigen::Vector3d& p, const Eigen::Vector3d& n, double gap) {
+  const int j = hand.skin_handle(i);
+  if (j < 0 || j >= static_cast<int>(hand.clearance.size()) || !n.allFinite()) return;
+  std::vector<hand::ClearancePlane>& planes = hand.clearance[static_cast<std::size_t>(j)];
+  // At least kClearanceFloor_m: a point just outside would otherwise hold its handle off the surface
+  // it is about to touch (with penalty contact, which has no speculative rows, no step would find
+  // it), and a hand closing faster than its gaps per visual step would lag its device.
+  gap = std::max(gap, kClearanceFloor_m);
+  const hand::ClearancePlane plane{n, p - hand.handles()[static_cast<std::size_t>(j)].p_WH, gap};
+  hand::ClearancePlane* farthest = nullptr;
+  for (hand::ClearancePlane& c : planes) {
+    if (c.n_W.dot(n) > hand::kClearanceSpread) {  // the same direction: the nearer stays
+      if (gap < c.gap_m) c = plane;
+      return;
+    }
+    if (!farthest || c.gap_m > farthest->gap_m) farthest = &c;
+  }
+  if (static_cast<int>(planes.size()) < hand::kClearancePlanes)
+    planes.push_back(plane);
+  else if (gap < farthest->gap_m)
+    *farthest = plane;
 }
 
 }  // namespace
@@ -143,18 +179,21 @@ void World::collide(SoftBody& b) {
   // of a finger driven into the table to a few millimetres' penetration (WorldGloveHardCases).
   const bool free_body = b.hand < 0;
   const double h = step_dt_, fall = 0.5 * gravity_m_s2_.norm() * h;
+  // A hand's points farther than their reach are still measured up to kMaxReach_m: the smallest
+  // such gap per handle is how far the haptic tick may carry that handle before a contact the
+  // model does not hold could begin (WorldHand::clearance_m).
+  WorldHand* world_hand = free_body ? nullptr : hands_[b.hand].get();
+  if (world_hand) {
+    world_hand->clearance.resize(world_hand->handles().size());
+    for (std::vector<hand::ClearancePlane>& planes : world_hand->clearance) planes.clear();
+  }
   std::vector<int> body_of_object(rigid_ ? rigid_->num_objects() : 0, -1);
   for (int g = 0; rigid_ && g < rigid_->num_objects(); ++g) {
     dGeomID geom = rigid_->geom(g);
     dReal aabb[6];
     const bool bounded = dGeomGetClass(geom) != dPlaneClass;
     if (bounded) dGeomGetAABB(geom, aabb);
-    double object_speed = 0;  // a bound on the speed of the object's points
-    if (bounded && rigid_->is_dynamic(g)) {
-      const RigidBodyState body = rigid_->state(g);
-      const double radius = 0.5 * Eigen::Vector3d(aabb[1] - aabb[0], aabb[3] - aabb[2], aabb[5] - aabb[4]).norm();
-      object_speed = body.v_WO.norm() + body.w_W.norm() * radius;
-    }
+    const double object_speed = bounded ? speed_bound(*rigid_, g, aabb) : 0.0;
     for (size_t v = 0; v < point_tet.size(); ++v) {
       const hand::Tet& t = mesh.tets[point_tet[v]];
       const Eigen::Vector4d& w = point_bary[v];
@@ -162,17 +201,26 @@ void World::collide(SoftBody& b) {
       for (int k = 0; k < 4; ++k) p += w[k] * s.x.segment<3>(3 * t[k]), p_v += w[k] * s.v.segment<3>(3 * t[k]);
       const double reach = free_body ? std::min(kSpeculativeMargin_m + (p_v.norm() + object_speed + fall) * h, kMaxReach_m)
                                      : (constraint_contact_ ? kSpeculativeMargin_m : 0.0);
+      const double look = world_hand ? kMaxReach_m : reach;
       LastContact& last = b.last[v];
-      if (bounded && (p.x() < aabb[0] - reach || p.x() > aabb[1] + reach || p.y() < aabb[2] - reach ||
-                      p.y() > aabb[3] + reach || p.z() < aabb[4] - reach || p.z() > aabb[5] + reach)) {
+      // The point's distance to the object's box (0 inside it), a lower bound of its distance to
+      // the object, and the direction from the box to it.
+      Eigen::Vector3d box_offset = Eigen::Vector3d::Zero();
+      if (bounded)
+        for (int k = 0; k < 3; ++k) box_offset[k] = std::max(0.0, p[k] - aabb[2 * k + 1]) - std::max(0.0, aabb[2 * k] - p[k]);
+      const double box_gap = box_offset.norm();
+      if (box_gap > reach) {
         if (last.object == g) last = LastContact{};
+        if (world_hand && box_gap < look) note_clearance(*world_hand, static_cast<int>(v), p, box_offset / box_gap, box_gap);
         continue;
       }
       double depth;
       Eigen::Vector3d n;
       const Eigen::Vector3d entry = last.object == g ? last.n_W : Eigen::Vector3d::Zero();
-      if (!rigid_->penetration(g, p, depth, n, entry, reach)) {
+      const bool near = rigid_->penetration(g, p, depth, n, entry, look);
+      if (!near || depth <= -reach) {
         if (last.object == g) last = LastContact{};
+        if (world_hand && near) note_clearance(*world_hand, static_cast<int>(v), p, n, -depth);
         continue;
       }
       last = LastContact{g, n};
@@ -201,11 +249,18 @@ void World::collide(SoftBody& b) {
   if (b.hand >= 0) collide_with_deformables(b, cluster);
   if (b.hand >= 0 && hand_hand_) collide_with_hands(b, cluster);
   if (b.hand >= 0 && hands_[b.hand]->query) collide_mesh_vertices(b, body_of_object, cluster);
-  // The bodies touched bring their own contacts (table, other bodies) as supports.
+  // The bodies touched bring their own contacts (table, other bodies) as supports: those found, and
+  // those remembered while the gap the body lifted off them is one the coming step can close (its
+  // speed and gravity over the step, as for a deformable object's points). With only 2 mm, a
+  // bunny pressed by the hand that had bounced 2.4 mm off the table at a 67 ms step was solved, and
+  // linearized for the haptic loop, with nothing under it: the hand drove it 1 cm into the table.
   std::vector<RigidWorld::BodyContact> found;
   for (int g = 0; rigid_ && g < rigid_->num_objects(); ++g) {
     if (body_of_object[g] < 0) continue;
-    rigid_->supports_of(g, found, kSpeculativeMargin_m);
+    dReal aabb[6];
+    dGeomGetAABB(rigid_->geom(g), aabb);
+    const double reach = std::min(kSpeculativeMargin_m + (speed_bound(*rigid_, g, aabb) + fall) * h, kMaxReach_m);
+    rigid_->supports_of(g, found, reach);
     for (const RigidWorld::BodyContact& bc : found) {
       hand::BodySupport support;
       support.body = body_of_object[g];

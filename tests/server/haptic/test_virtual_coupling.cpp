@@ -213,6 +213,70 @@ TEST(VirtualCoupling, PassivityControllerStaysOutOfAPassiveContact) {
   EXPECT_GE(p.energy_in(0), 0.0);
 }
 
+// A device pushed 10 cm (device space) into a wall far stiffer than itself: unsaturated, the coupling
+// would press the proxy into the wall with k_W x 20 cm = 50 N (world) while the device feels its
+// 8 N limit. Saturated at that limit on both sides (issue 17, item 3), the wall holds the proxy
+// with the force the device renders, through the map: F_W = f_D / s = 4 N.
+TEST(VirtualCoupling, TheCouplingPullsTheProxyNoHarderThanTheDeviceCanPushBack) {
+  DeviceMap map;
+  map.scale = 2.0;
+  const DeviceLimits limits;  // 8 N
+  ProxyHand p = make_proxy(map, 1000.0, limits);
+  const double k_wall = 1e5;
+  const HapticModel wall = wall_model(k_wall, 5.0);
+  double t = 0;
+  hold(p, wall, Eigen::Vector3d(0, 0, 0.01), 0.2, t);
+  const ReplyWrench r = hold(p, wall, Eigen::Vector3d(0, 0, -0.1), 2.0, t);
+  const double wall_force_W = -k_wall * p.proxy(0).p_W.z();  // what the wall pushes the proxy back with
+  std::printf("device feels %.3f N; the wall holds the proxy %.3f mm deep with %.3f N (world)\n", r.f_D.z(),
+              -1e3 * p.proxy(0).p_W.z(), wall_force_W);
+  EXPECT_NEAR(r.f_D.z(), limits.max_force_n, 1e-6);
+  EXPECT_NEAR(wall_force_W, limits.max_force_n / map.scale, 0.01 * limits.max_force_n / map.scale);
+}
+
+// A clearance plane (HapticModel::clearance: the nearest surface the model does not hold) 5 mm below
+// the anchor: the device pulled 10 cm under it, the proxy stops on it; pulled back up, it follows at
+// once. A plane 10 cm off the handle bounds its turn too: a turn by theta about y closes that gap by
+// 0.1 theta.
+TEST(VirtualCoupling, AClearancePlaneStopsTheProxyAtItsGapAndLetsItGoBack) {
+  HapticModel free_space = wall_model(0.0);
+  free_space.in_contact = false;
+  free_space.clearance_count[0] = 1;
+  free_space.clearance[0][0] = hand::ClearancePlane{Eigen::Vector3d::UnitZ(), Eigen::Vector3d::Zero(), 0.005};
+  ProxyHand p = make_proxy();
+  double t = 0, lowest = 0;
+  hold(p, free_space, Eigen::Vector3d::Zero(), 0.1, t);  // the first sample puts the proxy on the device
+  for (int k = 0; k < 1000; ++k) {
+    hold(p, free_space, Eigen::Vector3d(0, 0, -0.1), kPeriod, t);
+    lowest = std::min(lowest, p.proxy(0).p_W.z());
+  }
+  std::printf("lowest %.6f mm, %ld ticks held\n", 1e3 * lowest, p.clearance_limits());
+  EXPECT_GE(lowest, -0.005 - 1e-9);
+  EXPECT_NEAR(p.proxy(0).p_W.z(), -0.005, 1e-6);
+  EXPECT_GT(p.clearance_limits(), 0);
+  hold(p, free_space, Eigen::Vector3d(0, 0, 0.05), 1.0, t);
+  EXPECT_NEAR(p.proxy(0).p_W.z(), 0.05, 1e-4) << "moving away from the plane is free";
+
+  HapticModel turning = free_space;
+  turning.clearance[0][0].r_W = Eigen::Vector3d(0.1, 0, 0);
+  ProxyHand q = make_proxy();
+  t = 0;
+  hold(q, turning, Eigen::Vector3d::Zero(), 0.1, t);
+  const Eigen::Quaterniond turned(Eigen::AngleAxisd(0.2, Eigen::Vector3d::UnitY()));
+  double widest = 0;
+  for (int k = 0; k < 2000; ++k) {
+    t += kPeriod;
+    q.set_device_pose(0, Eigen::Vector3d::Zero(), turned);
+    q.commit_sample(t, 0.05);
+    q.reply(0, 1.0, kPeriod);
+    q.integrate(turning, kPeriod);
+    widest = std::max(widest, hand::rotation_difference(q.proxy(0).q_W, Eigen::Quaterniond::Identity()).y());
+  }
+  std::printf("turned at most %.5f rad of the device's 0.2\n", widest);
+  EXPECT_LE(0.1 * widest, 0.005 + 1e-6);
+  EXPECT_GT(0.1 * widest, 0.0045) << "it turns up to the plane";
+}
+
 TEST(VirtualCoupling, ForceNeverExceedsTheLimitAndItsRateOfChangeIsBounded) {
   DeviceLimits limits{3.0, 0.2, 500.0};
   ProxyHand p = make_proxy({}, 1000.0, limits);

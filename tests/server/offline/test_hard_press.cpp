@@ -1,16 +1,25 @@
 // No sinking (issue 17, item 3): the simulated stylus pressed into the bunny with five times its
 // 8 N force limit for 3 s, then released, closed loop through the lockstep runner with the scene's
 // constraint contact and the passivity controller on, at visual rates of 60 and 15 Hz, on the
-// movable and on the fixed bunny. While held, the hand's skin stays within 2 mm of the surface and
-// the device is pushed back out (up), not pulled in; a second after the release nothing is felt or
-// flagged; nothing resets; no energy goes into the device.
+// movable and on the fixed bunny.
 //
-// A known fault of issue 17, run by tests/CMakeLists.txt as one ctest expected to fail. Measured
-// when it was written: movable bunny at 60 Hz, 0.37 mm while held but 0.24 N a second after the
-// release; at 15 Hz 40 mm, 458 resets, +1.02 J, and -8 N with InContact after the release; fixed
-// bunny 196 mm (60 Hz) and 677 mm (15 Hz) deep: the hand went through the bunny and the table and was
-// held under it at -8 N. The coupling spring pulls the proxy, and through it the hand, with ~100 N
-// (world) while the device renders at most 8 N.
+// HardPress: the hand never reaches the table under the bunny: its skin stays above the table's top (2 mm of
+// penetration aside) and the device is pushed back out (up), never pulled in; nothing resets; no
+// energy goes into the device; a second after the release nothing is flagged and less than 0.3 N
+// (the pull the issue allows after a lift) is felt. When it was written as one strict test, the
+// hand went 196 mm (60 Hz) and 677 mm (15 Hz) deep through the fixed bunny and the table and was
+// held under it at -8 N, and at 15 Hz the movable bunny was thrown and the proxy reset 458 times:
+// the coupling pulled the proxy, and through it the hand, with ~100 N (world) while the device
+// rendered at most 8 N; the haptic model lost the bunny's supports (a 2.4 mm bounce off the table
+// at a 67 ms step, then more hand contacts than its rows); and a proxy that slid off the bunny fell
+// through the table within one visual step. Fixed by the coupling's saturation, the supports' reach
+// and share of the rows, and the tick's clearance planes (ProxyHand::limit_to_clearance).
+//
+// Issue17KnownFault/HardPressDepth (one ctest expected to fail, tests/CMakeLists.txt): the issue's
+// bound of 2 mm of skin penetration while held and no force a second after the release (0.05 N).
+// Measured: the movable bunny at 15 Hz 10.9 mm (it tilts and rocks under the press between steps);
+// at 60 Hz 0.15 N a second after the release (the served hand's slow settling, as in
+// Issue17KnownFault/PressHoldLiftForces).
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -36,14 +45,25 @@ std::string hard_press_name(const ::testing::TestParamInfo<HardPressCase>& info)
          std::to_string(static_cast<int>(std::lround(1.0 / (info.param.visual_every_ticks * kPeriod)))) + "Hz";
 }
 
-class HardPress : public ::testing::TestWithParam<HardPressCase> {};
+// The measurements of one hard press.
+struct HardPressRun {
+  double deepest_m = 0;          // the deepest skin point of the world's contacts while held
+  double lowest_skin_z_m = 1e9;  // the lowest skin point of the hand, ever
+  double table_top_z_m = 0;
+  double pulled_in_n = 0;        // the largest force into the object (down) while held
+  double after_n = 0;            // the largest force a second after the release
+  bool flagged = false;          // InContact a second after the release
+  long resets = 0;
+  double energy_j = 0;
+};
 
-TEST_P(HardPress, FiveTimesTheForceLimitLeavesTheSkinOnTheSurfaceAndTheDevicePushedOut) {
-  const HardPressCase& c = GetParam();
+HardPressRun run_hard_press(const HardPressCase& c) {
   world::SceneDesc scene = world::load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json");
-  if (!c.movable)
-    for (world::ObjectDesc& o : scene.objects)
-      if (o.name == "bunny") o.kind = world::BodyKind::static_body;
+  HardPressRun out;
+  for (world::ObjectDesc& o : scene.objects) {
+    if (!c.movable && o.name == "bunny") o.kind = world::BodyKind::static_body;
+    if (o.name == "table") out.table_top_z_m = o.pose.p_W.z() + 0.5 * o.shape.size.z();
+  }
   OfflineOptions options;
   options.visual_every_ticks = c.visual_every_ticks;
   options.settle_s = 0.5;
@@ -64,34 +84,59 @@ TEST_P(HardPress, FiveTimesTheForceLimitLeavesTheSkinOnTheSurfaceAndTheDevicePus
   SimulatedStylus stylus(start, [&command](double t) { return Eigen::Vector3d(0, 0, command(t)); }, kPeriod);
   const long ticks = std::lround(6.5 / kPeriod);
   const long hold_start = std::lround(1.3 / kPeriod), hold_end = std::lround(4.3 / kPeriod);
-  double deepest = 0, pulled_in = 0, after = 0;
-  // The deepest skin point of the world's contacts while held (WorldSnapshot::max_penetration_m).
+  long seen_step = -1;
   const OfflineTrace trace = run_offline(loops, stylus, ticks, [&](long tick) {
-    if (tick >= hold_start && tick < hold_end) deepest = std::max(deepest, loops.world().snapshot().max_penetration_m);
+    const world::World& world = loops.world();
+    if (tick >= hold_start && tick < hold_end) out.deepest_m = std::max(out.deepest_m, world.snapshot().max_penetration_m);
+    if (world.snapshot().step == seen_step) return;  // the skin moves only with the world's steps
+    seen_step = world.snapshot().step;
+    for (int i = 0; i < world.hand(0).num_skin_points(); ++i)
+      out.lowest_skin_z_m = std::min(out.lowest_skin_z_m, world.hand(0).skin_point(i).z());
   });
-  ASSERT_EQ(static_cast<long>(trace.replies.size()), ticks);
-  bool flagged = false;
-  for (long k = hold_start; k < hold_end; ++k) pulled_in = std::max(pulled_in, -trace.replies[k].wrench[0].f_D.z());
+  EXPECT_EQ(static_cast<long>(trace.replies.size()), ticks);
+  if (static_cast<long>(trace.replies.size()) != ticks) return out;
+  for (long k = hold_start; k < hold_end; ++k) out.pulled_in_n = std::max(out.pulled_in_n, -trace.replies[k].wrench[0].f_D.z());
   for (long k = std::lround(6.3 / kPeriod); k < ticks; ++k) {
-    after = std::max(after, trace.replies[k].wrench[0].f_D.norm());
-    flagged = flagged || trace.replies[k].in_contact[0];
+    out.after_n = std::max(out.after_n, trace.replies[k].wrench[0].f_D.norm());
+    out.flagged = out.flagged || trace.replies[k].in_contact[0];
   }
-  std::printf("%s at %d ticks: deepest skin point %.2f mm while held, largest pull in %.2f N, a second after the "
-              "release %.3f N%s, resets %ld, energy %+.4f J\n",
-              c.movable ? "movable bunny" : "fixed bunny", c.visual_every_ticks, 1e3 * deepest, pulled_in, after,
-              flagged ? " InContact" : "", trace.resets, stylus.energy_j());
-  EXPECT_LE(deepest, 2e-3);
-  EXPECT_LE(pulled_in, 0.0) << "the device was pulled into the object";
-  EXPECT_LE(after, 0.05);
-  EXPECT_FALSE(flagged);
-  EXPECT_EQ(trace.resets, 0);
-  EXPECT_LE(stylus.energy_j(), 0.0);
+  out.resets = trace.resets;
+  out.energy_j = stylus.energy_j();
+  std::printf("%s at %d ticks: deepest skin point %.2f mm while held, lowest skin point %.1f mm above the table top, "
+              "largest pull in %.2f N, a second after the release %.3f N%s, resets %ld, energy %+.4f J\n",
+              c.movable ? "movable bunny" : "fixed bunny", c.visual_every_ticks, 1e3 * out.deepest_m,
+              1e3 * (out.lowest_skin_z_m - out.table_top_z_m), out.pulled_in_n, out.after_n,
+              out.flagged ? " InContact" : "", out.resets, out.energy_j);
+  return out;
 }
 
-INSTANTIATE_TEST_SUITE_P(Issue17KnownFault, HardPress,
-                         ::testing::Values(HardPressCase{true, 17}, HardPressCase{true, 67}, HardPressCase{false, 17},
-                                           HardPressCase{false, 67}),
-                         hard_press_name);
+const auto kHardPressCases = ::testing::Values(HardPressCase{true, 17}, HardPressCase{true, 67},
+                                               HardPressCase{false, 17}, HardPressCase{false, 67});
+
+class HardPress : public ::testing::TestWithParam<HardPressCase> {};
+
+TEST_P(HardPress, FiveTimesTheForceLimitNeverReachesTheTableAndPushesTheDeviceOut) {
+  const HardPressRun r = run_hard_press(GetParam());
+  ASSERT_GT(r.table_top_z_m, 0.5) << "the scene has its table";
+  EXPECT_GE(r.lowest_skin_z_m, r.table_top_z_m - 2e-3) << "the hand went into or through the table";
+  EXPECT_LE(r.pulled_in_n, 0.0) << "the device was pulled into the object";
+  EXPECT_LE(r.after_n, 0.3);
+  EXPECT_FALSE(r.flagged);
+  EXPECT_EQ(r.resets, 0);
+  EXPECT_LE(r.energy_j, 0.0);
+}
+
+INSTANTIATE_TEST_SUITE_P(Touch, HardPress, kHardPressCases, hard_press_name);
+
+class HardPressDepth : public ::testing::TestWithParam<HardPressCase> {};
+
+TEST_P(HardPressDepth, FiveTimesTheForceLimitLeavesTheSkinOnTheSurfaceAndNothingFeltAfterTheRelease) {
+  const HardPressRun r = run_hard_press(GetParam());
+  EXPECT_LE(r.deepest_m, 2e-3);
+  EXPECT_LE(r.after_n, 0.05);
+}
+
+INSTANTIATE_TEST_SUITE_P(Issue17KnownFault, HardPressDepth, kHardPressCases, hard_press_name);
 
 }  // namespace
 }  // namespace hapticd::offline
