@@ -1,0 +1,71 @@
+#!/usr/bin/env bash
+# Issue 17 through the real server on a loaded machine: hapticd on the shipped stylus scene (the
+# movable 0.2 kg bunny on the table, the default demo) and haptic-device pressing the palm 1 cm
+# into the bunny, holding 2 s and lifting 4 cm away in 0.5 s, while a CPU-bound process competes
+# for one of the two cores. Before the issue's fixes, 2 of 4 such runs with both cores busy left the
+# stylus glued: a steady -7.35 N toward the bunny, InContact, for the 4 s after the lift.
+# Asserts: the rendering put no energy into the device; from a second after the lift, nothing
+# flagged InContact and no force above 0.3 N (the pull the issue allows after a lift; the glue was
+# 7.35 N); no proxy or hand resets; the stylus touched. The largest pull toward the bunny while
+# lifting is printed, not asserted: the issue's 0.3 N bound there fails in the lockstep runner too
+# (Issue17KnownFault/PressHoldLiftForces: the served hand's own inertia).
+# Usage: press_hold_lift_busy.sh BIN_DIR SCENE
+set -euo pipefail
+bin=$1
+scene=$2
+seconds=7
+work=$(mktemp -d)
+server_pid=""
+busy_pid=""
+trap 'kill "$server_pid" "$busy_pid" 2>/dev/null || true; rm -rf "$work"' EXIT
+source "$(dirname "$0")/lib.sh"
+
+# Device space (scale 2 in the scene): the palm handle starts 3 cm up and meets the bunny ~1 cm down.
+cat > "$work/press_hold_lift.csv" <<'CSV'
+t_s,x_m,y_m,z_m
+0,0,0,0.03
+0.5,0,0,0.03
+1.5,0,0,0.01
+3.5,0,0,0.01
+4.0,0,0,0.05
+7.0,0,0,0.05
+CSV
+lift_end=4.0
+
+bash -c 'while :; do :; done' &
+busy_pid=$!
+start_hapticd "$bin" "$scene" "$seconds" "$work"
+"$bin/haptic-device" --server "127.0.0.1:$port" --device stylus --trajectory "$work/press_hold_lift.csv" \
+  --rate 1000 --duration "$seconds" --report "$work/device.json" --trace "$work/trace.csv"
+kill "$busy_pid"
+busy_pid=""
+kill -INT "$server_pid"
+wait "$server_pid"
+
+python3 - "$work/device.json" "$work/server.json" "$work/trace.csv" "$lift_end" <<'PY'
+import csv, json, sys
+d = json.load(open(sys.argv[1]))
+s = json.load(open(sys.argv[2]))
+lift_end = float(sys.argv[4])
+rows = [{k: float(v) for k, v in r.items()} for r in csv.DictReader(open(sys.argv[3]))]
+touched = [r for r in rows if r["in_contact"]]
+first_contact_z = touched[0]["p_z_m"] if touched else None
+# While lifting: once the command is above the height of first contact, the largest force toward the bunny.
+pull = max((-r["f_z_n"] for r in rows if first_contact_z is not None and r["t_s"] > 3.5 and r["pc_z_m"] > first_contact_z), default=0.0)
+after = [r for r in rows if r["t_s"] >= lift_end + 1.0]
+after_force = max(((r["f_x_n"] ** 2 + r["f_y_n"] ** 2 + r["f_z_n"] ** 2) ** 0.5 for r in after), default=float("nan"))
+after_flagged = sum(1 for r in after if r["in_contact"])
+print(f"visual {s['visual']['rate_hz_achieved']:.1f} Hz with one core busy; energy {d['passivity_energy_j']:+.2e} J; "
+      f"first contact at {1e3 * first_contact_z if first_contact_z is not None else float('nan'):.1f} mm; "
+      f"largest pull while lifting {max(pull, 0.0):.3f} N; a second after the lift {after_force:.3f} N, "
+      f"{after_flagged} ticks InContact; resets proxy {s['proxy_resets']} hand {s['visual']['hand_resets']}")
+failures = []
+if not touched: failures.append("the stylus never touched the bunny")
+if not d["passivity_energy_j"] <= 0: failures.append(f"the rendering put {d['passivity_energy_j']} J into the device")
+if not after: failures.append("the run ended before a second after the lift")
+if not after_force <= 0.3: failures.append(f"{after_force} N a second after the lift (glued)")
+if after_flagged: failures.append(f"InContact for {after_flagged} ticks a second after the lift")
+if s["proxy_resets"] or s["visual"]["hand_resets"]: failures.append("resets")
+if failures:
+    print("FAILED: " + "; ".join(failures)); sys.exit(1)
+PY
