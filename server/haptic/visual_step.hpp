@@ -50,7 +50,7 @@ void fill_haptic_model(world::World& world, int h, hand::HandleLinearization& li
 // prepare_tick_solver); false when they do not fit or are not finite.
 bool set_tick_contacts(const hand::HandleContactModel& in, int handles, TickContacts& out);
 // Only its contact flags (in_contact, handle_in_contact) from the world's last contacts, and each
-// handle's clearance and arm (WorldHand::clearance_m) from its last collision.
+// handle's clearance planes (WorldHand::clearance) from its last collision.
 void fill_contact_flags(const world::World& world, int h, HapticModel& out);
 
 // Handle j of hand h's target for a world that simulates up to `until_ns`: the proxy extrapolated

@@ -181,7 +181,7 @@ void World::collide(SoftBody& b) {
   const double h = step_dt_, fall = 0.5 * gravity_m_s2_.norm() * h;
   // A hand's points farther than their reach are still measured up to kMaxReach_m: the smallest
   // such gap per handle is how far the haptic tick may carry that handle before a contact the
-  // model does not hold could begin (WorldHand::clearance_m).
+  // model does not hold could begin (WorldHand::clearance).
   WorldHand* world_hand = free_body ? nullptr : hands_[b.hand].get();
   if (world_hand) {
     world_hand->clearance.resize(world_hand->handles().size());
