@@ -258,8 +258,8 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
     // wrench at the tick's start is scaled down to the limit; A keeps the full b + h k (the tick's
     // matrix does not change), which only damps the proxy's velocity change within the tick.
     const Eigen::Vector3d f_c = gains_.k_n_m * (device_[j].p_W - proxy_[j].p_W) + gains_.b_ns_m * (v_dev_[j] - v_[j]);
-    const Eigen::Vector3d tau_c =
-        gains_.k_nm_rad * hand::rotation_difference(device_[j].q_W, proxy_[j].q_W) + gains_.b_nms_rad * (w_dev_[j] - w_[j]);
+    const Eigen::Vector3d tau_c = gains_.k_nm_rad * hand::rotation_difference(device_[j].q_W, proxy_[j].q_W) +
+                                  gains_.b_nms_rad * (w_dev_[j] - w_[j]);
     const double f_max = limits_.max_force_n / map_.scale;
     const double sat = f_c.norm() > f_max ? f_max / f_c.norm() : 1.0;
     const double sat_rot = tau_c.norm() > limits_.max_torque_nm ? limits_.max_torque_nm / tau_c.norm() : 1.0;

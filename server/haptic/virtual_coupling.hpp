@@ -95,7 +95,6 @@ struct TickContacts {
 
 // One hand's handle-space model as the visual loop publishes it.
 struct HapticModel {
-
   int handles = 0;  // 0: no model yet (the proxy then feels only the device)
   HapticVector F0;  // 6m, N and N m on each handle
   HapticMatrix K, D;

@@ -199,19 +199,22 @@ void World::collide(SoftBody& b) {
       const Eigen::Vector4d& w = point_bary[v];
       Eigen::Vector3d p = Eigen::Vector3d::Zero(), p_v = Eigen::Vector3d::Zero();
       for (int k = 0; k < 4; ++k) p += w[k] * s.x.segment<3>(3 * t[k]), p_v += w[k] * s.v.segment<3>(3 * t[k]);
-      const double reach = free_body ? std::min(kSpeculativeMargin_m + (p_v.norm() + object_speed + fall) * h, kMaxReach_m)
-                                     : (constraint_contact_ ? kSpeculativeMargin_m : 0.0);
+      const double reach = free_body
+                               ? std::min(kSpeculativeMargin_m + (p_v.norm() + object_speed + fall) * h, kMaxReach_m)
+                               : (constraint_contact_ ? kSpeculativeMargin_m : 0.0);
       const double look = world_hand ? kMaxReach_m : reach;
       LastContact& last = b.last[v];
       // The point's distance to the object's box (0 inside it), a lower bound of its distance to
       // the object, and the direction from the box to it.
       Eigen::Vector3d box_offset = Eigen::Vector3d::Zero();
       if (bounded)
-        for (int k = 0; k < 3; ++k) box_offset[k] = std::max(0.0, p[k] - aabb[2 * k + 1]) - std::max(0.0, aabb[2 * k] - p[k]);
+        for (int k = 0; k < 3; ++k)
+          box_offset[k] = std::max(0.0, p[k] - aabb[2 * k + 1]) - std::max(0.0, aabb[2 * k] - p[k]);
       const double box_gap = box_offset.norm();
       if (box_gap > reach) {
         if (last.object == g) last = LastContact{};
-        if (world_hand && box_gap < look) note_clearance(*world_hand, static_cast<int>(v), p, box_offset / box_gap, box_gap);
+        if (world_hand && box_gap < look)
+          note_clearance(*world_hand, static_cast<int>(v), p, box_offset / box_gap, box_gap);
         continue;
       }
       double depth;
@@ -227,9 +230,10 @@ void World::collide(SoftBody& b) {
       const Eigen::Vector3d v_other = rigid_->point_velocity(g, p);
       // Outside: a contact only if it closes the gap within the step (its mean velocity toward the
       // surface over the step, under gravity, times the step; 2 mm more for what the step adds).
-      if (depth <= 0 && (!constraint_contact_ ||
-                         (free_body && -depth > kSpeculativeMargin_m +
-                                                    std::max(0.0, -(p_v - v_other + 0.5 * h * gravity_m_s2_).dot(n)) * h)))
+      if (depth <= 0 &&
+          (!constraint_contact_ ||
+           (free_body &&
+            -depth > kSpeculativeMargin_m + std::max(0.0, -(p_v - v_other + 0.5 * h * gravity_m_s2_).dot(n)) * h)))
         continue;
       hand::PointContact c;
       c.tet = point_tet[v];
@@ -319,7 +323,8 @@ bool World::mesh_overlaps(int g, const Eigen::AlignedBox3d& skin_bounds) const {
   dReal aabb[6];
   dGeomGetAABB(rigid_->geom(g), aabb);
   return Eigen::AlignedBox3d(skin_bounds.min() - grow, skin_bounds.max() + grow)
-      .intersects(Eigen::AlignedBox3d(Eigen::Vector3d(aabb[0], aabb[2], aabb[4]), Eigen::Vector3d(aabb[1], aabb[3], aabb[5])));
+      .intersects(
+          Eigen::AlignedBox3d(Eigen::Vector3d(aabb[0], aabb[2], aabb[4]), Eigen::Vector3d(aabb[1], aabb[3], aabb[5])));
 }
 
 int World::implicit_body(hand::HandState& s, std::vector<int>& body_of_object, int g) {

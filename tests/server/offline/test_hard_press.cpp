@@ -3,8 +3,8 @@
 // constraint contact and the passivity controller on, at visual rates of 60 and 15 Hz, on the
 // movable and on the fixed bunny.
 //
-// HardPress: the hand never reaches the table under the bunny: its skin stays above the table's top (2 mm of
-// penetration aside) and the device is pushed back out (up), never pulled in; nothing resets; no
+// HardPress: the hand never reaches the table under the bunny: its skin stays above the table's top
+// (2 mm of penetration aside) and the device is pushed back out (up), never pulled in; nothing resets; no
 // energy goes into the device; a second after the release nothing is flagged and less than 0.3 N
 // (the pull the issue allows after a lift) is felt. When it was written as one strict test, the
 // hand went 196 mm (60 Hz) and 677 mm (15 Hz) deep through the fixed bunny and the table and was
@@ -50,9 +50,9 @@ struct HardPressRun {
   double deepest_m = 0;          // the deepest skin point of the world's contacts while held
   double lowest_skin_z_m = 1e9;  // the lowest skin point of the hand, ever
   double table_top_z_m = 0;
-  double pulled_in_n = 0;        // the largest force into the object (down) while held
-  double after_n = 0;            // the largest force a second after the release
-  bool flagged = false;          // InContact a second after the release
+  double pulled_in_n = 0;  // the largest force into the object (down) while held
+  double after_n = 0;      // the largest force a second after the release
+  bool flagged = false;    // InContact a second after the release
   long resets = 0;
   double energy_j = 0;
 };
@@ -74,7 +74,8 @@ HardPressRun run_hard_press(const HardPressCase& c) {
   loops.frame_pose_at_handle(0, start, q);
   // The arm (sim::DeviceParams: 200 N/m) pushes 40 N once the command is 20 cm under the tip; the
   // palm meets the bunny ~1 cm down. Ramped in 1 s, held 3 s, released in 1 s to 2 cm above the start.
-  const double limit_n = scene.devices[0].max_force_n, deep = 0.01 + 5 * limit_n / sim::DeviceParams{}.arm_stiffness_n_per_m;
+  const double limit_n = scene.devices[0].max_force_n,
+               deep = 0.01 + 5 * limit_n / sim::DeviceParams{}.arm_stiffness_n_per_m;
   const auto command = [deep](double t) {
     if (t < 0.3) return 0.0;
     if (t < 1.3) return -deep * (t - 0.3);
@@ -87,7 +88,8 @@ HardPressRun run_hard_press(const HardPressCase& c) {
   long seen_step = -1;
   const OfflineTrace trace = run_offline(loops, stylus, ticks, [&](long tick) {
     const world::World& world = loops.world();
-    if (tick >= hold_start && tick < hold_end) out.deepest_m = std::max(out.deepest_m, world.snapshot().max_penetration_m);
+    if (tick >= hold_start && tick < hold_end)
+      out.deepest_m = std::max(out.deepest_m, world.snapshot().max_penetration_m);
     if (world.snapshot().step == seen_step) return;  // the skin moves only with the world's steps
     seen_step = world.snapshot().step;
     for (int i = 0; i < world.hand(0).num_skin_points(); ++i)
@@ -95,18 +97,20 @@ HardPressRun run_hard_press(const HardPressCase& c) {
   });
   EXPECT_EQ(static_cast<long>(trace.replies.size()), ticks);
   if (static_cast<long>(trace.replies.size()) != ticks) return out;
-  for (long k = hold_start; k < hold_end; ++k) out.pulled_in_n = std::max(out.pulled_in_n, -trace.replies[k].wrench[0].f_D.z());
+  for (long k = hold_start; k < hold_end; ++k)
+    out.pulled_in_n = std::max(out.pulled_in_n, -trace.replies[k].wrench[0].f_D.z());
   for (long k = std::lround(6.3 / kPeriod); k < ticks; ++k) {
     out.after_n = std::max(out.after_n, trace.replies[k].wrench[0].f_D.norm());
     out.flagged = out.flagged || trace.replies[k].in_contact[0];
   }
   out.resets = trace.resets;
   out.energy_j = stylus.energy_j();
-  std::printf("%s at %d ticks: deepest skin point %.2f mm while held, lowest skin point %.1f mm above the table top, "
-              "largest pull in %.2f N, a second after the release %.3f N%s, resets %ld, energy %+.4f J\n",
-              c.movable ? "movable bunny" : "fixed bunny", c.visual_every_ticks, 1e3 * out.deepest_m,
-              1e3 * (out.lowest_skin_z_m - out.table_top_z_m), out.pulled_in_n, out.after_n,
-              out.flagged ? " InContact" : "", out.resets, out.energy_j);
+  std::printf(
+      "%s at %d ticks: deepest skin point %.2f mm while held, lowest skin point %.1f mm above the table top, "
+      "largest pull in %.2f N, a second after the release %.3f N%s, resets %ld, energy %+.4f J\n",
+      c.movable ? "movable bunny" : "fixed bunny", c.visual_every_ticks, 1e3 * out.deepest_m,
+      1e3 * (out.lowest_skin_z_m - out.table_top_z_m), out.pulled_in_n, out.after_n, out.flagged ? " InContact" : "",
+      out.resets, out.energy_j);
   return out;
 }
 
