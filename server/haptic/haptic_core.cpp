@@ -556,10 +556,13 @@ void HapticCore::on_pose(const protocol::PoseSample& pose, std::uint64_t now) {
   const DeviceLink& link = links_[s->link];
   const HapticModel& model = snapshots_.front().model[link.hand];
   // A gated frame whose part touches nothing is driven to zero through the slew limit (no step).
+  // A stale model's force fades out with its weight: the proxy stays on the model's surfaces
+  // (ProxyHand::integrate) while the device stops feeling them.
+  const double scale = s->output_scale * (model.handles == s->frames ? model_weight(link.hand) : 1.0);
   ReplyWrench replies[kMaxHapticHandles];
   for (int j = 0; j < s->frames; ++j) {
     const bool gated = link.contact_gated && !(model.handles == s->frames && model.handle_in_contact[j]);
-    replies[j] = s->proxy.reply(j, gated || s->lost[j] ? 0.0 : s->output_scale, since_reply);
+    replies[j] = s->proxy.reply(j, gated || s->lost[j] ? 0.0 : scale, since_reply);
   }
   if (link.output == ForceOutput::finger_lines) {
     HapticPose device_W[kMaxHapticHandles];

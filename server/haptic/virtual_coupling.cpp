@@ -228,7 +228,13 @@ bool ProxyHand::commit_sample(double t_s, double resync_gap_s) {
 void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_s, double model_weight) {
   if (handles_ == 0 || !have_device_) return;
   const double weight = std::clamp(model_weight, 0.0, 1.0);
-  const bool use_model = model.handles == handles_ && weight > 0;
+  // The model's contacts and clearance planes hold at any weight: they are where the world's
+  // surfaces are, and the world, which follows the proxies, must not be driven into them by a proxy
+  // that the safe model carried through (a stalled or failed world resumes there). The device does
+  // not feel them on a faded model: HapticCore scales its output by the weight.
+  const bool has_model = model.handles == handles_;
+  const bool use_model = has_model && weight > 0;  // F0, K and D, scaled by the weight
+  const bool contacts_on = has_model && model.contacts.count > 0;
   const double safe = 1.0 - weight;  // the safe model's share
   // seed 004 section 3: implicit Euler of the proxies under F* and the coupling, F*
   // taken at the pose extrapolated to the model's step end, x + tau v' (tau >= h):
@@ -257,25 +263,22 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
     // user pressing past the limit moves the device, not the hand through the object. The explicit
     // wrench at the tick's start is scaled down to the limit; A keeps the full b + h k (the tick's
     // matrix does not change), which only damps the proxy's velocity change within the tick.
-    const Eigen::Vector3d f_c = gains_.k_n_m * (device_[j].p_W - proxy_[j].p_W) + gains_.b_ns_m * (v_dev_[j] - v_[j]);
-    const Eigen::Vector3d tau_c = gains_.k_nm_rad * hand::rotation_difference(device_[j].q_W, proxy_[j].q_W) +
-                                  gains_.b_nms_rad * (w_dev_[j] - w_[j]);
+    // The safe model, implicit like the coupling: spring (k) and damper (b) toward the device, and
+    // saturated with it: a proxy held by the model's contacts is not pressed into them harder.
+    const double k = safe * safe_k_n_m_, b = safe * safe_b_ns_m_[j];
+    const double k_rot = safe * safe_k_nm_rad_, b_rot = safe * safe_b_nms_rad_[j];
+    a_lin_[j] += dt * b + dt * dt * k;
+    a_rot_[j].diagonal().array() += dt * b_rot + dt * dt * k_rot;
+    const Eigen::Vector3d dp = device_[j].p_W - proxy_[j].p_W;
+    const Eigen::Vector3d dq = hand::rotation_difference(device_[j].q_W, proxy_[j].q_W);
+    const Eigen::Vector3d f_c = (gains_.k_n_m + k) * dp + (gains_.b_ns_m + b) * (v_dev_[j] - v_[j]);
+    const Eigen::Vector3d tau_c = (gains_.k_nm_rad + k_rot) * dq + (gains_.b_nms_rad + b_rot) * (w_dev_[j] - w_[j]);
     const double f_max = limits_.max_force_n / map_.scale;
     const double sat = f_c.norm() > f_max ? f_max / f_c.norm() : 1.0;
     const double sat_rot = tau_c.norm() > limits_.max_torque_nm ? limits_.max_torque_nm / tau_c.norm() : 1.0;
-    b_.segment<3>(6 * j) = mass_[j] * v_[j] + dt * (sat * f_c + gains_.b_ns_m * v_[j]);
-    b_.segment<3>(6 * j + 3) = I_W * w_[j] + dt * (sat_rot * tau_c + gains_.b_nms_rad * w_[j]);
-    if (safe > 0) {
-      // The safe model, implicit like the coupling: spring and damper toward the device.
-      const double k = safe * safe_k_n_m_, b = safe * safe_b_ns_m_[j];
-      const double k_rot = safe * safe_k_nm_rad_, b_rot = safe * safe_b_nms_rad_[j];
-      a_lin_[j] += dt * b + dt * dt * k;
-      a_rot_[j].diagonal().array() += dt * b_rot + dt * dt * k_rot;
-      b_.segment<3>(6 * j) += dt * (k * (device_[j].p_W - proxy_[j].p_W) + b * v_dev_[j]);
-      b_.segment<3>(6 * j + 3) +=
-          dt * (k_rot * hand::rotation_difference(device_[j].q_W, proxy_[j].q_W) + b_rot * w_dev_[j]);
-    }
-    if (use_model) {
+    b_.segment<3>(6 * j) = mass_[j] * v_[j] + dt * (sat * f_c + (gains_.b_ns_m + b) * v_[j]);
+    b_.segment<3>(6 * j + 3) = I_W * w_[j] + dt * (sat_rot * tau_c + (gains_.b_nms_rad + b_rot) * w_[j]);
+    if (has_model) {
       x_rel_.segment<3>(6 * j) = proxy_[j].p_W - model.x0[j].p_W - late * model.v0[j];
       x_rel_.segment<3>(6 * j + 3) = hand::rotation_difference(proxy_[j].q_W, model.x0[j].q_W) - late * model.w0[j];
       v0_.segment<3>(6 * j) = model.v0[j];
@@ -301,7 +304,7 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
   for (int j = 0; ok && j < handles_; ++j) ok = std::isfinite(a_lin_[j]) && a_rot_[j].allFinite();
   bool solved = false, dense = false;
   if (ok && handles_ >= kMinPreparedHandles) {
-    if (!use_model) {
+    if (!use_model && !contacts_on) {
       // No model: A is block diagonal, each handle's blocks solved alone.
       for (int j = 0; j < handles_; ++j) {
         v_next_.segment<3>(6 * j) = b_.segment<3>(6 * j) / a_lin_[j];
@@ -330,13 +333,12 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
       dense = true;
     }
   }
-  const TickContacts& contacts = model.contacts;
-  if (ok && use_model && contacts.count > 0) ok = solve_contacts(model, dt, weight, tau, dense);
+  if (ok && contacts_on) ok = solve_contacts(model, dt, tau, dense);
   if (ok) {
     ok = v_next_.allFinite();
     for (int j = 0; ok && j < handles_; ++j) ok = v_next_.segment<3>(6 * j).norm() < kMaxProxySpeed_m_s;
   }
-  if (ok && use_model) limit_to_clearance(model, dt);
+  if (ok && has_model) limit_to_clearance(model, dt);
   if (!ok) {
     // Safety (DESIGN.md section 5): a non-finite or absurd state never propagates;
     // the proxies restart on the device and the force drops to zero at once.
@@ -386,7 +388,7 @@ void ProxyHand::limit_to_clearance(const HapticModel& model, double dt) {
   }
 }
 
-bool ProxyHand::solve_contacts(const HapticModel& model, double dt, double weight, double tau, bool dense) {
+bool ProxyHand::solve_contacts(const HapticModel& model, double dt, double tau, bool dense) {
   const TickContacts& c = model.contacts;
   const int n = 6 * handles_, r = 3 * c.count;
   if (c.count > kMaxTickContacts || c.G.rows() != n || c.G.cols() != r || c.W.rows() != r || c.U_K.cols() != n)
@@ -399,9 +401,8 @@ bool ProxyHand::solve_contacts(const HapticModel& model, double dt, double weigh
   u_.noalias() += c.U_K * x_look_;
   u_.noalias() += c.U_D * dv_;
   // Impulses lambda change the proxies' velocities by A^-1 dt G lambda, and the rows' by that through
-  // tau U_K + U_D besides the flesh's W lambda: the Delassus operator of the proxies and the flesh. A
-  // fading model (weight < 1) solves its contacts as at full weight and applies weight times their
-  // impulses: a faded contact is a weaker force, not a weaker constraint that still holds rigidly.
+  // tau U_K + U_D besides the flesh's W lambda: the Delassus operator of the proxies and the flesh.
+  // A fading model's contacts hold at full strength (integrate).
   if (dense) {
     X_.noalias() = lu_.solve(c.G);
     W_.noalias() = c.W;
@@ -429,14 +430,14 @@ bool ProxyHand::solve_contacts(const HapticModel& model, double dt, double weigh
   polish_contacts(c);
   lambda_t_end_ns_ = model.t_end_ns;
   lambda_resyncs_ = model.resyncs;
-  // v += A^-1 h G lambda, h = weight dt.
-  rhs_.noalias() = (weight * dt) * (c.G * lambda_);
+  // v += A^-1 dt G lambda.
+  rhs_.noalias() = dt * (c.G * lambda_);
   if (dense) {
     v_next_.noalias() += lu_.solve(rhs_);
     return true;
   }
   b_ += rhs_;
-  return solve_prepared(model, weight * dt, tau);
+  return solve_prepared(model, dt, tau);
 }
 
 void ProxyHand::polish_contacts(const TickContacts& c) {

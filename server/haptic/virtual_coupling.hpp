@@ -217,9 +217,12 @@ class ProxyHand {
   // model so): the model's influence (F0, K, D) is scaled by it, and the safe model's by
   // 1 - weight. The safe model holds the proxy on its device: a spring (kSafeStiffness times the
   // coupling's) and a damper on their relative pose and velocity that make the proxy's motion about
-  // the device critically damped. The device does not feel them (it feels the coupling alone; with
-  // k_c b_safe >= b_c k_safe its port stays passive), so a proxy released from a stiff model
-  // settles onto the device without ringing on the coupling spring.
+  // the device critically damped, saturated with the coupling at the device's limits. The device
+  // does not feel them (it feels the coupling alone; with k_c b_safe >= b_c k_safe its port stays
+  // passive), so a proxy released from a stiff model settles onto the device without ringing on the
+  // coupling spring. The model's contacts and clearance planes hold at every weight, so the safe
+  // model brings the proxy to its device only as far as the world's surfaces let it (a faded
+  // model's force is not felt: the haptic loop scales the output by the weight).
   // A non-finite model or state resets the proxies onto the device (counted).
   void integrate(const HapticModel& model, double dt_s, double lookahead_s = 0, double model_weight = 1);
 
@@ -305,7 +308,7 @@ class ProxyHand {
   // The model's contacts (TickContacts) on the contact-free answer v_next_: the impulses of this
   // tick into lambda_, v_next_ updated by weight times their effect; `dense`: lu_ holds A(tau).
   // False on a failure.
-  bool solve_contacts(const HapticModel& model, double dt, double weight, double tau, bool dense);
+  bool solve_contacts(const HapticModel& model, double dt, double tau, bool dense);
   // The active set of the sweeps' answer solved exactly, kept if it is a solution (solve_contacts).
   void polish_contacts(const TickContacts& c);
   TickRowVector u_, lambda_, candidate_, u_candidate_, rhs_a_, delta_a_;

@@ -218,6 +218,54 @@ TEST(TickContacts, AContactReleasesWithinOneTickWhenTheDeviceLiftsAway) {
   EXPECT_GT(p.proxy_velocity(0).z(), 0.0) << "the proxy follows the device up";
 }
 
+TEST(TickContacts, AFadedModelsContactsStillHoldTheProxyWhileTheSafeModelBringsItToItsDevice) {
+  // A stale model fades to the safe model (weight 0), which pulls the proxy onto its device. Its
+  // contacts still hold: the world, which follows the proxy, resumes at the surface and is not
+  // driven 2 cm into the body it touches (with constraint contact that crushed the hand's flesh at
+  // hundreds of newtons when a failed visual step recovered). Off the floor the proxy reaches its
+  // device as with no model at all.
+  const HapticModel floor = floor_model(1.0 / 30);
+  HapticModel free_space = floor;
+  free_space.contacts.count = 0;
+  for (const double device_z : {-0.02, 0.01}) {
+    ProxyHand p = make_proxy(1), q = make_proxy(1);
+    double t = 0;
+    std::vector<Eigen::Vector3d> at = {Eigen::Vector3d(0, 0, -0.002)};
+    rest_on_device(p, at, t);
+    for (int k = 0; k < 300; ++k) {
+      t += kPeriod;
+      p.set_device_pose(0, at[0], Eigen::Quaterniond::Identity());
+      p.commit_sample(t, 0.05);
+      p.reply(0, 1.0, kPeriod);
+      p.integrate(floor, kPeriod, 0.01);
+    }
+    ASSERT_NEAR(p.proxy(0).p_W.z(), 0.0, 5e-5);
+    q = p;
+    at[0] = Eigen::Vector3d(0, 0, device_z);
+    double lowest = 0;
+    for (int k = 0; k < 300; ++k) {
+      t += kPeriod;
+      for (ProxyHand* x : {&p, &q}) {
+        x->set_device_pose(0, at[0], Eigen::Quaterniond::Identity());
+        x->commit_sample(t, 0.05);
+        x->reply(0, 1.0, kPeriod);
+      }
+      p.integrate(floor, kPeriod, -0.05, 0.0);
+      q.integrate(free_space, kPeriod, -0.05, 0.0);
+      lowest = std::min(lowest, p.proxy(0).p_W.z());
+    }
+    std::printf("device at %+.0f mm: the faded floor's proxy at %+.4f mm (lowest %+.4f mm), without the floor %+.4f mm\n",
+                1e3 * device_z, 1e3 * p.proxy(0).p_W.z(), 1e3 * lowest, 1e3 * q.proxy(0).p_W.z());
+    EXPECT_EQ(p.resets(), 0);
+    EXPECT_NEAR(q.proxy(0).p_W.z(), device_z, 1e-5) << "the safe model brings the proxy onto its device";
+    if (device_z < 0) {
+      EXPECT_GT(lowest, -1e-4) << "the faded model's floor let the proxy through";
+    } else {
+      EXPECT_NEAR(p.proxy(0).p_W.z(), device_z, 1e-5) << "the floor held a proxy that left it";
+    }
+  }
+}
+
 TEST(TickContacts, TheTickWithContactsAllocatesNothingForAStylusOrAPreparedGlove) {
   std::mt19937 rng(3);
   for (int handles : {1, 16}) {
