@@ -52,8 +52,8 @@ struct OfflineOptions {
   bool targets_one_tick_stale = false;
   // The sessions' passivity controller (ServerOptions::passivity_control), on as in hapticd.
   bool passivity_control = true;
-  // The hands' contact model (WorldOptions::contact; unset: the scene's). Penalty by default, as hapticd.
-  std::optional<world::ContactModel> contact = world::ContactModel::penalty;
+  // The hands' contact model (WorldOptions::contact; unset: the scene's, as hapticd).
+  std::optional<world::ContactModel> contact;
 };
 
 // A device's frames in device space, per tick.

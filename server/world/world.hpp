@@ -7,7 +7,7 @@
 // surfaces vs static and rigid geometry, hand skin vs deformable objects and
 // the other hands' flesh, for the next step), publish (snapshot). Built from a
 // SceneDesc, building only what the scene names. Contact is the implicit
-// penalty baseline by default, or constraint contact (see WorldOptions::contact);
+// constraint contact by default, or the penalty baseline (see WorldOptions::contact);
 // rigid bodies a hand or a deformable object touches are solved implicitly
 // with it either way.
 #include <cstdint>
@@ -46,13 +46,11 @@ struct WorldOptions {
   // False: no handle-space model in the snapshot (a caller that builds the model
   // of the coming step itself, as the server's visual loop does, skips the cost).
   bool linearize = true;
-  // Hand contact model. Penalty by default for now: constraint contacts (PGS on the step's Delassus
-  // operator, speculative contacts within 2 mm, clustered rows with reserves, the rows the haptic tick
-  // makes and breaks) penetrate far less and are the scenes' default, but cost 2-5x the contact-free
-  // step (haptic-bench world), and with them a stylus held 2 cm deep in a box through a 0.6 s
-  // visual-step fault was pulled down (-4 N) after the world recovered in 1 of 2 runs of
-  // VisualLoopThreads' fault test (issue 17). Unset: follow the scene.
-  std::optional<ContactModel> contact = ContactModel::penalty;
+  // Hand contact model; unset: the scene's (constraint unless the scene says "penalty"). Constraint
+  // contacts (PGS on the step's Delassus operator, speculative contacts within 2 mm, clustered rows
+  // with reserves, the rows the haptic tick makes and breaks) penetrate far less; penalty stays as the
+  // measured baseline (haptic-bench world and contact).
+  std::optional<ContactModel> contact;
   // Constraint contacts keep the deepest skin point per object and cell of this size.
   double contact_cluster_m = 0.01;
   // The cell's other points stay in reserve and become rows of a step that
