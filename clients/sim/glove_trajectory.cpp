@@ -191,6 +191,28 @@ GloveTrajectory GloveTrajectory::from_csv(const std::string& path, Vec3d origin)
   return trajectory;
 }
 
+GloveTrajectory GloveTrajectory::from_samples(std::string name, const std::vector<Sample>& samples, Vec3d origin) {
+  if (samples.empty()) throw std::invalid_argument(name + ": no glove trajectory samples");
+  GloveTrajectory trajectory(Kind::kFile, std::move(name), origin);
+  for (std::size_t i = 0; i < samples.size(); ++i) {
+    const Sample& s = samples[i];
+    const auto fail = [&](const std::string& what) {
+      throw std::invalid_argument(trajectory.name_ + ": sample " + std::to_string(i) + ": " + what);
+    };
+    if (!std::isfinite(s.t_s) || s.t_s < 0) fail("t_s must be finite and >= 0");
+    if (i > 0 && s.t_s <= samples[i - 1].t_s) fail("t_s must increase strictly");
+    if (!s.q_rad.allFinite() || s.q_rad.cwiseAbs().maxCoeff() > std::numbers::pi)
+      fail("angles must be within +-pi rad");
+    const Eigen::Vector3d palm(s.palm_m.x, s.palm_m.y, s.palm_m.z);
+    if (!palm.allFinite() || palm.cwiseAbs().maxCoeff() > protocol::kMaxPositionM)
+      fail("the palm offset must be finite and within the protocol's " +
+           std::to_string(static_cast<int>(protocol::kMaxPositionM)) + " m");
+    trajectory.knots_.push_back({s.t_s, s.q_rad, s.palm_m});
+  }
+  trajectory.file_has_palm_ = true;
+  return trajectory;
+}
+
 JointVector GloveTrajectory::angles(double t_s) const noexcept {
   const double t = std::max(0.0, t_s);
   const Postures& p = postures();

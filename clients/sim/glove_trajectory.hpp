@@ -75,6 +75,15 @@ class GloveTrajectory {
   // when the row's shape is wrong as a whole), or naming the file when it cannot be read or holds
   // no row.
   static GloveTrajectory from_csv(const std::string& path, Vec3d origin = {});
+  // The same from samples in memory (a script's motion): times strictly increasing from >= 0, angles
+  // in rad within +-pi, palm offsets (added to the origin) within the protocol's 100 m, all finite.
+  // Throws std::invalid_argument naming the first bad sample.
+  struct Sample {
+    double t_s = 0;
+    JointVector q_rad = JointVector::Zero();
+    Vec3d palm_m;
+  };
+  static GloveTrajectory from_samples(std::string name, const std::vector<Sample>& samples, Vec3d origin = {});
   // A built-in name (grasp, pinch, release, fist, spread, tap) or else a CSV file path.
   static GloveTrajectory parse(const std::string& spec, Vec3d origin = {});
 

@@ -306,5 +306,41 @@ TEST_F(GloveCsv, BadFilesAreNamedByLineAndColumn) {
       << "a mistyped built-in name must say which names exist";
 }
 
+TEST(GloveTrajectory, SamplesInMemoryAreInterpolatedLikeAFilesRowsAndBadOnesAreNamed) {
+  // Two samples: angle 3 (thumb flexion 3) from 0 to 0.4 rad and the palm from 0 to 2 cm up over
+  // 0.5 s; held before and after; the origin added to the palm.
+  JointVector q1 = JointVector::Zero();
+  q1[3] = 0.4;
+  const GloveTrajectory t =
+      GloveTrajectory::from_samples("script", {{0.5, JointVector::Zero(), {}}, {1.0, q1, {0, 0, 0.02}}}, {1, 2, 3});
+  EXPECT_EQ(t.kind(), GloveTrajectory::Kind::kFile);
+  EXPECT_TRUE(t.file_has_palm());
+  EXPECT_EQ(t.name(), "script");
+  EXPECT_NEAR(t.angles(0.0)[3], 0.0, 1e-15);
+  EXPECT_NEAR(t.angles(0.75)[3], 0.2, 1e-12);
+  EXPECT_NEAR(t.angles(2.0)[3], 0.4, 1e-15);
+  EXPECT_NEAR(t.angle_rates(0.75)[3], 0.8, 1e-6);
+  EXPECT_NEAR(t.palm_position(0.75).z, 3.01, 1e-12);
+  EXPECT_NEAR(t.palm_velocity(0.75).z, 0.04, 1e-6);
+  EXPECT_NEAR(t.palm_position(5.0).x, 1.0, 1e-15);
+  auto error_of = [](const std::vector<GloveTrajectory::Sample>& samples) {
+    try {
+      GloveTrajectory::from_samples("bad", samples);
+    } catch (const std::invalid_argument& e) {
+      return std::string(e.what());
+    }
+    return std::string("no error");
+  };
+  JointVector wild = JointVector::Zero();
+  wild[7] = 4.0;
+  EXPECT_EQ(error_of({}), "bad: no glove trajectory samples");
+  EXPECT_EQ(error_of({{-1, JointVector::Zero(), {}}}), "bad: sample 0: t_s must be finite and >= 0");
+  EXPECT_EQ(error_of({{0, JointVector::Zero(), {}}, {0, JointVector::Zero(), {}}}),
+            "bad: sample 1: t_s must increase strictly");
+  EXPECT_EQ(error_of({{0, wild, {}}}), "bad: sample 0: angles must be within +-pi rad");
+  EXPECT_EQ(error_of({{0, JointVector::Zero(), {0, 0, NAN}}}),
+            "bad: sample 0: the palm offset must be finite and within the protocol's 100 m");
+}
+
 }  // namespace
 }  // namespace hapticd::sim
