@@ -6,6 +6,7 @@
 #include <spdlog/spdlog.h>
 
 #include "contact_bench.hpp"
+#include "touch_bench.hpp"
 #include "hand_bench.hpp"
 #include "haptic_rate_bench.hpp"
 #include "latency_bench.hpp"
@@ -30,6 +31,7 @@ int main(int argc, char** argv) {
   hapticd::bench::add_multirate_suite(app);
   hapticd::bench::add_soak_suite(app);
   hapticd::bench::add_contact_suite(app);
+  hapticd::bench::add_touch_suite(app);
   hapticd::bench::add_haptic_rate_suite(app);
   hapticd::bench::add_solvers_suite(app);
   hapticd::bench::add_resolution_suite(app);

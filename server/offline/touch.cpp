@@ -1,0 +1,199 @@
+#include "server/offline/touch.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+#include <stdexcept>
+#include <utility>
+#include <vector>
+
+#include "server/world/scene_loader.hpp"
+
+namespace hapticd::offline {
+namespace {
+
+world::SceneDesc scene_file(const std::string& name) {
+  return world::load_scene(std::string(HAPTICD_SCENES_DIR) + "/" + name + ".json");
+}
+
+// The first hand (and its device's workspace) moved to `p` (world).
+void move_hand(world::SceneDesc& s, const Eigen::Vector3d& p) {
+  const Eigen::Vector3d shift = p - s.hands[0].pose.p_W;
+  s.hands[0].pose.p_W = p;
+  s.devices[0].workspace.offset_W += shift;
+}
+
+// The deepest skin point after each visual step (the world's snapshot), into `deepest`.
+auto penetration_probe(OfflineLoops& loops, double& deepest) {
+  return [&loops, &deepest](long tick) {
+    if (tick % loops.options().visual_every_ticks != 0) return;
+    deepest = std::max(deepest, loops.world().snapshot().max_penetration_m);
+  };
+}
+
+constexpr double kDeg = std::numbers::pi / 180.0;
+constexpr double kBoxYaw = -30 * kDeg;
+// The box's centre in the palm frame (fingers +y, palmar side -z) when grasped, and the closed
+// posture (degrees; per finger abduction, flexion 1, 2, 3): test_world_glove.cpp's box_grasp.
+const Eigen::Vector3d kBoxInHand(-0.040, 0.050, -0.052);
+constexpr double kClosedDeg[hand::kHandJointDofs] = {-30, 30, 20, 60, -4, 5, 70, 65, 0, 15,
+                                                     95,  40, 8,  0,  6,  6, 16, 0,  6, 6};
+
+// A half-cosine from 0 at `from` to 1 at `to`.
+double ease(double t, double from, double to) {
+  const double s = std::clamp((t - from) / (to - from), 0.0, 1.0);
+  return 0.5 * (1.0 - std::cos(std::numbers::pi * s));
+}
+
+}  // namespace
+
+PressSchedule::PressSchedule(const Press& p) : press(p) {
+  down_start = 0.3;
+  down_end = down_start + p.depth_m / p.down_m_s;
+  up_start = down_end + 0.5;
+  up_end = up_start + (p.depth_m + kClearance) / p.up_m_s;
+  end = up_end + 1.2;
+}
+
+double PressSchedule::z(double t) const {
+  if (t < down_start) return 0;
+  if (t < down_end) return -press.down_m_s * (t - down_start);
+  if (t < up_start) return -press.depth_m;
+  if (t < up_end) return -press.depth_m + press.up_m_s * (t - up_start);
+  return kClearance;
+}
+
+world::SceneDesc press_scene(const std::string& object) {
+  if (object == "movable_bunny") return scene_file("stylus_bunny");
+  if (object == "fixed_bunny") {
+    world::SceneDesc s = scene_file("stylus_bunny");
+    for (world::ObjectDesc& o : s.objects)
+      if (o.name == "bunny") o.kind = world::BodyKind::static_body;
+    return s;
+  }
+  if (object == "deformable_bunny") {
+    world::SceneDesc s = scene_file("deformable_bunny");
+    move_hand(s, Eigen::Vector3d(0.08, 0.1, 0.9));  // over the bunny, as in stylus_bunny
+    return s;
+  }
+  if (object == "free_space") {
+    world::SceneDesc s = scene_file("stylus_bunny");
+    move_hand(s, Eigen::Vector3d(0.08, 0.1, 1.3));
+    return s;
+  }
+  if (object == "table_edge") {
+    // The table's +x edge (the top at z = 0.75 ends at x = 0.5): half the palm over it.
+    world::SceneDesc s = scene_file("stylus_bunny");
+    move_hand(s, Eigen::Vector3d(0.5, 0.0, 0.8));
+    return s;
+  }
+  throw std::invalid_argument("press_scene: no object '" + object +
+                              "' (movable_bunny, fixed_bunny, deformable_bunny, table_edge, free_space)");
+}
+
+TouchRun run_press_hold_lift(const world::SceneDesc& scene, const PressSchedule& schedule,
+                             const OfflineOptions& options) {
+  OfflineLoops loops(scene, options);
+  Eigen::Vector3d start_D;
+  Eigen::Quaterniond q_D;
+  loops.frame_pose_at_handle(0, start_D, q_D);
+  SimulatedStylus stylus(
+      start_D, [&schedule](double t) { return Eigen::Vector3d(0, 0, schedule.z(t)); }, options.haptic_period_s);
+  TouchRun r;
+  r.trace = run_offline(loops, stylus, std::lround(schedule.end / options.haptic_period_s),
+                        penetration_probe(loops, r.penetration_max_m));
+  r.energy_j = stylus.energy_j();
+  return r;
+}
+
+AfterLift after_lift(const OfflineTrace& trace, const PressSchedule& schedule, const OfflineOptions& options) {
+  AfterLift a;
+  const double T = options.haptic_period_s;
+  const long ticks = static_cast<long>(trace.replies.size());
+  for (long k = 0; k < ticks; ++k) {
+    a.largest = std::max(a.largest, trace.replies[k].wrench[0].f_D.norm());
+    if (a.touch < 0 && trace.replies[k].in_contact[0]) a.touch = k;
+  }
+  if (a.touch >= 0) {
+    const double touch_z = schedule.z(a.touch * T), grace = T + options.visual_every_ticks * T;
+    long above = -1;
+    for (long k = std::lround(schedule.up_start / T); k < ticks; ++k) {
+      const double t = k * T;
+      if (above < 0 && schedule.z(t) > touch_z) above = k;
+      if (above < 0 || t < above * T + grace) continue;
+      a.pull = std::max(a.pull, -trace.replies[k].wrench[0].f_D.z());
+    }
+  }
+  for (long k = std::lround((schedule.up_end + 1.0) / T); k < ticks; ++k) {
+    a.after = std::max(a.after, trace.replies[k].wrench[0].f_D.norm());
+    a.flagged = a.flagged || trace.replies[k].in_contact[0];
+  }
+  return a;
+}
+
+world::SceneDesc grasp_scene(world::SceneDesc s) {
+  if (s.hands.empty() || s.devices.empty()) throw std::invalid_argument("grasp_scene: " + s.name + " has no hand");
+  for (world::ObjectDesc& o : s.objects) {
+    if (o.name != "box") continue;
+    o.pose.q_W = Eigen::Quaterniond(Eigen::AngleAxisd(kBoxYaw, Eigen::Vector3d::UnitZ()));
+    move_hand(s, o.pose.p_W - kBoxInHand + Eigen::Vector3d(0, 0, GraspSchedule::kAboveM));
+    return s;
+  }
+  throw std::invalid_argument("grasp_scene: " + s.name + " has no object named box");
+}
+
+sim::GloveTrajectory grasp_release_trajectory(const Eigen::Vector3d& palm_D, const Eigen::Quaterniond& q_D) {
+  using G = GraspSchedule;
+  const sim::JointVector open = sim::GloveTrajectory::grasp().angles(0);  // the rest posture
+  sim::JointVector closed;
+  for (int i = 0; i < closed.size(); ++i) closed[i] = kClosedDeg[i] * kDeg;
+  std::vector<sim::GloveTrajectory::Sample> samples;
+  for (int k = 0; k * 0.01 <= G::kEnd + 1e-9; ++k) {  // every 10 ms, interpolated linearly between
+    const double t = k * 0.01;
+    const double close = ease(t, G::kCloseAt, G::kCloseAt + 0.5) - ease(t, G::kOpenAt, G::kOpenedAt);
+    const double z = -G::kAboveM * ease(t, G::kDownAt, G::kCloseAt) + G::kLiftM * ease(t, G::kLiftAt, G::kLiftAt + 1.0);
+    samples.push_back({t, (1 - close) * open + close * closed, {0, 0, z}});
+  }
+  sim::GloveTrajectory motion =
+      sim::GloveTrajectory::from_samples("grasp_release", samples, {palm_D.x(), palm_D.y(), palm_D.z()});
+  motion.set_palm_orientation(q_D);
+  return motion;
+}
+
+GraspRun run_grasp_release(const world::SceneDesc& scene, const OfflineOptions& options) {
+  using G = GraspSchedule;
+  OfflineLoops loops(scene, options);
+  const int box = loops.world().rigid() ? loops.world().rigid()->find("box") : -1;
+  if (box < 0) throw std::invalid_argument("run_grasp_release: " + scene.name + " has no rigid box");
+  GraspRun run;
+  run.box_z0 = run.box_top = loops.world().snapshot().bodies[box].p_WO.z();
+  Eigen::Vector3d palm_D;
+  Eigen::Quaterniond q_D;
+  loops.frame_pose_at_handle(0, palm_D, q_D);
+  const bool left = scene.hands[0].side == world::HandSide::left;
+  SimulatedGlove glove(grasp_release_trajectory(palm_D, q_D), sim::kGloveFramesAll, left, options.haptic_period_s);
+  const double T = options.haptic_period_s;
+  const long lift_tick = std::lround(G::kLiftAt / T), open_tick = std::lround(G::kOpenAt / T);
+  auto probe = penetration_probe(loops, run.penetration_max_m);
+  run.trace = run_offline(loops, glove, std::lround(G::kEnd / T), [&](long tick) {
+    probe(tick);
+    run.box_top = std::max(run.box_top, loops.world().snapshot().bodies[box].p_WO.z());
+    if (tick == lift_tick) run.energy_at_lift_j = glove.simulation().passivity_energy_j();
+    if (tick == open_tick) run.energy_at_open_j = glove.simulation().passivity_energy_j();
+  });
+  const double released_from = G::kOpenedAt + T + options.visual_every_ticks * T;
+  for (std::size_t k = 0; k < run.trace.replies.size(); ++k) {
+    const double t = static_cast<double>(k) * T;
+    for (int j = 0; j < run.trace.replies[k].frames; ++j) {
+      const double f = run.trace.replies[k].wrench[j].f_D.norm();
+      if (t > released_from) run.release_n = std::max(run.release_n, f);
+      if (t > G::kOpenedAt + 1.0) run.after_n = std::max(run.after_n, f);
+    }
+  }
+  run.energy_j = glove.simulation().passivity_energy_j();
+  for (int j = 0; j < loops.proxy().handles(); ++j) run.observed_j += loops.proxy().energy_in(j);
+  run.box_end = loops.world().snapshot().bodies[box];
+  return run;
+}
+
+}  // namespace hapticd::offline

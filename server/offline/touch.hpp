@@ -1,0 +1,92 @@
+#pragma once
+// Touch that makes and breaks contact (issue 17), scripted for the lockstep runner: the simulated
+// stylus's press, hold and lift, and the simulated glove's grasp, lift and release. Shared by the
+// tests (tests/server/offline/test_press_hold_lift.cpp, test_grasp_release.cpp) and
+// `haptic-bench touch`.
+#include <Eigen/Geometry>
+#include <string>
+
+#include "clients/sim/glove_trajectory.hpp"
+#include "server/offline/offline_run.hpp"
+
+namespace hapticd::offline {
+
+// What a scripted touch ended with.
+struct TouchRun {
+  OfflineTrace trace;
+  double energy_j = 0;           // work of the rendered forces on the device over the run (> 0: put in)
+  double penetration_max_m = 0;  // deepest skin point inside anything after any visual step
+};
+
+// --- Press, hold, lift (the simulated stylus) ------------------------------------------------------
+
+struct Press {
+  double depth_m;   // device units, below the start
+  double down_m_s;  // device speed down
+  double up_m_s;    // and up
+};
+
+// The commanded tip height (device units, relative to the start): still for 0.3 s, down to the
+// depth, held 0.5 s, up to 1 cm above the start, held 1.2 s.
+struct PressSchedule {
+  explicit PressSchedule(const Press& p);
+  double z(double t_s) const;
+  static constexpr double kClearance = 0.01;  // the lift ends 1 cm above the start
+  Press press;
+  double down_start, down_end, up_start, up_end, end;
+};
+
+// stylus_bunny.json with the hand over `object`: movable_bunny (the scene itself), fixed_bunny (the
+// bunny static), deformable_bunny (deformable_bunny.json, the hand placed as in stylus_bunny),
+// table_edge (half the palm over the table's +x edge) or free_space (40 cm above everything).
+// Throws std::invalid_argument for another name.
+world::SceneDesc press_scene(const std::string& object);
+
+// The press-hold-lift of `schedule` on `scene` through loops built with `options` (the scene's own
+// contact model unless the options say otherwise), the stylus starting at its handle.
+TouchRun run_press_hold_lift(const world::SceneDesc& scene, const PressSchedule& schedule,
+                             const OfflineOptions& options);
+
+// What the device felt around the lift.
+struct AfterLift {
+  long touch = -1;       // the first tick flagged InContact
+  double largest = 0;    // the largest force of the run, N
+  double pull = 0;       // the largest force toward the object (-z) once the commanded tip is back above
+                         // the height where it first touched, after one haptic and one visual period, N
+  double after = 0;      // the largest force one second after the lift, N
+  bool flagged = false;  // InContact then
+};
+AfterLift after_lift(const OfflineTrace& trace, const PressSchedule& schedule, const OfflineOptions& options);
+
+// --- Grasp, lift, release (the simulated glove, 16 frames) -------------------------------------------
+
+// The motion, in seconds from the start: open 4 cm above the box, down over it, closed in a tripod
+// grasp (the world tests' box_grasp: thumb on the box's near face, index and middle on its far
+// face), held, lifted 5 cm, held up, opened, then open until the end.
+struct GraspSchedule {
+  static constexpr double kDownAt = 0.3, kCloseAt = 0.8, kLiftAt = 1.55, kOpenAt = 3.05, kOpenedAt = 3.55;
+  static constexpr double kEnd = 5.55;
+  static constexpr double kAboveM = 0.04, kLiftM = 0.05;
+};
+
+// `scene` (glove_grasp.json or two_hands.json: a rigid object named "box", 5 cm) with the box turned
+// -30 degrees about z, as the grasp wants it, and the first hand and its device's workspace 4 cm above
+// where the grasp holds it. Throws std::invalid_argument when the scene has no box or no hand.
+world::SceneDesc grasp_scene(world::SceneDesc scene);
+
+// The glove motion of GraspSchedule for a palm starting at `palm_D` with orientation `q_D` (device).
+sim::GloveTrajectory grasp_release_trajectory(const Eigen::Vector3d& palm_D, const Eigen::Quaterniond& q_D);
+
+struct GraspRun : TouchRun {
+  double energy_at_lift_j = 0, energy_at_open_j = 0;  // the glove's energy so far when lifting and opening begin
+  double observed_j = 0;           // the server's passivity observer: work the frames did on the rendering, J
+  double box_z0 = 0, box_top = 0;  // the box's height at the start and its highest, m
+  world::RigidBodyState box_end;
+  double release_n = 0;  // the largest frame force once the hand is open, after one haptic and one visual period
+  double after_n = 0;    // the largest frame force from a second after the hand has opened
+};
+
+// The grasp, lift and release on `scene` (as grasp_scene makes it) with the 16-frame simulated glove.
+GraspRun run_grasp_release(const world::SceneDesc& scene, const OfflineOptions& options);
+
+}  // namespace hapticd::offline
