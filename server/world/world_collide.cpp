@@ -188,6 +188,15 @@ void World::collide(SoftBody& b) {
     for (std::vector<hand::ClearancePlane>& planes : world_hand->clearance) planes.clear();
   }
   std::vector<int> body_of_object(rigid_ ? rigid_->num_objects() : 0, -1);
+  // Every point's position and velocity, the same against every object.
+  std::vector<Eigen::Vector3d> points_p(point_tet.size(), Eigen::Vector3d::Zero()),
+      points_v(point_tet.size(), Eigen::Vector3d::Zero());
+  for (size_t v = 0; rigid_ && v < point_tet.size(); ++v) {
+    const hand::Tet& t = mesh.tets[point_tet[v]];
+    const Eigen::Vector4d& w = point_bary[v];
+    for (int k = 0; k < 4; ++k)
+      points_p[v] += w[k] * s.x.segment<3>(3 * t[k]), points_v[v] += w[k] * s.v.segment<3>(3 * t[k]);
+  }
   for (int g = 0; rigid_ && g < rigid_->num_objects(); ++g) {
     dGeomID geom = rigid_->geom(g);
     dReal aabb[6];
@@ -195,10 +204,8 @@ void World::collide(SoftBody& b) {
     if (bounded) dGeomGetAABB(geom, aabb);
     const double object_speed = bounded ? speed_bound(*rigid_, g, aabb) : 0.0;
     for (size_t v = 0; v < point_tet.size(); ++v) {
-      const hand::Tet& t = mesh.tets[point_tet[v]];
+      const Eigen::Vector3d &p = points_p[v], &p_v = points_v[v];
       const Eigen::Vector4d& w = point_bary[v];
-      Eigen::Vector3d p = Eigen::Vector3d::Zero(), p_v = Eigen::Vector3d::Zero();
-      for (int k = 0; k < 4; ++k) p += w[k] * s.x.segment<3>(3 * t[k]), p_v += w[k] * s.v.segment<3>(3 * t[k]);
       const double reach = free_body
                                ? std::min(kSpeculativeMargin_m + (p_v.norm() + object_speed + fall) * h, kMaxReach_m)
                                : (constraint_contact_ ? kSpeculativeMargin_m : 0.0);
@@ -210,6 +217,11 @@ void World::collide(SoftBody& b) {
       if (bounded)
         for (int k = 0; k < 3; ++k)
           box_offset[k] = std::max(0.0, p[k] - aabb[2 * k + 1]) - std::max(0.0, aabb[2 * k] - p[k]);
+      // Beyond `look` (>= reach) for certain, without the square root (most points, most objects).
+      if (box_offset.squaredNorm() > (1 + 1e-6) * look * look) {
+        if (last.object == g) last = LastContact{};
+        continue;
+      }
       const double box_gap = box_offset.norm();
       if (box_gap > reach) {
         if (last.object == g) last = LastContact{};
