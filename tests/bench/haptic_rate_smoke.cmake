@@ -3,16 +3,8 @@ cmake_minimum_required(VERSION 3.25)
 # haptic rate (1, 2, 4 kHz) with the documented fields, tick times are positive with p99 >= median,
 # every rate renders some stiffness passively, and 4 kHz renders at least what 1 kHz does.
 # Usage: cmake -DBENCH=haptic-bench -DOUT=file.json -P haptic_rate_smoke.cmake
-execute_process(COMMAND ${BENCH} haptic_rate --size tiny --json ${OUT} RESULT_VARIABLE rc)
-if(NOT rc EQUAL 0)
-  message(FATAL_ERROR "haptic-bench haptic_rate --size tiny failed: ${rc}")
-endif()
-file(READ ${OUT} doc)
-string(JSON suite GET "${doc}" suite)
-if(NOT suite STREQUAL "haptic_rate")
-  message(FATAL_ERROR "suite is '${suite}'")
-endif()
-string(JSON rows LENGTH "${doc}" rows)
+include(${CMAKE_CURRENT_LIST_DIR}/smoke_lib.cmake)
+smoke_run(haptic_rate)
 if(NOT rows EQUAL 3)
   message(FATAL_ERROR "${rows} rows, expected 3")
 endif()

@@ -2,16 +2,8 @@ cmake_minimum_required(VERSION 3.25)
 # ctest smoke run of `haptic-bench multirate --size tiny`: it runs, and its JSON
 # has a row per (interaction, visual rate, model) with the documented fields.
 # Usage: cmake -DBENCH=haptic-bench -DOUT=file.json -P multirate_smoke.cmake
-execute_process(COMMAND ${BENCH} multirate --size tiny --json ${OUT} RESULT_VARIABLE rc)
-if(NOT rc EQUAL 0)
-  message(FATAL_ERROR "haptic-bench multirate --size tiny failed: ${rc}")
-endif()
-file(READ ${OUT} doc)
-string(JSON suite GET "${doc}" suite)
-if(NOT suite STREQUAL "multirate")
-  message(FATAL_ERROR "suite is '${suite}'")
-endif()
-string(JSON rows LENGTH "${doc}" rows)
+include(${CMAKE_CURRENT_LIST_DIR}/smoke_lib.cmake)
+smoke_run(multirate)
 # 3 interactions x 6 visual rates (15, 30, 60, 120, 240 Hz, every tick) x 3 models.
 if(NOT rows EQUAL 54)
   message(FATAL_ERROR "${rows} rows, expected 54")

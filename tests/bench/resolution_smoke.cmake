@@ -3,15 +3,8 @@ cmake_minimum_required(VERSION 3.25)
 # same press; its JSON has a row per hand with the documented fields, the finer hand is the
 # reference (force error 0) and the coarser one differs from it by a finite, nonzero force.
 # Usage: cmake -DBENCH=haptic-bench -DOUT=file.json -P resolution_smoke.cmake
-execute_process(COMMAND ${BENCH} resolution --size tiny --json ${OUT} RESULT_VARIABLE rc)
-if(NOT rc EQUAL 0)
-  message(FATAL_ERROR "haptic-bench resolution --size tiny failed: ${rc}")
-endif()
-file(READ ${OUT} doc)
-string(JSON suite GET "${doc}" suite)
-if(NOT suite STREQUAL "resolution")
-  message(FATAL_ERROR "suite is '${suite}'")
-endif()
+include(${CMAKE_CURRENT_LIST_DIR}/smoke_lib.cmake)
+smoke_run(resolution)
 string(JSON machine_type TYPE "${doc}" machine)
 if(NOT machine_type STREQUAL "OBJECT")
   message(FATAL_ERROR "machine is ${machine_type}")

@@ -4,16 +4,8 @@ cmake_minimum_required(VERSION 3.25)
 # documented fields, and its errors behave: the monolithic solve is its own reference (0), a
 # tighter CG tolerance gives a smaller error, the direct Schur solve is exact to rounding.
 # Usage: cmake -DBENCH=haptic-bench -DOUT=file.json -P solvers_smoke.cmake
-execute_process(COMMAND ${BENCH} solvers --size tiny --json ${OUT} RESULT_VARIABLE rc)
-if(NOT rc EQUAL 0)
-  message(FATAL_ERROR "haptic-bench solvers --size tiny failed: ${rc}")
-endif()
-file(READ ${OUT} doc)
-string(JSON suite GET "${doc}" suite)
-if(NOT suite STREQUAL "solvers")
-  message(FATAL_ERROR "suite is '${suite}'")
-endif()
-string(JSON rows LENGTH "${doc}" rows)
+include(${CMAKE_CURRENT_LIST_DIR}/smoke_lib.cmake)
+smoke_run(solvers)
 # One hand size x (monolithic, CG at 1e-2 .. 1e-12, cholmod, lagged).
 if(NOT rows EQUAL 9)
   message(FATAL_ERROR "${rows} rows, expected 9")
