@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <numbers>
 #include <string>
 
 #include "server/world/rigid_world.hpp"
@@ -77,19 +78,24 @@ TEST(RigidWorld, BoxOnInclineSlidesWithCoulombAcceleration) {
   }
 }
 
-// ODE reports no contact once a body lifts off; supports_of keeps the last
-// ones (moved with the body, depth reduced by the lift) within the margin.
-TEST(RigidWorld, SupportsOfRemembersTheLastContactsWithinTheMargin) {
+// A box's supports are its corners on the static geometry, gaps within the margin included: exact
+// depths and positions from the box's pose, whether ODE finds a contact or not.
+TEST(RigidWorld, SupportsOfABoxAreItsCornersOnTheStaticGeometryGapsWithinTheMarginIncluded) {
   RigidWorld world(incline_scene(0, 0.5));
   const int box = world.find("box");
   std::vector<RigidWorld::BodyContact> found;
   RigidBodyState pose = world.state(box);
-  pose.p_WO.z() -= 1e-4;  // pressed 0.1 mm into the slab: ODE's own contacts
+  pose.p_WO.z() -= 1e-4;  // pressed 0.1 mm into the slab (top face at z = 0.05)
   world.set_state(box, pose);
   world.supports_of(box, found, 0.002);
-  ASSERT_FALSE(found.empty());
-  for (const RigidWorld::BodyContact& c : found) EXPECT_NEAR(c.depth_m, 1e-4, 1e-6);
-
+  ASSERT_EQ(found.size(), 4u) << "the four bottom corners";
+  for (const RigidWorld::BodyContact& c : found) {
+    EXPECT_NEAR(c.depth_m, 1e-4, 1e-9);
+    EXPECT_NEAR(std::abs(c.p_W.x()), 0.05, 1e-9);
+    EXPECT_NEAR(std::abs(c.p_W.y()), 0.05, 1e-9);
+    EXPECT_NEAR(c.n_W.z(), 1.0, 1e-9) << "out of the slab, into the box";
+    EXPECT_EQ(c.other, world.find("slope"));
+  }
   for (double lift : {0.001, 0.003}) {
     RigidBodyState lifted = pose;
     lifted.p_WO += Eigen::Vector3d(0.01, 0, lift);  // also slid 1 cm along the slab
@@ -101,22 +107,107 @@ TEST(RigidWorld, SupportsOfRemembersTheLastContactsWithinTheMargin) {
       EXPECT_TRUE(found.empty());  // beyond the margin
       continue;
     }
-    ASSERT_FALSE(found.empty());
+    ASSERT_EQ(found.size(), 4u);
     for (const RigidWorld::BodyContact& c : found) {
-      EXPECT_NEAR(c.depth_m, 1e-4 - lift, 1e-6);  // a gap of the lift less the old depth
-      EXPECT_NEAR(c.p_W.z(), 0.05 + lift - 1e-4, 1e-3);  // the slab's top face is at z = 0.05
-      EXPECT_EQ(c.other, world.find("slope"));
+      EXPECT_NEAR(c.depth_m, 1e-4 - lift, 1e-9);  // a gap of the lift less the old depth
+      EXPECT_NEAR(c.p_W.z(), 0.05 + lift - 1e-4, 1e-9);
     }
   }
-  // Forgotten a few steps of the world later.
+  // Tilted by 1 degree about y, the box stands on one edge; the far edge's corners, 1.7 mm up, are
+  // supports too (ODE reports only the touching edge): a step that tips the box about the near edge
+  // must not carry the far one into the slab.
+  RigidBodyState tilted = pose;
+  const double tilt = std::numbers::pi / 180;
+  tilted.q_WO = Eigen::Quaterniond(Eigen::AngleAxisd(tilt, Eigen::Vector3d::UnitY()));
+  tilted.p_WO.z() = 0.05 + 0.05 * std::cos(tilt) + 0.05 * std::sin(tilt) - 1e-4;  // the +x edge 0.1 mm in
+  world.set_state(box, tilted);
+  world.supports_of(box, found, 0.002);
+  ASSERT_EQ(found.size(), 4u);
+  int near = 0, far = 0;
+  for (const RigidWorld::BodyContact& c : found) {
+    if (c.p_W.x() > 0) {
+      ++near;
+      EXPECT_NEAR(c.depth_m, 1e-4, 1e-9);
+    } else {
+      ++far;
+      EXPECT_NEAR(c.depth_m, 1e-4 - 0.1 * std::sin(tilt), 1e-9);
+    }
+  }
+  EXPECT_EQ(near, 2);
+  EXPECT_EQ(far, 2);
+}
+
+// The scenes' bunny on the table, tipped 1 degree onto one foot: ODE's contacts are under that foot
+// only, the supports span both feet (the other ~1 mm up, within the margin), spread over the base
+// rather than 8 points within 1 cm under one foot as ODE's trimesh collider listed them: a hand's
+// step then tipped the bunny about that foot, rocking it by 10 degrees at 15 Hz.
+TEST(RigidWorld, ABunnyTippedOntoOneFootIsSupportedUnderBoth) {
+  SceneDesc scene = load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json");
+  RigidWorld world(scene);
+  const int bunny = world.find("bunny");
+  for (int k = 0; k < 120; ++k) world.step(1.0 / 60);  // settle
+  std::vector<RigidWorld::BodyContact> found;
+  const auto extent_x = [&] {
+    double lo = 1e9, hi = -1e9;
+    for (const RigidWorld::BodyContact& c : found) lo = std::min(lo, c.p_W.x()), hi = std::max(hi, c.p_W.x());
+    return found.empty() ? 0.0 : hi - lo;
+  };
+  RigidBodyState tipped = world.state(bunny);
+  tipped.q_WO = Eigen::Quaterniond(Eigen::AngleAxisd(std::numbers::pi / 180, Eigen::Vector3d::UnitY())) * tipped.q_WO;
+  world.set_state(bunny, tipped);
+  // Down (or up) until its lowest vertex is 0.1 mm into the table top (z = 0.75).
+  std::vector<Eigen::Vector3d> vertices;
+  ASSERT_TRUE(world.support_points(bunny, vertices));
+  double lowest = 1e9;
+  for (const Eigen::Vector3d& v : vertices) lowest = std::min(lowest, v.z());
+  tipped.p_WO.z() += 0.75 - 1e-4 - lowest;
+  world.set_state(bunny, tipped);
+  world.contacts_of(bunny, found);
+  const double ode_extent = extent_x();
+  world.supports_of(bunny, found, 0.002);
+  const double support_extent = extent_x();
+  std::printf("bunny tipped 1 degree: ODE's contacts span %.1f mm in x, the supports %.1f mm (%zu)\n", 1e3 * ode_extent,
+              1e3 * support_extent, found.size());
+  EXPECT_LT(ode_extent, 0.03) << "ODE's contacts were expected under one foot only";
+  EXPECT_GT(support_extent, 0.05);
+  EXPECT_EQ(found.size(), 8u);
+  for (const RigidWorld::BodyContact& c : found) {
+    EXPECT_GT(c.depth_m, -0.002);
+    EXPECT_LE(c.depth_m, 1e-4 + 1e-9);
+  }
+}
+
+// A body of another shape has ODE's contacts; when ODE finds none (a lifted body), supports_of keeps
+// the last ones (moved with the body, depth reduced by the lift) within the margin, for a few steps.
+TEST(RigidWorld, SupportsOfASphereRememberTheLastContactsWithinTheMargin) {
+  SceneDesc scene = incline_scene(0, 0.5);
+  scene.objects[1].shape.type = ShapeType::sphere;
+  scene.objects[1].shape.radius = 0.05;
+  RigidWorld world(scene);
+  const int ball = world.find("box");
+  std::vector<RigidWorld::BodyContact> found;
+  RigidBodyState pose = world.state(ball);
+  pose.p_WO.z() -= 1e-4;
+  world.set_state(ball, pose);
+  world.supports_of(ball, found, 0.002);
+  ASSERT_EQ(found.size(), 1u);
+  EXPECT_NEAR(found[0].depth_m, 1e-4, 1e-6);
   RigidBodyState lifted = pose;
-  lifted.p_WO.z() += 0.001;
+  lifted.p_WO += Eigen::Vector3d(0.01, 0, 0.001);
+  world.set_state(ball, lifted);
+  world.contacts_of(ball, found);
+  EXPECT_TRUE(found.empty()) << "ODE finds the lifted ball";
+  world.supports_of(ball, found, 0.002);
+  ASSERT_EQ(found.size(), 1u);
+  EXPECT_NEAR(found[0].depth_m, 1e-4 - 0.001, 1e-6);
+  EXPECT_NEAR(found[0].p_W.z(), 0.05 + 0.001 - 1e-4, 1e-3);
+  // Forgotten a few steps of the world later.
   for (long k = 0; k <= RigidWorld::kSupportMemorySteps; ++k) {
-    world.set_state(box, lifted);
+    world.set_state(ball, lifted);
     world.step(1e-6);
   }
-  world.set_state(box, lifted);
-  world.supports_of(box, found, 0.002);
+  world.set_state(ball, lifted);
+  world.supports_of(ball, found, 0.002);
   EXPECT_TRUE(found.empty());
 }
 
