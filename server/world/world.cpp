@@ -112,11 +112,12 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
   // flesh as a point-location query on its deformed tets, depths from the
   // signed distance of its rest skin (3 mm cells as for the deformable
   // objects; exact within 1.8 cm of the skin, deeper than half the palm is thick).
-  // The same query finds the vertices of rigid meshes in a hand's flesh.
+  // The same query finds the vertices of rigid meshes and the surface points of deformable objects
+  // in a hand's flesh.
   hand_hand_ = num_hands() >= 2 && options.hand_contacts && options.hand_hand_contacts;
   bool meshes = false;
   for (int g = 0; rigid_ && g < rigid_->num_objects(); ++g) meshes = meshes || rigid_->is_mesh(g);
-  if (hand_hand_ || (meshes && options.hand_contacts)) {
+  if (hand_hand_ || ((meshes || !deformables_.empty()) && options.hand_contacts)) {
     for (const std::unique_ptr<WorldHand>& h : hands_) {
       const hand::SurfaceMesh skin{h->shape.skin_vertices, h->shape.skin_triangles};
       Eigen::AlignedBox3d box;

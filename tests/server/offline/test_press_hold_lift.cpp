@@ -15,13 +15,19 @@
 // held the stylus 3.3 N toward it 2 s after the lift (InContact), the deformable bunny took +0.46 J
 // and the device's 8 N force limit, and the deep press on the movable bunny +0.021 J.
 //
-// Issue17KnownFault/PressHoldLift asserts the issue's force bounds too (no pull above 0.3 N after the
-// lift, under 0.01 N a second later), beside the same motion in free space (40 cm above everything):
-// a known fault of issue 17, run by tests/CMakeLists.txt as one ctest expected to fail. Measured:
-// lifting the served hand at 5 cm/s (device) costs 0.26-0.55 N of its own inertia and damping in
-// free space, 1.1-1.6 N at 15 cm/s, and a second later it still carries 0.006-0.16 N; on the objects
-// the pull is the free-space one within 0.25 N, except the deep press on the deformable bunny at
-// 15 Hz (2.29 N against 1.11 N).
+// PressHoldLiftContactPull: the contacts add no pull. The largest force toward the object after the
+// lift is at most 0.3 N above the same motion's in free space (40 cm above everything) at the same
+// ticks: what lifting the served hand costs of its own inertia and damping, which no contact model can
+// take away (the hand's ~0.4 kg is felt times the workspace scale squared, against the simulated arm's
+// 200 N/m, 5 N s/m). It failed, 2.29 N against 1.11 N, on the deep press into the deformable bunny at
+// 15 Hz, whose ear had gone into the palm between the skin points and held it from below: fixed by
+// finding deformable objects' surface points in the hand's flesh.
+//
+// Issue17KnownFault/PressHoldLiftForces asserts the issue's force bounds as written (no pull above
+// 0.3 N after the lift, under 0.01 N a second later): a known fault of issue 17, run by
+// tests/CMakeLists.txt as one ctest expected to fail. Measured: lifting the served hand at 5 cm/s
+// (device) costs 0.24-0.55 N in free space, 1.1-1.6 N at 15 cm/s, and a second later it still rings
+// at 0.006-0.16 N; on the objects the pull is at most 0.22 N above the free-space one.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -80,38 +86,60 @@ TEST_P(PressHoldLift, TakesEnergyOutOfTheDeviceAndLetsGo) {
   EXPECT_FALSE(a.flagged) << "InContact one second after the lift";
 }
 
-class PressHoldLiftForces : public ::testing::TestWithParam<Case> {};
+// What the device feels once the commanded tip is back above the touch height (a haptic and a visual
+// period later): the largest force toward the object, and the same motion's in free space at the same
+// ticks (the served hand's own inertia and damping, which no contact model can take away).
+struct LiftPulls {
+  AfterLift run, free;
+  double free_pull = 0;
+};
 
-TEST_P(PressHoldLiftForces, PullNothingAfterTheLiftAndFallQuiet) {
-  const Case& c = GetParam();
+LiftPulls lift_pulls(const Case& c) {
   const PressSchedule schedule(c.press);
   const long ticks = std::lround(schedule.end / kPeriod);
   const TouchRun run = press_hold_lift(c, c.object, schedule);
-  // The same motion in free space: what the hand's own inertia and damping make the device feel.
   const TouchRun free = press_hold_lift(c, "free_space", schedule);
-  ASSERT_EQ(static_cast<long>(run.trace.replies.size()), ticks);
-  const AfterLift a = after_lift(run.trace, schedule, options_of(c));
-  ASSERT_GE(a.touch, 0) << "the press never touched";
-  const double touch_z = schedule.z(a.touch * kPeriod);
-  // Once the commanded tip is above the touch height for a haptic and a visual period, the force
-  // toward the object (after_lift), and the free-space run's at the same ticks.
+  LiftPulls out;
+  EXPECT_EQ(static_cast<long>(run.trace.replies.size()), ticks);
+  EXPECT_EQ(static_cast<long>(free.trace.replies.size()), ticks);
+  if (static_cast<long>(run.trace.replies.size()) != ticks || static_cast<long>(free.trace.replies.size()) != ticks)
+    return out;
+  out.run = after_lift(run.trace, schedule, options_of(c));
+  out.free = after_lift(free.trace, schedule, options_of(c));
+  EXPECT_GE(out.run.touch, 0) << "the press never touched";
+  if (out.run.touch < 0) return out;
+  const double touch_z = schedule.z(out.run.touch * kPeriod);
   const double grace = kPeriod + c.visual_every_ticks * kPeriod;
-  double free_pull = 0;
   long above = -1;
   for (long k = std::lround(schedule.up_start / kPeriod); k < ticks; ++k) {
     const double t = k * kPeriod;
     if (above < 0 && schedule.z(t) > touch_z) above = k;
     if (above < 0 || t < above * kPeriod + grace) continue;
-    free_pull = std::max(free_pull, -free.trace.replies[k].wrench[0].f_D.z());
+    out.free_pull = std::max(out.free_pull, -free.trace.replies[k].wrench[0].f_D.z());
   }
-  const double pull = a.pull, free_after = after_lift(free.trace, schedule, options_of(c)).after;
   std::printf(
-      "%s at %d ticks: touch at %.1f mm, energy %+.5f J (free %+.5f J), pull after lift %.3f N (free space "
-      "%.3f N), 1 s later %.4f N (free space %.4f N)\n",
-      c.object.c_str(), c.visual_every_ticks, 1e3 * touch_z, run.energy_j, free.energy_j, pull, free_pull, a.after,
-      free_after);
-  EXPECT_LE(pull, kMaxPullN) << "pulled toward the object after the lift";
-  EXPECT_LE(a.after, kQuietN);
+      "%s at %d ticks: touch at %.1f mm, energy %+.5f J, pull after lift %.3f N (free space %.3f N), 1 s later "
+      "%.4f N (free space %.4f N)\n",
+      c.object.c_str(), c.visual_every_ticks, 1e3 * touch_z, run.energy_j, out.run.pull, out.free_pull, out.run.after,
+      out.free.after);
+  return out;
+}
+
+// The contacts' own pull: what the lift costs beyond the same motion in free space.
+class PressHoldLiftContactPull : public ::testing::TestWithParam<Case> {};
+
+TEST_P(PressHoldLiftContactPull, TheContactsAddNoPullToTheHandsOwnInertia) {
+  const LiftPulls p = lift_pulls(GetParam());
+  EXPECT_LE(p.run.pull, p.free_pull + kMaxPullN) << "the contacts pulled toward the object after the lift";
+}
+
+// The issue's bounds as written, the hand's inertia included.
+class PressHoldLiftForces : public ::testing::TestWithParam<Case> {};
+
+TEST_P(PressHoldLiftForces, PullNothingAfterTheLiftAndFallQuiet) {
+  const LiftPulls p = lift_pulls(GetParam());
+  EXPECT_LE(p.run.pull, kMaxPullN) << "pulled toward the object after the lift";
+  EXPECT_LE(p.run.after, kQuietN);
 }
 
 std::vector<Case> cases() {
@@ -124,6 +152,7 @@ std::vector<Case> cases() {
 }
 
 INSTANTIATE_TEST_SUITE_P(Touch, PressHoldLift, ::testing::ValuesIn(cases()), case_name);
+INSTANTIATE_TEST_SUITE_P(Touch, PressHoldLiftContactPull, ::testing::ValuesIn(cases()), case_name);
 INSTANTIATE_TEST_SUITE_P(Issue17KnownFault, PressHoldLiftForces, ::testing::ValuesIn(cases()), case_name);
 
 }  // namespace
