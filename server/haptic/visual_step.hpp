@@ -49,7 +49,8 @@ void fill_haptic_model(world::World& world, int h, hand::HandleLinearization& li
 // A linearization's contact rows into the fixed capacity of the tick (the proxy's part prepared later,
 // prepare_tick_solver); false when they do not fit or are not finite.
 bool set_tick_contacts(const hand::HandleContactModel& in, int handles, TickContacts& out);
-// Only its contact flags (in_contact, handle_in_contact) from the world's last contacts, and each
+// Only its contact flags (in_contact: a contact of the last step inside or carrying force;
+// handle_in_contact: inside) from the world's last contacts, and each
 // handle's clearance planes (WorldHand::clearance) from its last collision.
 void fill_contact_flags(const world::World& world, int h, HapticModel& out);
 

@@ -181,6 +181,7 @@ void World::step(double dt_s) {
   if (rigid_) {
     apply_reactions();
     rigid_->step(step_dt_);
+    place_solved_bodies();
   }
   timings.rigid_ms = ms_since(t1);
   record_contacts();

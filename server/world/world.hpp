@@ -223,6 +223,15 @@ class World {
                    const DeformableTouch& touch, std::unordered_map<std::uint64_t, int>& cluster);
   void step_deformables();
   void apply_reactions();
+  void place_solved_bodies();
+  // The bodies the soft bodies solved this step: where they started, their start centre of mass and
+  // their solved end-of-step velocity (all soft bodies' changes summed).
+  struct SolvedBody {
+    int object = -1;
+    RigidBodyState start;
+    Eigen::Vector3d com_W, v_W, w_W;
+  };
+  std::vector<SolvedBody> solved_bodies_;
   void record_contacts();
   void publish();
 

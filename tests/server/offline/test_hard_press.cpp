@@ -3,8 +3,8 @@
 // constraint contact and the passivity controller on, at visual rates of 60 and 15 Hz, on the
 // movable and on the fixed bunny.
 //
-// HardPress: the hand never reaches the table under the bunny: its skin stays above the table's top
-// (2 mm of penetration aside) and the device is pushed back out (up), never pulled in; nothing resets; no
+// HardPress: the skin goes at most 2 mm into the bunny while held (the issue's bound) and never
+// reaches the table under it; the device is pushed back out (up), never pulled in; nothing resets; no
 // energy goes into the device; a second after the release nothing is flagged and less than 0.3 N
 // (the pull the issue allows after a lift) is felt. When it was written as one strict test, the
 // hand went 196 mm (60 Hz) and 677 mm (15 Hz) deep through the fixed bunny and the table and was
@@ -13,14 +13,14 @@
 // rendered at most 8 N; the haptic model lost the bunny's supports (a 2.4 mm bounce off the table
 // at a 67 ms step, then more hand contacts than its rows); and a proxy that slid off the bunny fell
 // through the table within one visual step. Fixed by the coupling's saturation, the supports' reach
-// and share of the rows, and the tick's clearance planes (ProxyHand::limit_to_clearance).
+// and share of the rows, and the tick's clearance planes (ProxyHand::limit_to_clearance). The depth
+// on the movable bunny at 15 Hz was 12.6 mm while its supports were ODE's contacts, under one foot
+// at a time (it rocked 10-15 degrees a step), 3.0 mm with its vertices as supports while ODE still
+// stepped it (1-2 degrees a step), and 0.02 mm since it ends each step where the hand's solve took it.
 //
-// Issue17KnownFault/HardPressDepth (one ctest expected to fail, tests/CMakeLists.txt): the issue's
-// bound of 2 mm of skin penetration while held and no force a second after the release (0.05 N).
-// Measured: the movable bunny at 15 Hz 3.0 mm (12.6 mm while its supports were ODE's contacts, under
-// one foot at a time: it rocked 10-15 degrees from one step to the next);
-// at 60 Hz 0.15 N a second after the release (the served hand's slow settling, as in
-// Issue17KnownFault/PressHoldLiftForces).
+// Issue17KnownFault/HardPressQuiet (one ctest expected to fail, tests/CMakeLists.txt): the issue's
+// "no force a second after the release" (0.05 N). Measured at 60 Hz: 0.15 N (the served hand's own
+// slow settling, as in Issue17KnownFault/PressHoldLiftForces).
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -124,6 +124,7 @@ TEST_P(HardPress, FiveTimesTheForceLimitNeverReachesTheTableAndPushesTheDeviceOu
   const HardPressRun r = run_hard_press(GetParam());
   ASSERT_GT(r.table_top_z_m, 0.5) << "the scene has its table";
   EXPECT_GE(r.lowest_skin_z_m, r.table_top_z_m - 2e-3) << "the hand went into or through the table";
+  EXPECT_LE(r.deepest_m, 2e-3) << "the skin went into the bunny";
   EXPECT_LE(r.pulled_in_n, 0.0) << "the device was pulled into the object";
   EXPECT_LE(r.after_n, 0.3);
   EXPECT_FALSE(r.flagged);
@@ -133,15 +134,14 @@ TEST_P(HardPress, FiveTimesTheForceLimitNeverReachesTheTableAndPushesTheDeviceOu
 
 INSTANTIATE_TEST_SUITE_P(Touch, HardPress, kHardPressCases, hard_press_name);
 
-class HardPressDepth : public ::testing::TestWithParam<HardPressCase> {};
+class HardPressQuiet : public ::testing::TestWithParam<HardPressCase> {};
 
-TEST_P(HardPressDepth, FiveTimesTheForceLimitLeavesTheSkinOnTheSurfaceAndNothingFeltAfterTheRelease) {
+TEST_P(HardPressQuiet, NothingIsFeltASecondAfterTheRelease) {
   const HardPressRun r = run_hard_press(GetParam());
-  EXPECT_LE(r.deepest_m, 2e-3);
   EXPECT_LE(r.after_n, 0.05);
 }
 
-INSTANTIATE_TEST_SUITE_P(Issue17KnownFault, HardPressDepth, kHardPressCases, hard_press_name);
+INSTANTIATE_TEST_SUITE_P(Issue17KnownFault, HardPressQuiet, kHardPressCases, hard_press_name);
 
 }  // namespace
 }  // namespace hapticd::offline
