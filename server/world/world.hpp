@@ -206,6 +206,10 @@ class World {
   // skin points, which only the skin points would not find.
   void collide_mesh_vertices(SoftBody& body, std::vector<int>& body_of_object,
                              std::unordered_map<std::uint64_t, int>& cluster);
+  // A point of another body found in a hand's flesh (`pen`, the hand's query): a contact of the flesh
+  // where it lies, pushed along the reversed skin normal, the other side moving at v_other_W.
+  hand::PointContact flesh_contact(const MeshPenetration& pen, const Eigen::Vector3d& v_other_W, double hand_friction,
+                                   double other_friction) const;
   // Rigid object g as a body of the soft body's implicit step (joined once, with its gravity):
   // its index in state.bodies, -1 for static geometry.
   int implicit_body(hand::HandState& state, std::vector<int>& body_of_object, int g);

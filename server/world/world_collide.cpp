@@ -341,16 +341,9 @@ void World::collide_with_deformables(SoftBody& b, std::unordered_map<std::uint64
       const Eigen::Vector3d p = detail::surface_point(o, v);
       MeshPenetration pen;
       if (!skin.contains(p) || !hand.query->penetration(p, margin, pen)) continue;
-      hand::PointContact c;
-      c.tet = pen.tet;
-      c.bary = pen.bary;
-      c.n_W = -pen.n_W;
-      c.depth_m = pen.depth_m;
-      c.v_other_W = embedded_at(o.body.mesh, o.state.v, o.body.surface_tet[v], o.body.surface_bary[v]);
-      c.stiffness_n_m = options_.contact_stiffness_n_m;
-      c.damping_ns_m = options_.contact_damping_ns_m;
-      c.friction = std::sqrt(b.friction * o.friction);
-      c.constraint = constraint_contact_;
+      hand::PointContact c =
+          flesh_contact(pen, embedded_at(o.body.mesh, o.state.v, o.body.surface_tet[v], o.body.surface_bary[v]),
+                        b.friction, o.friction);
       if (constraint_contact_) {
         if (proxy < 0) proxy = add_rigid_proxy(s, d);
         c.body = proxy;
@@ -399,30 +392,16 @@ void World::collide_mesh_vertices(SoftBody& b, std::vector<int>& body_of_object,
   const Eigen::AlignedBox3d skin(hand.skin_bounds.min() - grow, hand.skin_bounds.max() + grow);
   // Keys of their own: a cell's deepest skin point must not stand in for a vertex.
   const int first_key = (rigid_ ? rigid_->num_objects() : 0) + num_deformables() + 2 * num_hands();
+  std::vector<Eigen::Vector3d> vertices;
   for (int g = 0; rigid_ && g < rigid_->num_objects(); ++g) {
     if (!rigid_->is_mesh(g) || !mesh_overlaps(g, hand.skin_bounds)) continue;
-    dGeomID geom = rigid_->geom(g);
-    const dReal* gp = dGeomGetPosition(geom);
-    dQuaternion gq;
-    dGeomGetQuaternion(geom, gq);
-    const Eigen::Quaterniond R(gq[0], gq[1], gq[2], gq[3]);
-    const Eigen::Vector3d origin(gp[0], gp[1], gp[2]);
-    const std::vector<double>& vertices = rigid_->mesh_vertices(g);
-    for (size_t v = 0; 3 * v + 2 < vertices.size(); ++v) {
-      const Eigen::Vector3d p = origin + R * Eigen::Vector3d(vertices[3 * v], vertices[3 * v + 1], vertices[3 * v + 2]);
+    rigid_->support_points(g, vertices);  // the mesh's vertices, world frame
+    for (size_t v = 0; v < vertices.size(); ++v) {
+      const Eigen::Vector3d& p = vertices[v];
       MeshPenetration pen;
       if (!skin.contains(p) || !hand.query->penetration(p, margin, pen)) continue;
-      hand::PointContact c;
-      c.tet = pen.tet;
-      c.bary = pen.bary;
-      c.n_W = -pen.n_W;
-      c.depth_m = pen.depth_m;
-      c.v_other_W = rigid_->point_velocity(g, p);
-      c.stiffness_n_m = options_.contact_stiffness_n_m;
-      c.damping_ns_m = options_.contact_damping_ns_m;
-      c.friction = std::sqrt(b.friction * rigid_->friction(g));
+      hand::PointContact c = flesh_contact(pen, rigid_->point_velocity(g, p), b.friction, rigid_->friction(g));
       c.other = g;
-      c.constraint = constraint_contact_;
       c.body = implicit_body(s, body_of_object, g);
       DeformableTouch touch;
       touch.reversed = true;  // no skin point of the hand: the record names none
@@ -558,6 +537,21 @@ void World::collide_with_hands(SoftBody& b, std::unordered_map<std::uint64_t, in
 // geometry, so an impulse from the hand is sized for the object's inertia and
 // its support, as for a rigid body. Its solved motion is not used: the object's
 // own step takes the hand's impulses (step_deformables()).
+hand::PointContact World::flesh_contact(const MeshPenetration& pen, const Eigen::Vector3d& v_other_W,
+                                        double hand_friction, double other_friction) const {
+  hand::PointContact c;
+  c.tet = pen.tet;
+  c.bary = pen.bary;
+  c.n_W = -pen.n_W;
+  c.depth_m = pen.depth_m;
+  c.v_other_W = v_other_W;
+  c.stiffness_n_m = options_.contact_stiffness_n_m;
+  c.damping_ns_m = options_.contact_damping_ns_m;
+  c.friction = std::sqrt(hand_friction * other_friction);
+  c.constraint = constraint_contact_;
+  return c;
+}
+
 int World::add_rigid_proxy(hand::HandState& s, int d) {
   const int index = static_cast<int>(s.bodies.size());
   s.bodies.push_back(detail::rigid_proxy(*deformables_[d]));
