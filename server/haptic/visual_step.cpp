@@ -34,8 +34,8 @@ void fill_contact_flags(const world::World& world, int h, HapticModel& out) {
   for (const world::ContactRecord& c : snap.contacts) {
     // Touching: a contact inside now, or one that carried force over the last step (a speculative
     // row holds the skin on the surface, depth <= 0, while it pushes: the stylus pressed the bunny
-    // up to 1.8 N and was never flagged once the bunny ended each step where the hand's solve took it). A glove's
-    // frames stay gated by depth alone (Not there yet in docs/architecture.md).
+    // with up to 1.8 N and was never flagged once the bunny ended each step where the hand's solve
+    // took it). A glove's frames stay gated by depth alone (Not there yet in docs/architecture.md).
     if (c.hand != h || (c.depth_m <= 0 && c.f_W.squaredNorm() == 0)) continue;
     out.in_contact = true;
     if (c.depth_m <= 0) continue;

@@ -531,12 +531,6 @@ void World::collide_with_hands(SoftBody& b, std::unordered_map<std::uint64_t, in
   }
 }
 
-// A deformable object as the hand's constraint solve sees it: one rigid body
-// (its mass, its inertia at its current shape, the velocities that carry its
-// momentum) supported by the object's own contacts with static and rigid
-// geometry, so an impulse from the hand is sized for the object's inertia and
-// its support, as for a rigid body. Its solved motion is not used: the object's
-// own step takes the hand's impulses (step_deformables()).
 hand::PointContact World::flesh_contact(const MeshPenetration& pen, const Eigen::Vector3d& v_other_W,
                                         double hand_friction, double other_friction) const {
   hand::PointContact c;
@@ -552,6 +546,12 @@ hand::PointContact World::flesh_contact(const MeshPenetration& pen, const Eigen:
   return c;
 }
 
+// A deformable object as the hand's constraint solve sees it: one rigid body
+// (its mass, its inertia at its current shape, the velocities that carry its
+// momentum) supported by the object's own contacts with static and rigid
+// geometry, so an impulse from the hand is sized for the object's inertia and
+// its support, as for a rigid body. Its solved motion is not used: the object's
+// own step takes the hand's impulses (step_deformables()).
 int World::add_rigid_proxy(hand::HandState& s, int d) {
   const int index = static_cast<int>(s.bodies.size());
   s.bodies.push_back(detail::rigid_proxy(*deformables_[d]));
