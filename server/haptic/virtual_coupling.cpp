@@ -23,7 +23,7 @@ constexpr int kMaxRefinements = 6;
 
 // The tick's contact solve (TickContacts): projected Gauss-Seidel sweeps, at most this many, until no
 // impulse changes by more than this fraction of the largest.
-constexpr int kTickContactSweeps = 8;
+constexpr int kTickContactSweeps = 8, kTickContactFirstSweeps = 2;
 constexpr double kTickContactTolerance = 1e-10;
 
 // The time since the last reply the passivity controller divides by, s: from a tick at 10 kHz (the
@@ -422,12 +422,20 @@ bool ProxyHand::solve_contacts(const HapticModel& model, double dt, double tau, 
     tangent_step_[i] = hand::pgs_tangent_step(W_, i);
   }
   u_.noalias() += W_ * lambda_;
+  // A few sweeps find the active set, which the polish then solves exactly; the rest of the sweeps
+  // only when that is not a solution. All 8 sweeps at every tick made the first tick of each model
+  // (warm-started from the model's own impulses) the tick's p99: 45 us against a median of 1.4 us,
+  // the stylus press on the movable bunny at 30 Hz.
   bool converged = false;
-  contact_sweeps_ = hand::pgs_sweeps(W_, c.bias, c.mu, tangent_step_, c.count, u_, lambda_, kTickContactSweeps,
+  contact_sweeps_ = hand::pgs_sweeps(W_, c.bias, c.mu, tangent_step_, c.count, u_, lambda_, kTickContactFirstSweeps,
                                      kTickContactTolerance, converged);
-  if (!converged) ++contact_unconverged_;
   if (!lambda_.allFinite()) return false;
-  polish_contacts(c);
+  if (!polish_contacts(c) && !converged) {
+    contact_sweeps_ += hand::pgs_sweeps(W_, c.bias, c.mu, tangent_step_, c.count, u_, lambda_,
+                                        kTickContactSweeps - kTickContactFirstSweeps, kTickContactTolerance, converged);
+    if (!lambda_.allFinite()) return false;
+    if (!polish_contacts(c) && !converged) ++contact_unconverged_;
+  }
   lambda_t_end_ns_ = model.t_end_ns;
   lambda_resyncs_ = model.resyncs;
   // v += A^-1 dt G lambda.
@@ -440,7 +448,7 @@ bool ProxyHand::solve_contacts(const HapticModel& model, double dt, double tau, 
   return solve_prepared(model, dt, tau);
 }
 
-void ProxyHand::polish_contacts(const TickContacts& c) {
+bool ProxyHand::polish_contacts(const TickContacts& c) {
   // The active set the sweeps found: pushing normals, and both tangents of a contact inside its cone
   // (sticking). A sliding contact's tangent impulse stays as the sweeps left it. On that set the
   // problem is linear, W_AA lambda_A = target_A - (u - W lambda)_A, solved exactly; the answer
@@ -455,7 +463,7 @@ void ProxyHand::polish_contacts(const TickContacts& c) {
     if (lambda_.segment<2>(3 * i + 1).norm() < (1 - 1e-9) * c.mu[i] * ln)
       active_[a++] = 3 * i + 1, active_[a++] = 3 * i + 2;
   }
-  if (a == 0) return;
+  if (a == 0) return false;
   W_aa_.resize(a, a);
   rhs_a_.resize(a);
   for (int i = 0; i < a; ++i) {
@@ -467,7 +475,7 @@ void ProxyHand::polish_contacts(const TickContacts& c) {
   // rhs_a_ = target - u now; the correction d of the active impulses solves W_AA d = rhs_a_.
   lu_rows_.compute(W_aa_);
   delta_a_.noalias() = lu_rows_.solve(rhs_a_);
-  if (!delta_a_.allFinite()) return;
+  if (!delta_a_.allFinite()) return false;
   candidate_ = lambda_;
   for (int i = 0; i < a; ++i) candidate_[active_[i]] += delta_a_[i];
   u_candidate_ = u_;
@@ -475,11 +483,12 @@ void ProxyHand::polish_contacts(const TickContacts& c) {
   constexpr double kSlack = 1e-12;
   for (int i = 0; i < c.count; ++i) {
     const double ln = candidate_[3 * i];
-    if (ln < 0 || u_candidate_[3 * i] - c.bias[i] < -kSlack * (1 + std::abs(c.bias[i]))) return;
-    if (candidate_.segment<2>(3 * i + 1).norm() > c.mu[i] * ln * (1 + 1e-9) + 1e-300) return;
+    if (ln < 0 || u_candidate_[3 * i] - c.bias[i] < -kSlack * (1 + std::abs(c.bias[i]))) return false;
+    if (candidate_.segment<2>(3 * i + 1).norm() > c.mu[i] * ln * (1 + 1e-9) + 1e-300) return false;
   }
   lambda_ = candidate_;
   u_ = u_candidate_;
+  return true;
 }
 
 bool ProxyHand::solver_matches(const TickSolver& s, double dt) const {

@@ -259,7 +259,7 @@ class ProxyHand {
   // residual (and refined, or left to the dense LU).
   long solver_refinements() const { return solver_refinements_; }
   // The last tick's contact impulses (N s over the model's step, in the model's rows), the sweeps
-  // it took, and the ticks whose contact solve stopped at its sweep limit.
+  // it took, and the ticks whose contact solve stopped at its sweep limit without an exact answer.
   const TickRowVector& contact_impulses() const { return lambda_; }
   int contact_sweeps() const { return contact_sweeps_; }
   long contact_unconverged() const { return contact_unconverged_; }
@@ -309,8 +309,9 @@ class ProxyHand {
   // tick into lambda_, v_next_ updated by weight times their effect; `dense`: lu_ holds A(tau).
   // False on a failure.
   bool solve_contacts(const HapticModel& model, double dt, double tau, bool dense);
-  // The active set of the sweeps' answer solved exactly, kept if it is a solution (solve_contacts).
-  void polish_contacts(const TickContacts& c);
+  // The active set of the sweeps' answer solved exactly, kept if it is a solution (solve_contacts):
+  // true then.
+  bool polish_contacts(const TickContacts& c);
   TickRowVector u_, lambda_, candidate_, u_candidate_, rhs_a_, delta_a_;
   int active_[kMaxTickRows]{};
   TickRowMatrix W_aa_;
