@@ -27,7 +27,7 @@
 // 0.3 N after the lift, under 0.01 N a second later): a known fault of issue 17, run by
 // tests/CMakeLists.txt as one ctest expected to fail. Measured: lifting the served hand at 5 cm/s
 // (device) costs 0.24-0.55 N in free space, 1.1-1.6 N at 15 cm/s, and a second later it still rings
-// at 0.006-0.16 N; on the objects the pull is at most 0.22 N above the free-space one.
+// at 0.006-0.16 N; on the objects the pull is at most 0.24 N above the free-space one.
 #include <gtest/gtest.h>
 
 #include <algorithm>
