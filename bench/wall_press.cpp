@@ -6,6 +6,7 @@
 #include <numbers>
 #include <stdexcept>
 
+#include "hand_models/fem_hand.hpp"
 #include "server/world/scene_loader.hpp"
 #include "server/world/world.hpp"
 
@@ -38,7 +39,7 @@ world::SceneDesc wall_scene(const std::string& path, int hand_tets, double gap_m
   {
     // The hand as the world builds it at its pose (nothing else in the scene yet).
     const world::World probe(scene, world::WorldOptions{});
-    const Eigen::VectorXd& x = probe.hand(0).state.x;
+    const Eigen::VectorXd& x = hand::as_fem(probe.hand(0)).state.x;
     for (Eigen::Index i = 2; i < x.size(); i += 3) lowest = std::min(lowest, x(i));
   }
   world::ObjectDesc wall;

@@ -1,5 +1,7 @@
 #include "world_bench.hpp"
 
+#include <spdlog/spdlog.h>
+
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <chrono>
@@ -7,7 +9,6 @@
 #include <cstdio>
 #include <memory>
 #include <numbers>
-#include <spdlog/spdlog.h>
 #include <string>
 #include <vector>
 
@@ -59,7 +60,7 @@ std::vector<GloveScript> glove_scripts(const world::SceneDesc& scene, const worl
     GloveScript g;
     g.hand = world.find_hand(d.hand);
     g.link = haptic::make_device_link(world, d, 1000.0);
-    const hand::HandleState& palm = world.hand(g.hand).state.handles[0];
+    const hand::HandleState& palm = world.hand(g.hand).handles()[0];
     Eigen::Vector3d palm_D;
     Eigen::Quaterniond q_D;
     g.link.map.to_device(0, {palm.p_WH, palm.q_WH}, palm_D, q_D);
@@ -70,16 +71,17 @@ std::vector<GloveScript> glove_scripts(const world::SceneDesc& scene, const worl
   return out;
 }
 
-void set_glove_targets(const GloveScript& g, double t, hand::HandState& state) {
+void set_glove_targets(const GloveScript& g, double t, hand::Hand& hand) {
   const sim::RigidPose palm{to_eigen(g.trajectory.palm_position(t)), g.trajectory.palm_orientation()};
-  const auto frames = sim::glove_frame_poses(hand::skeleton_pose(hand::HandJointAngles::from_vector(g.trajectory.angles(t)), g.link.left),
-                                        palm, g.link.handles);
+  const auto frames = sim::glove_frame_poses(
+      hand::skeleton_pose(hand::HandJointAngles::from_vector(g.trajectory.angles(t)), g.link.left), palm,
+      g.link.handles);
   for (int j = 0; j < g.link.handles; ++j) {
     const haptic::HapticPose pose = g.link.map.to_world(j, frames[j].p_m, frames[j].q);
     hand::HandleTarget target;
     target.p_W = pose.p_W;
     target.q_W = pose.q_W;
-    set_target(state, j, target);
+    hand.set_target(j, target);
   }
 }
 
@@ -93,7 +95,7 @@ RunStats run(const world::SceneDesc& scene, world::WorldOptions options, int ste
   const std::vector<GloveScript> gloves = glove_scripts(scene, world);
   hand::HandleLinearization model;
   std::vector<std::vector<hand::HandleState>> start;
-  for (int h = 0; h < world.num_hands(); ++h) start.push_back(world.hand(h).state.handles);
+  for (int h = 0; h < world.num_hands(); ++h) start.push_back(world.hand(h).handles());
   Eigen::Vector3d goal = start.empty() ? Eigen::Vector3d::Zero() : start[0][0].p_WH;
   for (const world::ObjectDesc& o : scene.objects) {
     if (o.kind == world::BodyKind::deformable) {
@@ -133,32 +135,31 @@ RunStats run(const world::SceneDesc& scene, world::WorldOptions options, int ste
     for (int h = 0; h < world.num_hands(); ++h) {
       const auto glove = std::find_if(gloves.begin(), gloves.end(), [h](const GloveScript& g) { return g.hand == h; });
       if (glove != gloves.end()) {
-        set_glove_targets(*glove, t, world.hand(h).state);
+        set_glove_targets(*glove, t, world.hand(h));
         continue;
       }
       for (size_t j = 0; j < start[h].size(); ++j) {
         hand::HandleTarget target;
         target.p_W = start[h][j].p_WH + approach(t) + stroke;
         target.q_W = start[h][j].q_WH;
-        set_target(world.hand(h).state, static_cast<int>(j), target);
+        world.hand(h).set_target(static_cast<int>(j), target);
       }
     }
     const hand::HandleLinearization previous = model;
     world.step();
     const auto t_model = std::chrono::steady_clock::now();
     for (int h = 0; h < world.num_hands(); ++h) {
-      world::WorldHand& hand = world.hand(h);
       hand::HandleLinearization lin;
-      linearize_next_step(*hand.model, hand.state, *hand.solver, lin);
+      world.hand(h).linearize_next_step(lin, hand::ContactLinearization::held);
       if (h == 0) model = lin;
     }
-    const double model_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_model).count();
+    const double model_ms =
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_model).count();
     const world::WorldSnapshot& s = world.snapshot();
     if (k < 10) continue;  // warm-up
     if (previous.K.size() > 0 && world.num_hands() > 0) {
-      const hand::HandState& hs = world.hand(0).state;
-      const Eigen::VectorXd predicted = previous.evaluate(hs.handles),
-                            actual = coupling_wrench(*world.hand(0).model, hs.x, hs.v, hs.handles);
+      const Eigen::VectorXd predicted = previous.evaluate(world.hand(0).handles()),
+                            actual = world.hand(0).coupling_wrench();
       double err = 0;
       for (int j = 0; j < predicted.size() / 6; ++j)
         err = std::max(err, (predicted.segment<3>(6 * j) - actual.segment<3>(6 * j)).norm());
@@ -179,15 +180,20 @@ RunStats run(const world::SceneDesc& scene, world::WorldOptions options, int ste
 }
 
 nlohmann::json to_json(const RunStats& r) {
-  return {{"step_ms_median", median(r.total)},       {"step_ms_p99", percentile(r.total, 99)},
-          {"collision_ms", median(r.collide)},       {"hand_ms", median(r.hands)},
+  return {{"step_ms_median", median(r.total)},
+          {"step_ms_p99", percentile(r.total, 99)},
+          {"collision_ms", median(r.collide)},
+          {"hand_ms", median(r.hands)},
           {"contact_solve_ms", median(r.contact)},
           {"force_error_n_median", r.force_error_n.empty() ? 0.0 : median(r.force_error_n)},
           {"force_error_n_p99", r.force_error_n.empty() ? 0.0 : percentile(r.force_error_n, 99)},
-          {"ode_ms", median(r.rigid)},               {"linearization_ms", median(r.linearize)},
+          {"ode_ms", median(r.rigid)},
+          {"linearization_ms", median(r.linearize)},
           {"deformable_ms", median(r.deformable)},
-          {"contacts_median", median(r.contacts)},   {"contacts_max", percentile(r.contacts, 100)},
-          {"max_penetration_mm", 1e3 * r.max_penetration_m}, {"resets", r.resets}};
+          {"contacts_median", median(r.contacts)},
+          {"contacts_max", percentile(r.contacts, 100)},
+          {"max_penetration_mm", 1e3 * r.max_penetration_m},
+          {"resets", r.resets}};
 }
 
 void run_world_bench(const WorldBenchArgs& a) {
@@ -218,9 +224,8 @@ void run_world_bench(const WorldBenchArgs& a) {
                         {"machine", to_json(machine)}};
   std::printf("%-18s %-10s %9s %9s %9s %9s %9s %9s %9s %9s %9s %9s %9s\n", "scene", "contact", "step_med", "step_p99",
               "collide", "hand", "contact", "ode", "linearize", "deform", "contacts", "pen_mm", "ferr_N");
-  for (const auto& [label, r] : {std::pair<const char*, const RunStats&>{"penalty", penalty},
-                                 {"constraint", constraint},
-                                 {"off", without}})
+  for (const auto& [label, r] :
+       {std::pair<const char*, const RunStats&>{"penalty", penalty}, {"constraint", constraint}, {"off", without}})
     std::printf("%-18s %-10s %9.3f %9.3f %9.3f %9.3f %9.3f %9.3f %9.3f %9.3f %9.0f %9.3f %9.4f\n", scene.name.c_str(),
                 label, median(r.total), percentile(r.total, 99), median(r.collide), median(r.hands), median(r.contact),
                 median(r.rigid), median(r.linearize), median(r.deformable), median(r.contacts),
@@ -234,7 +239,8 @@ void run_world_bench(const WorldBenchArgs& a) {
 
 void add_world_suite(CLI::App& app) {
   auto args = std::make_shared<WorldBenchArgs>();
-  CLI::App* sub = app.add_subcommand("world", "a scene's world under a scripted press and stroke (a glove's hand: its grasp), contact on and off");
+  CLI::App* sub = app.add_subcommand(
+      "world", "a scene's world under a scripted press and stroke (a glove's hand: its grasp), contact on and off");
   sub->add_option("--scene", args->scene, "scene file (scenes/*.json)")->required()->check(CLI::ExistingFile);
   sub->add_option("--steps", args->steps, "steps (the first 10 are not measured)")->check(CLI::Range(11, 1000000));
   sub->add_option("--solver", args->solver, "hand solver: monolithic | cg | cholmod | lagged")

@@ -67,4 +67,15 @@ int FemHand::skin_handle(int i) const {
   return i >= 0 && i < static_cast<int>(skin_handles.size()) ? skin_handles[static_cast<std::size_t>(i)] : -1;
 }
 
+Flesh* FemHand::flesh() {
+  flesh_.model = model.get();
+  flesh_.state = &state;
+  flesh_.point_tet = &shape.skin_tet;
+  flesh_.point_bary = &shape.skin_bary;
+  flesh_.rest_surface_vertices = &shape.skin_vertices;
+  flesh_.surface_triangles = &shape.skin_triangles;
+  flesh_.friction = friction;
+  return &flesh_;
+}
+
 }  // namespace hapticd::hand

@@ -31,9 +31,9 @@ class FemHand : public Hand {
   int num_skin_points() const override { return static_cast<int>(shape.skin_tet.size()); }
   Eigen::Vector3d skin_point(int i) const override;
   int skin_handle(int i) const override;
+  Flesh* flesh() override;
 
-  // The FEM body itself (the world's soft-body collision embeds its contacts in these tets).
-  std::string name;
+  // The FEM body itself (Hand::flesh: the world's collision embeds its contacts in these tets).
   bool left_side = false;  // the scene's side: a left hand (the mirror image)
   ProceduralHand shape;    // mesh, skeleton and the skin used for contact
   std::unique_ptr<HandModel> model;
@@ -41,6 +41,13 @@ class FemHand : public Hand {
   HandState state;
   std::unique_ptr<CoupledSolver> solver;
   double friction = 0.5;
+
+ private:
+  Flesh flesh_;
 };
+
+// The FEM hand behind a Hand, for tests and benches that read its flesh; std::bad_cast for another model.
+inline FemHand& as_fem(Hand& hand) { return dynamic_cast<FemHand&>(hand); }
+inline const FemHand& as_fem(const Hand& hand) { return dynamic_cast<const FemHand&>(hand); }
 
 }  // namespace hapticd::hand

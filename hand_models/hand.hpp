@@ -6,15 +6,17 @@
 // spring hand of seed 002, the contact-point hand of seed 001 and the soft-pad hand of seed 000 are
 // to implement it too, chosen by a scene's "model", without the haptic loop knowing which it renders.
 //
-// Contacts: today the world finds them against the hand's skin points and hands them to the FEM
-// hand as points embedded in its flesh (FemHand's state); a rigid hand will take them at points on
-// its links through the same skin-point indices.
+// Contacts: the world finds them against a hand's flesh (flesh.hpp), a tet mesh whose contacts are
+// points embedded in its tets, the FEM hand's and every deformable object's alike. A hand model
+// without such flesh (a rigid hand of seeds 001 and 002) returns none and will take its contacts at
+// its skin points on its links (issue 18); until then the world refuses to build it.
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include <string>
 #include <string_view>
 #include <vector>
 
+#include "hand_models/flesh.hpp"
 #include "hand_models/handle_linearization.hpp"
 #include "hand_models/rigid_handle.hpp"
 
@@ -71,6 +73,10 @@ class Hand {
   virtual Eigen::Vector3d skin_point(int i) const = 0;
   // The handle whose part of the hand skin point i is on (a glove frame's contact flag); -1: none.
   virtual int skin_handle(int i) const = 0;
+
+  // --- Collision: the flesh the world embeds this hand's contacts in (its points are the skin
+  // points above), or null for a hand that has none. Valid as long as the hand.
+  virtual Flesh* flesh() { return nullptr; }
 };
 
 }  // namespace hapticd::hand

@@ -21,7 +21,7 @@ using HapticMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kM
 
 // Virtual coupling and proxy parameters, in world units (the device's are mapped in).
 struct CouplingGains {
-  double k_n_m = 250.0, b_ns_m = 0.4;     // translational
+  double k_n_m = 250.0, b_ns_m = 0.4;       // translational
   double k_nm_rad = 1.0, b_nms_rad = 0.01;  // rotational
 };
 
@@ -43,8 +43,8 @@ struct TickSolver {
   CouplingGains gains;
   double mass_kg[kMaxHapticHandles]{};
   Eigen::Matrix3d inertia_B[kMaxHapticHandles];
-  HapticMatrix G;  // U^T B^-1
-  HapticMatrix U;  // orthogonal
+  HapticMatrix G;             // U^T B^-1
+  HapticMatrix U;             // orthogonal
   HapticVector anchor_force;  // F0 - D v0: the model's force at its anchor pose, the anchor's damping taken out
   // The tick's check of its answer v (Freivalds' randomized verification): Z (b - A(tau) v) = 0
   // for kProbes random unit rows z_i of Z, with Z B and Z C precomputed: O(n) per probe instead
@@ -77,10 +77,10 @@ using TickRowMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, k
 using TickRowByDof = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kMaxTickRows, kMaxHapticDofs>;
 using TickDofByRow = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kMaxHapticDofs, kMaxTickRows>;
 struct TickContacts {
-  int count = 0;  // c; 0: the model has no contact rows
-  TickDofByRow G;  // 6m x 3c
-  TickRowMatrix W;  // 3c x 3c
-  TickRowVector u0;  // 3c, at the anchor without impulses
+  int count = 0;          // c; 0: the model has no contact rows
+  TickDofByRow G;         // 6m x 3c
+  TickRowMatrix W;        // 3c x 3c
+  TickRowVector u0;       // 3c, at the anchor without impulses
   TickRowByDof U_K, U_D;  // 3c x 6m
   TickRowVector lambda0;  // 3c: the solution at the anchor, the first tick's warm start
   double bias[kMaxTickContacts]{}, mu[kMaxTickContacts]{};
@@ -108,7 +108,7 @@ struct HapticModel {
   std::uint64_t t_end_ns = 0;
   double step_s = 0;  // the length of that step, s
   TickContacts contacts;
-  // Per handle, the nearest surfaces the model does not hold (WorldHand::clearance): the tick
+  // Per handle, the nearest surfaces the model does not hold (World::clearance): the tick
   // carries the handle from x0 no closer to them than their gaps.
   hand::ClearancePlane clearance[kMaxHapticHandles][hand::kClearancePlanes];
   int clearance_count[kMaxHapticHandles]{};

@@ -43,7 +43,7 @@ void fill_contact_flags(const world::World& world, int h, HapticModel& out) {
     const int j = c.point >= 0 ? hand.skin_handle(c.point) : -1;
     if (j >= 0 && j < kMaxHapticHandles) out.handle_in_contact[j] = true;
   }
-  const std::vector<std::vector<hand::ClearancePlane>>& clearance = world.hand(h).clearance;
+  const std::vector<std::vector<hand::ClearancePlane>>& clearance = world.clearance(h);
   for (int j = 0; j < kMaxHapticHandles; ++j) {
     const int n = j < static_cast<int>(clearance.size())
                       ? std::min(static_cast<int>(clearance[j].size()), hand::kClearancePlanes)

@@ -51,7 +51,7 @@ void fill_haptic_model(world::World& world, int h, hand::HandleLinearization& li
 bool set_tick_contacts(const hand::HandleContactModel& in, int handles, TickContacts& out);
 // Only its contact flags (in_contact: a contact of the last step inside or carrying force;
 // handle_in_contact: inside) from the world's last contacts, and each
-// handle's clearance planes (WorldHand::clearance) from its last collision.
+// handle's clearance planes (World::clearance) from its last collision.
 void fill_contact_flags(const world::World& world, int h, HapticModel& out);
 
 // Handle j of hand h's target for a world that simulates up to `until_ns`: the proxy extrapolated

@@ -114,6 +114,18 @@ std::array<int, 3> deformable_box_cells(const Eigen::Vector3d& size) {
   return cells;
 }
 
+hand::Flesh flesh_of(DeformableObject& object) {
+  hand::Flesh f;
+  f.model = object.model.get();
+  f.state = &object.state;
+  f.point_tet = &object.body.surface_tet;
+  f.point_bary = &object.body.surface_bary;
+  f.rest_surface_vertices = &object.body.surface.vertices;
+  f.surface_triangles = &object.body.surface.triangles;
+  f.friction = object.friction;
+  return f;
+}
+
 Eigen::Vector3d surface_point(const DeformableObject& o, int v) {
   const hand::Tet& t = o.body.mesh.tets[o.body.surface_tet[v]];
   Eigen::Vector3d p = Eigen::Vector3d::Zero();
@@ -169,9 +181,9 @@ std::unique_ptr<DeformableObject> make_deformable_object(const ObjectDesc& desc,
     throw std::runtime_error("object '" + desc.name + "': mass is not positive (is the surface closed and outward?)");
   // The loader bounds given masses and boxes' masses; a tet mesh's comes from its volume only now.
   if (!(mass_kg >= kMinMassKg && mass_kg <= kMaxMassKg))
-    throw std::runtime_error("object '" + desc.name + "': mass " + std::to_string(mass_kg) + " kg from its volume is outside [" +
-                             std::to_string(kMinMassKg) + ", " + std::to_string(kMaxMassKg) +
-                             "] kg: give mass_kg or change the scale or density");
+    throw std::runtime_error("object '" + desc.name + "': mass " + std::to_string(mass_kg) +
+                             " kg from its volume is outside [" + std::to_string(kMinMassKg) + ", " +
+                             std::to_string(kMaxMassKg) + "] kg: give mass_kg or change the scale or density");
   hand::HandConfig config;
   config.free_body = true;
   config.dt_s = build.dt_s;

@@ -10,6 +10,7 @@
 
 #include "hand_models/coupled_solver.hpp"
 #include "hand_models/embedded_surface.hpp"
+#include "hand_models/flesh.hpp"
 #include "hand_models/hand_model.hpp"
 #include "server/world/deformed_mesh_query.hpp"
 #include "server/world/scene.hpp"
@@ -57,6 +58,9 @@ namespace detail {
 
 // Cells of the grid a deformable box of this size is meshed with (6 tets per cell).
 std::array<int, 3> deformable_box_cells(const Eigen::Vector3d& size_m);
+
+// The object as a body of flesh for the world's collision: its surface vertices are its points.
+hand::Flesh flesh_of(DeformableObject& object);
 
 // Surface vertex v of the object at its current node positions, world frame.
 Eigen::Vector3d surface_point(const DeformableObject& object, int v);

@@ -18,11 +18,10 @@
 #include <vector>
 
 #include "hand_models/coupled_solver.hpp"
-#include "hand_models/fem_hand.hpp"
-#include "hand_models/handle_linearization.hpp"
+#include "hand_models/flesh.hpp"
+#include "hand_models/hand.hpp"
 #include "hand_models/hand_model.hpp"
-#include "hand_models/procedural_handles.hpp"
-#include "hand_models/procedural_hand.hpp"
+#include "hand_models/handle_linearization.hpp"
 #include "server/world/deformable_object.hpp"
 #include "server/world/rigid_world.hpp"
 #include "server/world/scene.hpp"
@@ -35,7 +34,7 @@ struct WorldOptions {
   // Per-step CHOLMOD: the handle-space model needs A_t^-1 on 2 x 6m + 1 columns
   // every step, cheap with a current factorization and costly with a lagged one.
   hand::SolverKind solver = hand::SolverKind::schur_cholmod;
-  hand::DriveParams drive;  // how each handle is pulled toward its target (zero: the hand is let go)
+  hand::DriveParams drive;    // how each handle is pulled toward its target (zero: the hand is let go)
   bool hand_contacts = true;  // false: hands pass through everything (a cost baseline for benches)
   // False: hands pass through each other, still touching everything else (a
   // cost baseline). Only scenes with two hands or more build hand-hand contact.
@@ -58,25 +57,6 @@ struct WorldOptions {
   bool contact_reserves = true;
   // A rigid body beyond these (or non-finite) has diverged: the rigid stage resets it (RigidWorld::step).
   BodyBounds body_bounds;
-};
-
-// A hand of the world: the FEM hand (the only model built so far), and what the world keeps of it
-// for hand-hand contact.
-struct WorldHand : hand::FemHand {
-  // Where a point lies in this hand's deformed flesh and how deep it is inside
-  // its skin: for hand-hand contact (a scene with two hands or more) and for the
-  // vertices of rigid meshes (a scene with one), hand contacts on; null otherwise.
-  std::unique_ptr<DeformedMeshQuery> query;
-  Eigen::AlignedBox3d skin_bounds;  // of the deformed skin, at the last collision
-  bool query_current = false;       // query rebuilt for the last collision (another hand or a mesh near)
-  // The other hands' contact forces on the nodes over the last step, N, 3n
-  // (World::step): with query only, else empty.
-  Eigen::VectorXd f_hands_W;
-  // Per handle, at the last collision: the nearest static or rigid surfaces its part of the skin
-  // could reach that are not among its contacts, measured up to 5 cm, at most kClearancePlanes
-  // (hand::ClearancePlane, nearest first in each direction): the haptic tick carries the handle no
-  // farther before the next step finds them. Deformable objects and other hands are not measured.
-  std::vector<std::vector<hand::ClearancePlane>> clearance;
 };
 
 // One contact of a point of flesh: a hand's skin point (hand >= 0) or a
@@ -141,9 +121,23 @@ class World {
   void step(double dt_s = 0);
 
   int num_hands() const { return static_cast<int>(hands_.size()); }
-  WorldHand& hand(int i) { return *hands_[i]; }
-  const WorldHand& hand(int i) const { return *hands_[i]; }
+  // Hand i as the scene's "model" built it (hand_factory.hpp); the world reaches it only through Hand.
+  hand::Hand& hand(int i) { return *hands_[i].model; }
+  const hand::Hand& hand(int i) const { return *hands_[i].model; }
+  const std::string& hand_name(int i) const { return hands_[i].name; }
   int find_hand(const std::string& name) const;
+  // Per handle of hand i, at the last collision: the nearest static or rigid surfaces its part of the
+  // skin could reach that are not among its contacts, measured up to 5 cm, at most kClearancePlanes
+  // (hand::ClearancePlane, nearest first in each direction): the haptic tick carries the handle no
+  // farther before the next step finds them. Deformable objects and other hands are not measured.
+  const std::vector<std::vector<hand::ClearancePlane>>& clearance(int i) const { return hands_[i].clearance; }
+  // Where a point lies in hand i's deformed flesh and how deep inside its skin: built for hand-hand
+  // contact (a scene with two hands or more) and for rigid meshes' vertices and deformable objects'
+  // surface points (a scene with either), hand contacts on; null otherwise.
+  const DeformedMeshQuery* hand_query(int i) const { return hands_[i].query.get(); }
+  // The other hands' contact forces on hand i's flesh nodes over the last step, N, 3n (with its
+  // query only, else empty).
+  const Eigen::VectorXd& hand_contact_forces(int i) const { return hands_[i].f_hands_W; }
   int num_deformables() const { return static_cast<int>(deformables_.size()); }
   DeformableObject& deformable(int i) { return *deformables_[i]; }
   const DeformableObject& deformable(int i) const { return *deformables_[i]; }
@@ -157,7 +151,7 @@ class World {
   // A point of a hand that touches a deformable object or another hand: where in that body.
   struct DeformableTouch {
     int object = -1;  // index of the deformable object, -1: the contact is with a RigidWorld object
-    int tet = 0;  // the tet and weights where the contact's reaction goes
+    int tet = 0;      // the tet and weights where the contact's reaction goes
     Eigen::Vector4d bary = Eigen::Vector4d::Zero();
     // Hand-hand: the other hand, -1 if none. `reversed`: the skin point is the
     // other hand's (SoftBody::point_of is its skin vertex) and the contact sits
@@ -172,21 +166,16 @@ class World {
   // What collision needs of a body of flesh (a hand, or a deformable object),
   // and what it keeps of its contacts between steps.
   struct SoftBody {
-    const hand::HandModel* model = nullptr;
-    hand::HandState* state = nullptr;
-    // The points that collide: the skin or surface vertices, each in a tet.
-    const std::vector<int>* point_tet = nullptr;
-    const std::vector<Eigen::Vector4d>* point_bary = nullptr;
-    double friction = 0.5;
+    hand::Flesh flesh;               // its tets, state and colliding points (the skin or surface vertices)
     int hand = -1, deformable = -1;  // which body it is
-    // Per contact of state->contacts: world point, and for hands the deformable object or other hand touched.
+    // Per contact of flesh.state->contacts: world point, and for hands the deformable object or other hand touched.
     std::vector<Eigen::Vector3d> points;
     std::vector<DeformableTouch> touches;
     // Constraint contacts: each contact's cluster cell, and the impulse (N s)
     // each cell's contact had in the last step, the next step's first guess.
     std::vector<std::uint64_t> keys;
     std::vector<int> point_of;  // the point each contact is at
-    // Per reserve contact of state->reserve_contacts: its point and world position.
+    // Per reserve contact of flesh.state->reserve_contacts: its point and world position.
     std::vector<int> reserve_point;
     std::vector<Eigen::Vector3d> reserve_p_W;
     std::unordered_map<std::uint64_t, Eigen::Vector3d> warm_impulse;
@@ -194,6 +183,18 @@ class World {
     // Per point: the object and normal of its last contact. A point keeps the
     // face it entered through while inside (no tunnelling through thin boxes).
     std::vector<LastContact> last;
+  };
+
+  // What the world keeps of a hand besides the hand itself.
+  struct HandSlot {
+    std::string name;
+    std::unique_ptr<hand::Hand> model;
+    hand::Flesh* flesh = nullptr;              // model->flesh(): the world builds only hands with flesh
+    std::unique_ptr<DeformedMeshQuery> query;  // hand_query()
+    Eigen::AlignedBox3d skin_bounds;           // of the deformed skin, at the last collision
+    bool query_current = false;                // query rebuilt for the last collision (another hand or a mesh near)
+    Eigen::VectorXd f_hands_W;                 // hand_contact_forces()
+    std::vector<std::vector<hand::ClearancePlane>> clearance;  // clearance()
   };
 
   void collide_all();
@@ -243,13 +244,13 @@ class World {
   double step_dt_ = 0, t_s_ = 0;
   Eigen::Vector3d gravity_m_s2_;
   bool constraint_contact_ = true;
-  bool hand_hand_ = false;  // hand-hand contact built (WorldHand::query)
+  bool hand_hand_ = false;  // hand-hand contact built (HandSlot::query)
   long steps_ = 0;
   WorldOptions options_;
-  std::vector<std::unique_ptr<WorldHand>> hands_;
+  std::vector<HandSlot> hands_;
   std::vector<std::unique_ptr<DeformableObject>> deformables_;
   std::unique_ptr<RigidWorld> rigid_;
-  std::vector<SoftBody> soft_;          // the hands, then the deformable objects
+  std::vector<SoftBody> soft_;                // the hands, then the deformable objects
   std::vector<hand::PointContact> mirrored_;  // workspace: hand contacts seen from a deformable object
   // A hand's skin vertex in another hand's flesh, at the last collision.
   struct HandHit {

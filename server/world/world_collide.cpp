@@ -49,11 +49,13 @@ double speed_bound(const RigidWorld& rigid, int g, const dReal aabb[6]) {
 }
 
 // Skin point i of the hand, at p, is `gap` from a surface with normal n (out of it) and not a
-// contact: it becomes one of its handle's clearance planes if it is the nearest in its direction.
-void note_clearance(WorldHand& hand, int i, const Eigen::Vector3d& p, const Eigen::Vector3d& n, double gap) {
+// contact: it becomes one of its handle's clearance planes (`clearance`, per handle) if it is the
+// nearest in its direction.
+void note_clearance(const hand::Hand& hand, std::vector<std::vector<hand::ClearancePlane>>& clearance, int i,
+                    const Eigen::Vector3d& p, const Eigen::Vector3d& n, double gap) {
   const int j = hand.skin_handle(i);
-  if (j < 0 || j >= static_cast<int>(hand.clearance.size()) || !n.allFinite()) return;
-  std::vector<hand::ClearancePlane>& planes = hand.clearance[static_cast<std::size_t>(j)];
+  if (j < 0 || j >= static_cast<int>(clearance.size()) || !n.allFinite()) return;
+  std::vector<hand::ClearancePlane>& planes = clearance[static_cast<std::size_t>(j)];
   // At least kClearanceFloor_m: a point just outside would otherwise hold its handle off the surface
   // it is about to touch (with penalty contact, which has no speculative rows, no step would find
   // it), and a hand closing faster than its gaps per visual step would lag its device.
@@ -95,7 +97,7 @@ void World::collide_all() {
 
 void World::add_contact(SoftBody& b, const hand::PointContact& c, int point, const Eigen::Vector3d& p_W, int other_key,
                         const DeformableTouch& touch, std::unordered_map<std::uint64_t, int>& cluster) {
-  hand::HandState& s = *b.state;
+  hand::HandState& s = *b.flesh.state;
   if (!constraint_contact_) {
     s.contacts.push_back(c);
     b.points.push_back(p_W);
@@ -151,7 +153,7 @@ void World::add_contact(SoftBody& b, const hand::PointContact& c, int point, con
 // static and rigid object (then, for hands, against the deformable objects),
 // rigid bodies touched joining the body's implicit system with their supports.
 void World::collide(SoftBody& b) {
-  hand::HandState& s = *b.state;
+  hand::HandState& s = *b.flesh.state;
   s.contacts.clear();
   s.reserve_contacts.clear();
   b.reserve_point.clear();
@@ -166,9 +168,9 @@ void World::collide(SoftBody& b) {
   b.touches.clear();
   std::unordered_map<std::uint64_t, int> cluster;
   if (b.hand >= 0 && !options_.hand_contacts) return;
-  const hand::TetMesh& mesh = b.model->mesh();
-  const std::vector<int>& point_tet = *b.point_tet;
-  const std::vector<Eigen::Vector4d>& point_bary = *b.point_bary;
+  const hand::TetMesh& mesh = b.flesh.model->mesh();
+  const std::vector<int>& point_tet = *b.flesh.point_tet;
+  const std::vector<Eigen::Vector4d>& point_bary = *b.flesh.point_bary;
   // A deformable object's point is looked for as far ahead of a surface as it can come over the
   // coming step (taken as long as the last): 2 mm, plus its speed and the object's, plus gravity's,
   // over the step. Within that reach it remembers the face it approaches, so that a step that
@@ -181,10 +183,10 @@ void World::collide(SoftBody& b) {
   const double h = step_dt_, fall = 0.5 * gravity_m_s2_.norm() * h;
   // A hand's points farther than their reach are still measured up to kMaxReach_m: the smallest
   // such gap per handle is how far the haptic tick may carry that handle before a contact the
-  // model does not hold could begin (WorldHand::clearance).
-  WorldHand* world_hand = free_body ? nullptr : hands_[b.hand].get();
+  // model does not hold could begin (World::clearance).
+  HandSlot* world_hand = free_body ? nullptr : &hands_[b.hand];
   if (world_hand) {
-    world_hand->clearance.resize(world_hand->handles().size());
+    world_hand->clearance.resize(world_hand->model->handles().size());
     for (std::vector<hand::ClearancePlane>& planes : world_hand->clearance) planes.clear();
   }
   std::vector<int> body_of_object(rigid_ ? rigid_->num_objects() : 0, -1);
@@ -226,7 +228,8 @@ void World::collide(SoftBody& b) {
       if (box_gap > reach) {
         if (last.object == g) last = LastContact{};
         if (world_hand && box_gap < look)
-          note_clearance(*world_hand, static_cast<int>(v), p, box_offset / box_gap, box_gap);
+          note_clearance(*world_hand->model, world_hand->clearance, static_cast<int>(v), p, box_offset / box_gap,
+                         box_gap);
         continue;
       }
       double depth;
@@ -235,7 +238,8 @@ void World::collide(SoftBody& b) {
       const bool near = rigid_->penetration(g, p, depth, n, entry, look);
       if (!near || depth <= -reach) {
         if (last.object == g) last = LastContact{};
-        if (world_hand && near) note_clearance(*world_hand, static_cast<int>(v), p, n, -depth);
+        if (world_hand && near)
+          note_clearance(*world_hand->model, world_hand->clearance, static_cast<int>(v), p, n, -depth);
         continue;
       }
       last = LastContact{g, n};
@@ -256,7 +260,7 @@ void World::collide(SoftBody& b) {
       c.body = implicit_body(s, body_of_object, g);
       c.stiffness_n_m = options_.contact_stiffness_n_m;
       c.damping_ns_m = options_.contact_damping_ns_m;
-      c.friction = std::sqrt(b.friction * rigid_->friction(g));
+      c.friction = std::sqrt(b.flesh.friction * rigid_->friction(g));
       c.other = g;
       c.constraint = constraint_contact_;
       add_contact(b, c, static_cast<int>(v), p, g, DeformableTouch{}, cluster);
@@ -264,7 +268,7 @@ void World::collide(SoftBody& b) {
   }
   if (b.hand >= 0) collide_with_deformables(b, cluster);
   if (b.hand >= 0 && hand_hand_) collide_with_hands(b, cluster);
-  if (b.hand >= 0 && hands_[b.hand]->query) collide_mesh_vertices(b, body_of_object, cluster);
+  if (b.hand >= 0 && hands_[b.hand].query) collide_mesh_vertices(b, body_of_object, cluster);
   // The bodies touched bring their own contacts (table, other bodies) as supports: those found, and
   // those remembered while the gap the body lifted off them is one the coming step can close (its
   // speed and gravity over the step, as for a deformable object's points). With only 2 mm, a
@@ -293,8 +297,8 @@ void World::collide(SoftBody& b) {
 // Hand skin points inside a deformable object's deformed surface (DeformedMeshQuery).
 // How the two bodies share a contact is in step_deformables().
 void World::collide_with_deformables(SoftBody& b, std::unordered_map<std::uint64_t, int>& cluster) {
-  hand::HandState& s = *b.state;
-  const hand::TetMesh& mesh = b.model->mesh();
+  hand::HandState& s = *b.flesh.state;
+  const hand::TetMesh& mesh = b.flesh.model->mesh();
   const double margin = constraint_contact_ ? kSpeculativeMargin_m : 0.0;
   const int first_key = rigid_ ? rigid_->num_objects() : 0;
   const int vertex_key = 2 * first_key + num_deformables() + 2 * num_hands();
@@ -304,15 +308,15 @@ void World::collide_with_deformables(SoftBody& b, std::unordered_map<std::uint64
     const Eigen::Vector3d grow = Eigen::Vector3d::Constant(margin);
     const Eigen::AlignedBox3d box(o.surface_bounds.min() - grow, o.surface_bounds.max() + grow);
     int proxy = -1;  // constraint contacts: the object's index in s.bodies
-    for (size_t v = 0; v < b.point_tet->size(); ++v) {
-      const hand::Tet& t = mesh.tets[(*b.point_tet)[v]];
-      const Eigen::Vector4d& w = (*b.point_bary)[v];
+    for (size_t v = 0; v < b.flesh.point_tet->size(); ++v) {
+      const hand::Tet& t = mesh.tets[(*b.flesh.point_tet)[v]];
+      const Eigen::Vector4d& w = (*b.flesh.point_bary)[v];
       Eigen::Vector3d p = Eigen::Vector3d::Zero();
       for (int k = 0; k < 4; ++k) p += w[k] * s.x.segment<3>(3 * t[k]);
       MeshPenetration pen;
       if (!box.contains(p) || !o.query->penetration(p, margin, pen)) continue;
       hand::PointContact c;
-      c.tet = (*b.point_tet)[v];
+      c.tet = (*b.flesh.point_tet)[v];
       c.bary = w;
       c.n_W = pen.n_W;
       c.depth_m = pen.depth_m;
@@ -320,7 +324,7 @@ void World::collide_with_deformables(SoftBody& b, std::unordered_map<std::uint64
       for (int k = 0; k < 4; ++k) c.v_other_W += pen.bary[k] * o.state.v.segment<3>(3 * ot[k]);
       c.stiffness_n_m = options_.contact_stiffness_n_m;
       c.damping_ns_m = options_.contact_damping_ns_m;
-      c.friction = std::sqrt(b.friction * o.friction);
+      c.friction = std::sqrt(b.flesh.friction * o.friction);
       c.constraint = constraint_contact_;
       if (constraint_contact_) {
         if (proxy < 0) proxy = add_rigid_proxy(s, d);
@@ -334,7 +338,7 @@ void World::collide_with_deformables(SoftBody& b, std::unordered_map<std::uint64
     // thin part between them: the deformable bunny pressed 3 cm deep with the palm at a 15 Hz step
     // had an ear inside the palm, whose side faced a skin point from below, and held the palm by it
     // as the user lifted (2.3 N toward the bunny against 1.1 N for the same lift in free space).
-    const WorldHand& hand = *hands_[b.hand];
+    const HandSlot& hand = hands_[b.hand];
     if (!hand.query || !hand.query_current || hand.query->empty() || !box.intersects(hand.skin_bounds)) continue;
     const Eigen::AlignedBox3d skin(hand.skin_bounds.min() - grow, hand.skin_bounds.max() + grow);
     for (int v = 0; v < static_cast<int>(o.body.surface_tet.size()); ++v) {
@@ -343,7 +347,7 @@ void World::collide_with_deformables(SoftBody& b, std::unordered_map<std::uint64
       if (!skin.contains(p) || !hand.query->penetration(p, margin, pen)) continue;
       hand::PointContact c =
           flesh_contact(pen, embedded_at(o.body.mesh, o.state.v, o.body.surface_tet[v], o.body.surface_bary[v]),
-                        b.friction, o.friction);
+                        b.flesh.friction, o.friction);
       if (constraint_contact_) {
         if (proxy < 0) proxy = add_rigid_proxy(s, d);
         c.body = proxy;
@@ -384,8 +388,8 @@ int World::implicit_body(hand::HandState& s, std::vector<int>& body_of_object, i
 // palm held the bunny by their friction when the user lifted (3.3 N toward it, 2 s on).
 void World::collide_mesh_vertices(SoftBody& b, std::vector<int>& body_of_object,
                                   std::unordered_map<std::uint64_t, int>& cluster) {
-  hand::HandState& s = *b.state;
-  const WorldHand& hand = *hands_[b.hand];
+  hand::HandState& s = *b.flesh.state;
+  const HandSlot& hand = hands_[b.hand];
   if (!hand.query || !hand.query_current || hand.query->empty() || hand.skin_bounds.isEmpty()) return;
   const double margin = constraint_contact_ ? kSpeculativeMargin_m : 0.0;
   const Eigen::Vector3d grow = Eigen::Vector3d::Constant(margin);
@@ -400,7 +404,7 @@ void World::collide_mesh_vertices(SoftBody& b, std::vector<int>& body_of_object,
       const Eigen::Vector3d& p = vertices[v];
       MeshPenetration pen;
       if (!skin.contains(p) || !hand.query->penetration(p, margin, pen)) continue;
-      hand::PointContact c = flesh_contact(pen, rigid_->point_velocity(g, p), b.friction, rigid_->friction(g));
+      hand::PointContact c = flesh_contact(pen, rigid_->point_velocity(g, p), b.flesh.friction, rigid_->friction(g));
       c.other = g;
       c.body = implicit_body(s, body_of_object, g);
       DeformableTouch touch;
@@ -416,12 +420,11 @@ void World::collide_mesh_vertices(SoftBody& b, std::vector<int>& body_of_object,
 void World::find_hand_hits() {
   hand_hits_.clear();
   for (int h = 0; h < num_hands(); ++h) {
-    WorldHand& hand = *hands_[h];
+    HandSlot& hand = hands_[h];
     if (!hand.query) continue;
+    const hand::Flesh& flesh = *hand.flesh;
     hand.skin_bounds.setEmpty();
-    for (size_t v = 0; v < hand.shape.skin_tet.size(); ++v)
-      hand.skin_bounds.extend(
-          embedded_at(hand.model->mesh(), hand.state.x, hand.shape.skin_tet[v], hand.shape.skin_bary[v]));
+    for (int v = 0; v < flesh.num_points(); ++v) hand.skin_bounds.extend(flesh.point(v, flesh.state->x));
     // Rebuilt (a few ms for a glove's flesh) only when it is asked: another hand, or a mesh or a
     // deformable object near.
     bool mesh_near = false;
@@ -435,15 +438,15 @@ void World::find_hand_hits() {
                       .intersects(hand.skin_bounds);
     }
     hand.query_current = hand_hand_ || mesh_near;
-    if (hand.query_current) hand.query->update(hand.state.x);
+    if (hand.query_current) hand.query->update(flesh.state->x);
   }
   if (!hand_hand_) return;  // the queries serve the mesh vertices only
   const double margin = constraint_contact_ ? kSpeculativeMargin_m : 0.0;
   const Eigen::Vector3d grow = Eigen::Vector3d::Constant(margin);
   for (int a = 0; a < num_hands(); ++a)
     for (int o = a + 1; o < num_hands(); ++o) {
-      const WorldHand& A = *hands_[a];
-      const WorldHand& O = *hands_[o];
+      const HandSlot& A = hands_[a];
+      const HandSlot& O = hands_[o];
       if (!A.query || !O.query || A.query->empty() || O.query->empty()) continue;
       // Only points in both skins' boxes (grown by the margin) can touch: none for hands apart.
       const Eigen::AlignedBox3d box_a(A.skin_bounds.min() - grow, A.skin_bounds.max() + grow);
@@ -452,12 +455,12 @@ void World::find_hand_hits() {
       const Eigen::AlignedBox3d both = box_a.intersection(box_o);
       for (const bool reversed : {false, true}) {
         const int skin = reversed ? o : a, flesh = reversed ? a : o;
-        const WorldHand& S = *hands_[skin];
-        for (size_t v = 0; v < S.shape.skin_tet.size(); ++v) {
+        const hand::Flesh& S = *hands_[skin].flesh;
+        for (int v = 0; v < S.num_points(); ++v) {
           HandHit hit;
-          hit.skin = skin, hit.flesh = flesh, hit.vertex = static_cast<int>(v);
-          hit.p_W = embedded_at(S.model->mesh(), S.state.x, S.shape.skin_tet[v], S.shape.skin_bary[v]);
-          if (both.contains(hit.p_W) && hands_[flesh]->query->penetration(hit.p_W, margin, hit.pen))
+          hit.skin = skin, hit.flesh = flesh, hit.vertex = v;
+          hit.p_W = S.point(v, S.state->x);
+          if (both.contains(hit.p_W) && hands_[flesh].query->penetration(hit.p_W, margin, hit.pen))
             hand_hits_.push_back(hit);
         }
       }
@@ -503,10 +506,10 @@ void World::collide_with_hands(SoftBody& b, std::unordered_map<std::uint64_t, in
     const bool reversed = hit.flesh == a;  // the other hand's skin point, in a's flesh
     const int o = reversed ? hit.skin : hit.flesh;
     if (constraint_contact_ && o < a) continue;  // the lower-numbered hand holds them
-    const WorldHand& skin = *hands_[hit.skin];
-    const WorldHand& flesh = *hands_[hit.flesh];
-    const int tet = skin.shape.skin_tet[hit.vertex];
-    const Eigen::Vector4d& w = skin.shape.skin_bary[hit.vertex];
+    const hand::Flesh& skin = *hands_[hit.skin].flesh;
+    const hand::Flesh& flesh = *hands_[hit.flesh].flesh;
+    const int tet = (*skin.point_tet)[hit.vertex];
+    const Eigen::Vector4d& w = (*skin.point_bary)[hit.vertex];
     const MeshPenetration& pen = hit.pen;
     hand::PointContact c;
     DeformableTouch touch;  // the reaction's point in o
@@ -520,8 +523,8 @@ void World::collide_with_hands(SoftBody& b, std::unordered_map<std::uint64_t, in
       touch.tet = tet, touch.bary = w;
     }
     // The two points, one in each hand, meet at their midpoint: it moves at their mean velocity.
-    c.v_other_W = 0.5 * (embedded_at(skin.model->mesh(), skin.state.v, tet, w) +
-                         embedded_at(flesh.model->mesh(), flesh.state.v, pen.tet, pen.bary));
+    c.v_other_W = 0.5 * (skin.point(hit.vertex, skin.state->v) +
+                         embedded_at(flesh.model->mesh(), flesh.state->v, pen.tet, pen.bary));
     c.depth_m = 0.5 * pen.depth_m;
     c.stiffness_n_m = 2 * options_.contact_stiffness_n_m;
     c.damping_ns_m = 2 * options_.contact_damping_ns_m;
@@ -557,8 +560,8 @@ int World::add_rigid_proxy(hand::HandState& s, int d) {
   s.bodies.push_back(detail::rigid_proxy(*deformables_[d]));
   s.bodies.back().gravity_W = gravity_m_s2_;
   const SoftBody& own = soft_[num_hands() + d];
-  for (size_t k = 0; k < own.state->contacts.size(); ++k) {
-    const hand::PointContact& c = own.state->contacts[k];
+  for (size_t k = 0; k < own.flesh.state->contacts.size(); ++k) {
+    const hand::PointContact& c = own.flesh.state->contacts[k];
     hand::BodySupport support;
     support.body = index;
     support.p_W = own.points[k];
@@ -574,7 +577,7 @@ int World::add_rigid_proxy(hand::HandState& s, int d) {
 void World::remember_impulses(SoftBody& b) {
   // This step's impulses warm-start the next step's contacts in the same cells.
   b.warm_impulse.clear();
-  for (size_t k = 0; k < b.keys.size(); ++k) b.warm_impulse[b.keys[k]] = b.state->contacts[k].f_W * step_dt_;
+  for (size_t k = 0; k < b.keys.size(); ++k) b.warm_impulse[b.keys[k]] = b.flesh.state->contacts[k].f_W * step_dt_;
 }
 
 }  // namespace hapticd::world

@@ -44,7 +44,7 @@ void World::step_deformables() {
       for (size_t k = 0; k < b.touches.size(); ++k) {
         const DeformableTouch& touch = b.touches[k];
         if (touch.object != d) continue;
-        const hand::PointContact& c = b.state->contacts[k];
+        const hand::PointContact& c = b.flesh.state->contacts[k];
         const hand::Tet& t = o.body.mesh.tets[touch.tet];
         if (c.constraint) {
           for (int a = 0; a < 4; ++a) o.state.f_ext.segment<3>(3 * t[a]) -= touch.bary[a] * c.f_W;
@@ -55,8 +55,8 @@ void World::step_deformables() {
         mirror.bary = touch.bary;
         mirror.n_W = -c.n_W;
         mirror.v_other_W.setZero();
-        const hand::Tet& ht = b.model->mesh().tets[c.tet];
-        for (int a = 0; a < 4; ++a) mirror.v_other_W += c.bary[a] * b.state->v.segment<3>(3 * ht[a]);
+        const hand::Tet& ht = b.flesh.model->mesh().tets[c.tet];
+        for (int a = 0; a < 4; ++a) mirror.v_other_W += c.bary[a] * b.flesh.state->v.segment<3>(3 * ht[a]);
         mirror.body = -1;
         mirror.other = -1;
         mirrored_.push_back(mirror);
@@ -84,8 +84,8 @@ void World::step_deformables() {
 // visual loop's linearize_next_step) predicts them unchanged: as a force,
 // without the contacts' stiffness.
 void World::take_hand_reactions(int h) {
-  hand::HandState& s = hands_[h]->state;
-  const hand::TetMesh& mesh = hands_[h]->model->mesh();
+  hand::HandState& s = *hands_[h].flesh->state;
+  const hand::TetMesh& mesh = hands_[h].flesh->model->mesh();
   s.f_ext.setZero();
   for (int g = 0; g < h; ++g) {
     const SoftBody& from = soft_[g];
@@ -93,7 +93,7 @@ void World::take_hand_reactions(int h) {
       const DeformableTouch& touch = from.touches[k];
       if (touch.hand != h) continue;
       const hand::Tet& t = mesh.tets[touch.tet];
-      for (int a = 0; a < 4; ++a) s.f_ext.segment<3>(3 * t[a]) -= touch.bary[a] * from.state->contacts[k].f_W;
+      for (int a = 0; a < 4; ++a) s.f_ext.segment<3>(3 * t[a]) -= touch.bary[a] * from.flesh.state->contacts[k].f_W;
     }
   }
 }
@@ -107,9 +107,9 @@ void World::take_hand_reactions(int h) {
 // at 0.3 m/s lost nearly all their momentum within five steps. The recorded contact
 // forces (f_W) have it: they take the relative velocity.
 void World::anchor_hand_contacts(int h, double dt) {
-  hand::HandState& s = hands_[h]->state;
+  hand::HandState& s = *hands_[h].flesh->state;
   const SoftBody& b = soft_[h];
-  const hand::TetMesh& mesh = hands_[h]->model->mesh();
+  const hand::TetMesh& mesh = hands_[h].flesh->model->mesh();
   s.f_ext.setZero();
   for (size_t k = 0; k < b.touches.size(); ++k) {
     const hand::PointContact& c = s.contacts[k];
@@ -123,17 +123,18 @@ void World::anchor_hand_contacts(int h, double dt) {
 // What the other hands did to hand h over the step, per node: the impulses it
 // took and its own hand-hand contacts' forces.
 void World::sum_hand_forces(int h) {
-  WorldHand& hand = *hands_[h];
+  HandSlot& hand = hands_[h];
   const SoftBody& b = soft_[h];
-  const hand::TetMesh& mesh = hand.model->mesh();
+  const hand::TetMesh& mesh = hand.flesh->model->mesh();
+  const hand::HandState& s = *hand.flesh->state;
   if (constraint_contact_) {
-    hand.f_hands_W = hand.state.f_ext;  // the impulses taken
+    hand.f_hands_W = s.f_ext;  // the impulses taken
   } else {
     hand.f_hands_W.setZero();  // f_ext holds part of the contacts' own forces (anchor_hand_contacts())
   }
   for (size_t k = 0; k < b.touches.size(); ++k) {
     if (b.touches[k].hand < 0) continue;
-    const hand::PointContact& c = hand.state.contacts[k];
+    const hand::PointContact& c = s.contacts[k];
     const hand::Tet& t = mesh.tets[c.tet];
     for (int a = 0; a < 4; ++a) hand.f_hands_W.segment<3>(3 * t[a]) += c.bary[a] * c.f_W;
   }
@@ -151,7 +152,7 @@ void World::apply_reactions() {
   const double first_substep_s = step_dt_ / RigidWorld::substeps(step_dt_);
   solved_bodies_.clear();
   for (const SoftBody& b : soft_) {
-    const hand::HandState& s = *b.state;
+    const hand::HandState& s = *b.flesh.state;
     std::vector<int> object_of_body(s.bodies.size(), -1);
     for (const hand::PointContact& c : s.contacts)
       if (c.body >= 0) object_of_body[c.body] = c.other;

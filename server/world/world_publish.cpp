@@ -14,7 +14,7 @@ void World::record_contacts() {
   snapshot_.contacts.clear();
   snapshot_.max_penetration_m = 0;
   for (const SoftBody& b : soft_) {
-    const hand::HandState& s = *b.state;
+    const hand::HandState& s = *b.flesh.state;
     for (size_t k = 0; k < s.contacts.size(); ++k) {
       const hand::PointContact& c = s.contacts[k];
       const DeformableTouch& touch = b.touches[k];
@@ -67,8 +67,8 @@ void World::publish() {
   snapshot_.t_s = t_s_;
   snapshot_.handles.resize(hands_.size());
   snapshot_.resets = 0;
-  for (int h = 0; h < num_hands(); ++h) snapshot_.handles[h] = hands_[h]->state.handles;
-  for (const SoftBody& b : soft_) snapshot_.resets += b.state->resets;
+  for (int h = 0; h < num_hands(); ++h) snapshot_.handles[h] = hands_[h].model->handles();
+  for (const SoftBody& b : soft_) snapshot_.resets += b.flesh.state->resets;
   snapshot_.body_resets = rigid_ ? rigid_->resets() : 0;
   snapshot_.deformables.resize(deformables_.size());
   for (int d = 0; d < num_deformables(); ++d) {

@@ -4,6 +4,7 @@
 
 #include <string>
 
+#include "hand_models/fem_hand.hpp"
 #include "server/world/scene_loader.hpp"
 #include "server/world/world.hpp"
 
@@ -13,7 +14,7 @@ namespace {
 TEST(FemHand, SkinPointsAreTheRestSkinPlacedByTheScenePoseAndCarryTheirHandles) {
   const SceneDesc scene = load_scene(std::string(HAPTICD_SCENES_DIR) + "/glove_grasp.json");
   const World world(scene);
-  const WorldHand& fem = world.hand(0);
+  const hand::FemHand& fem = hand::as_fem(world.hand(0));
   const hand::Hand& hand = fem;
   EXPECT_EQ(hand.model_name(), "fem");
   ASSERT_EQ(hand.num_skin_points(), static_cast<int>(fem.shape.skin_vertices.size()));
@@ -23,7 +24,8 @@ TEST(FemHand, SkinPointsAreTheRestSkinPlacedByTheScenePoseAndCarryTheirHandles) 
   const Pose& pose = scene.hands[0].pose;
   double worst = 0;
   for (int i = 0; i < hand.num_skin_points(); ++i)
-    worst = std::max(worst, (hand.skin_point(i) - (pose.p_W + pose.q_W.normalized() * fem.shape.skin_vertices[i])).norm());
+    worst =
+        std::max(worst, (hand.skin_point(i) - (pose.p_W + pose.q_W.normalized() * fem.shape.skin_vertices[i])).norm());
   EXPECT_LT(worst, 1e-12);
   // 16 handles (phalanges): every skin point on some handle, every handle with skin.
   ASSERT_EQ(hand.num_handles(), 16);

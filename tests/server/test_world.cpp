@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "hand_models/fem_hand.hpp"
 #include "server/world/scene_loader.hpp"
 #include "server/world/world.hpp"
 #include "world_test_util.hpp"
@@ -28,7 +29,7 @@ SceneDesc floor_scene(double box_mass_kg) {
   return scene;
 }
 
-double centroid_z(const WorldHand& h) {
+double centroid_z(const hand::FemHand& h) {
   double z = 0;
   for (int i = 0; i < h.model->num_nodes(); ++i) z += h.state.x[3 * i + 2];
   return z / h.model->num_nodes();
@@ -39,7 +40,7 @@ TEST(World, HandRestingOnTheFloorStaysWithinHalfAMillimetreWithoutDriftOrJitter)
   options.contact_stiffness_n_m = 2000;
   options.drive = hand::DriveParams{0, 0, 0, 0};  // let go of the handle: the hand falls and rests
   World world(floor_scene(0), options);
-  WorldHand& hand = world.hand(0);
+  hand::FemHand& hand = hand::as_fem(world.hand(0));
   ASSERT_FALSE(world.rigid()->has_dynamics());  // static geometry only: no ODE dynamics world
   double max_penetration_late = 0, z_at_5s = 0, max_speed_late = 0;
   for (int k = 0; k < 600; ++k) {  // 10 s
@@ -52,12 +53,12 @@ TEST(World, HandRestingOnTheFloorStaysWithinHalfAMillimetreWithoutDriftOrJitter)
   EXPECT_GE(world.snapshot().contacts.size(), 5u);  // it rests on the floor (350-tet hand: palm pads, fingertips)
   EXPECT_LT(max_penetration_late, 0.5e-3);
   EXPECT_LT(std::abs(centroid_z(hand) - z_at_5s), 0.1e-3);  // no drift over the last 5 s
-  EXPECT_LT(max_speed_late, 1e-3);                           // m/s: at rest, no jitter
+  EXPECT_LT(max_speed_late, 1e-3);                          // m/s: at rest, no jitter
 }
 
 TEST(World, HandPushesARigidBoxAcrossTheFloor) {
   World world(floor_scene(0.1));
-  WorldHand& hand = world.hand(0);
+  hand::FemHand& hand = hand::as_fem(world.hand(0));
   RigidWorld& rigid = *world.rigid();
   ASSERT_TRUE(rigid.has_dynamics());
   const int box = rigid.find("box");
@@ -78,10 +79,10 @@ TEST(World, HandPushesARigidBoxAcrossTheFloor) {
   }
   const Eigen::Vector3d moved = rigid.state(box).p_WO - box0;
   std::printf("box moved by (%.4f, %.4f, %.4f) m\n", moved.x(), moved.y(), moved.z());
-  EXPECT_GT(moved.y(), 0.03);                 // pushed along
-  EXPECT_LT(moved.y(), 0.15 + 0.01);          // but never faster than the hand (0.15 m of travel)
+  EXPECT_GT(moved.y(), 0.03);         // pushed along
+  EXPECT_LT(moved.y(), 0.15 + 0.01);  // but never faster than the hand (0.15 m of travel)
   EXPECT_LT(std::abs(moved.x()), 0.02);
-  EXPECT_LT(std::abs(moved.z()), 0.01);       // still on the floor
+  EXPECT_LT(std::abs(moved.z()), 0.01);  // still on the floor
   EXPECT_EQ(world.snapshot().resets, 0);
   EXPECT_TRUE(box_touched);
 }
@@ -94,13 +95,13 @@ TEST(World, HandRestingOnTheFloorWithConstraintContactsDoesNotSink) {
   double max_penetration = 0;
   for (int k = 0; k < 60; ++k) {  // 1 s: the hand falls 3 cm and comes to rest
     world.step();
-    ASSERT_TRUE(world.hand(0).state.x.allFinite());
+    ASSERT_TRUE(hand::as_fem(world.hand(0)).state.x.allFinite());
     if (k >= 40) max_penetration = std::max(max_penetration, world.snapshot().max_penetration_m);
   }
   EXPECT_EQ(world.snapshot().resets, 0);
   EXPECT_GT(world.snapshot().contacts.size(), 5u);
   EXPECT_LT(max_penetration, 0.5e-3);
-  EXPECT_LT(world.hand(0).state.v.cwiseAbs().maxCoeff(), 0.02);
+  EXPECT_LT(hand::as_fem(world.hand(0)).state.v.cwiseAbs().maxCoeff(), 0.02);
 }
 
 // The push of HandPushesARigidBoxAcrossTheFloor with a given contact model: where the box went, the
@@ -115,7 +116,7 @@ PushRun push_box(ContactModel contact) {
   WorldOptions options;
   options.contact = contact;
   World world(floor_scene(0.1), options);
-  WorldHand& hand = world.hand(0);
+  hand::FemHand& hand = hand::as_fem(world.hand(0));
   RigidWorld& rigid = *world.rigid();
   const int box = rigid.find("box");
   const Eigen::Vector3d box0 = rigid.state(box).p_WO;
@@ -155,10 +156,11 @@ TEST(World, HandPushesARigidBoxWithConstraintContactsToo) {
   const double c_deepest = deepest_from(constraint, recovered), p_deepest = deepest_from(penalty, recovered);
   int touching = 0;
   for (int k = recovered; k < 90; ++k) touching += constraint.deepest_in_box_m[k] >= 0 ? 1 : 0;
-  std::printf("box moved %.4f m (penalty %.4f m); skin in the box %.2f mm at the start; from step %d on at most "
-              "%.3f mm (penalty %.3f mm); touching in %d of %d steps\n",
-              constraint.box_moved.y(), penalty.box_moved.y(), 1e3 * start_overlap, recovered, 1e3 * c_deepest,
-              1e3 * p_deepest, touching, 90 - recovered);
+  std::printf(
+      "box moved %.4f m (penalty %.4f m); skin in the box %.2f mm at the start; from step %d on at most "
+      "%.3f mm (penalty %.3f mm); touching in %d of %d steps\n",
+      constraint.box_moved.y(), penalty.box_moved.y(), 1e3 * start_overlap, recovered, 1e3 * c_deepest, 1e3 * p_deepest,
+      touching, 90 - recovered);
   EXPECT_GT(constraint.box_moved.y(), 0.03);
   EXPECT_LT(constraint.box_moved.y(), 0.15 + 0.01);  // never faster than the hand (0.15 m of travel)
   EXPECT_EQ(constraint.resets, 0);
@@ -237,9 +239,10 @@ TEST(WorldSlowSteps, HandReachingTheMovableBunnyAt15HzLeavesItOnTheTable) {
       stop = std::min(stop, depth + 0.003);
     }
   }
-  std::printf("hand lowered onto the movable bunny at 15 Hz, held 3 mm past the first touch (%.1f mm down): bunny "
-              "rose or sank up to %.2f mm, slid up to %.2f mm, %d hand-bunny contact forces\n",
-              1e3 * stop, 1e3 * largest_rise, 1e3 * largest_slide, touching);
+  std::printf(
+      "hand lowered onto the movable bunny at 15 Hz, held 3 mm past the first touch (%.1f mm down): bunny "
+      "rose or sank up to %.2f mm, slid up to %.2f mm, %d hand-bunny contact forces\n",
+      1e3 * stop, 1e3 * largest_rise, 1e3 * largest_slide, touching);
   EXPECT_GT(touching, 10);  // it did press on the bunny
   EXPECT_LT(largest_rise, 2e-3);
 }

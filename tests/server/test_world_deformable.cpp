@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <string>
 
+#include "hand_models/fem_hand.hpp"
 #include "server/world/scene_loader.hpp"
 #include "server/world/world.hpp"
 #include "world_test_util.hpp"
@@ -194,7 +195,7 @@ SceneDesc bunny_push_scene() {
 
 TEST_P(DeformableWorld, PushingASoftBunnyDeformsItAndCreatesNoEnergy) {
   World world(bunny_push_scene(), options());
-  WorldHand& hand = world.hand(0);
+  hand::FemHand& hand = hand::as_fem(world.hand(0));
   const DeformableObject& bunny = world.deformable(0);
   ASSERT_NE(bunny.query, nullptr);
   EXPECT_EQ(bunny.body.surface.triangles.size(), 3674u);
@@ -285,8 +286,10 @@ TEST_P(DeformableWorld, SoftBunnyStepsAtSlowVisualRatesComeToRestOnTheTableAsAt6
     if (rate < 15 && GetParam() == ContactModel::penalty) continue;
     double deepest = 0;
     const Eigen::Vector3d c = rest(1.0 / rate, deepest);
-    std::printf("%s at %.0f Hz: centroid %.2f mm from its 60 Hz rest, deepest point %.2f mm after 0.5 s (60 Hz: %.2f mm)\n",
-                std::string(to_string(GetParam())).c_str(), rate, 1e3 * (c - reference).norm(), 1e3 * deepest, 1e3 * deepest_60);
+    std::printf(
+        "%s at %.0f Hz: centroid %.2f mm from its 60 Hz rest, deepest point %.2f mm after 0.5 s (60 Hz: %.2f mm)\n",
+        std::string(to_string(GetParam())).c_str(), rate, 1e3 * (c - reference).norm(), 1e3 * deepest,
+        1e3 * deepest_60);
     EXPECT_LT((c - reference).norm(), 1e-3) << rate << " Hz";
     EXPECT_LT(deepest, 1e-3) << rate << " Hz";
   }

@@ -31,6 +31,7 @@
 #include <numbers>
 #include <vector>
 
+#include "hand_models/fem_hand.hpp"
 #include "hand_models/press_scenario.hpp"
 #include "hand_models/procedural_hand.hpp"
 #include "hand_models/skeleton/hand_skeleton.hpp"
@@ -56,7 +57,7 @@ hand::HandJointAngles degrees(const std::array<std::array<double, 4>, hand::kHan
 struct GraspSpec {
   double size_m = 0.05, mass_kg = 0.1;
   Eigen::Vector3d object_H = Eigen::Vector3d::Zero();  // object centre in the hand frame, m
-  double yaw = 0;                                       // the object's turn about z, rad
+  double yaw = 0;                                      // the object's turn about z, rad
   hand::HandJointAngles closed;
 };
 
@@ -140,7 +141,7 @@ struct HandForces {
 HandForces hand_forces(const World& w, int object) {
   HandForces out;
   for (Eigen::Vector3d& f : out.on_object) f.setZero();
-  const std::vector<int>& skin_handle = w.hand(0).skin_handles;  // procedural_skin_handles(shape, 16)
+  const std::vector<int>& skin_handle = hand::as_fem(w.hand(0)).skin_handles;  // procedural_skin_handles(shape, 16)
   for (const ContactRecord& c : w.snapshot().contacts) {
     if (c.hand != 0 || c.object != object) continue;
     const int j = skin_handle[c.point];
@@ -154,7 +155,7 @@ HandForces hand_forces(const World& w, int object) {
 
 // Sets every handle target of `hand` for `angles` with the hand frame at (p, q), each with the
 // velocity of getting there from its last target in one step.
-void set_posture(const World& w, WorldHand& hand, const hand::HandJointAngles& angles, const Eigen::Vector3d& p,
+void set_posture(const World& w, hand::FemHand& hand, const hand::HandJointAngles& angles, const Eigen::Vector3d& p,
                  const Eigen::Quaterniond& q, bool left) {
   std::vector<hand::HandleTarget> t = posture_targets(hand.shape, *hand.model, angles, p, q, left);
   for (int j = 0; j < hand.model->num_handles(); ++j) {
@@ -186,7 +187,7 @@ GraspRun run_grasp(const GraspSpec& g, const WorldOptions& options) {
   const Eigen::Vector3d grip = Eigen::Vector3d(0, 0, 0.5 * g.size_m) - g.object_H;  // palm when grasping
   const Eigen::Vector3d above = grip + Eigen::Vector3d(0, 0, 0.04);
   World w(grasp_scene(g, above), options);
-  WorldHand& hand = w.hand(0);
+  hand::FemHand& hand = hand::as_fem(w.hand(0));
   const int object = w.rigid()->find("object");
   const hand::HandJointAngles open = hand::rest_joint_angles();
   hand::HandJointAngles angles = open;
@@ -268,15 +269,17 @@ Eigen::Vector3d total_force(const GraspRun& r) {
 }
 
 void print_run(const char* what, const GraspRun& r) {
-  std::printf("[glove grasp] %s: lift %.1f mm, slip over the 5 s hold %.2f mm (vertical %.2f), turn %.1f deg, "
-              "released after %.3f s, object at z = %.1f mm 0.75 s after opening; normal forces %.2f N; %.1f ms/step "
-              "(max %.1f), %ld resets\n",
-              what, r.lift_m / kMm, r.slip_m / kMm, r.slip_z_m / kMm, r.turn_rad / kDeg, r.release_s, r.landed_z_m / kMm,
-              r.normal_sum_n, r.step_ms, r.step_ms_max, r.resets);
+  std::printf(
+      "[glove grasp] %s: lift %.1f mm, slip over the 5 s hold %.2f mm (vertical %.2f), turn %.1f deg, "
+      "released after %.3f s, object at z = %.1f mm 0.75 s after opening; normal forces %.2f N; %.1f ms/step "
+      "(max %.1f), %ld resets\n",
+      what, r.lift_m / kMm, r.slip_m / kMm, r.slip_z_m / kMm, r.turn_rad / kDeg, r.release_s, r.landed_z_m / kMm,
+      r.normal_sum_n, r.step_ms, r.step_ms_max, r.resets);
   for (int f = 0; f < 6; ++f) {
     if (r.force_n[f].norm() == 0 && r.contacts[f] == 0) continue;
-    std::printf("[glove grasp]   %-6s %2d contacts, force on the object (%.3f, %.3f, %.3f) N", f < 5 ? hand::finger_name(f) : "palm",
-                r.contacts[f], r.force_n[f].x(), r.force_n[f].y(), r.force_n[f].z());
+    std::printf("[glove grasp]   %-6s %2d contacts, force on the object (%.3f, %.3f, %.3f) N",
+                f < 5 ? hand::finger_name(f) : "palm", r.contacts[f], r.force_n[f].x(), r.force_n[f].y(),
+                r.force_n[f].z());
     if (f < 5) std::printf(", cosine to the object centre %.2f", r.into_object[f]);
     std::printf("\n");
   }
@@ -451,15 +454,15 @@ TEST(WorldGloveHandover, RightHandSetsTheBoxOnTheLeftPalmAndTheLeftCarriesItAway
   SceneDesc scene = load_scene(std::string(HAPTICD_SCENES_DIR) + "/two_hands.json");
   WorldOptions options = glove_options(scene.contact);
   World w(scene, options);
-  WorldHand& right = w.hand(0);
-  WorldHand& left = w.hand(1);
-  ASSERT_EQ(right.name, "right_hand");
+  hand::FemHand& right = hand::as_fem(w.hand(0));
+  hand::FemHand& left = hand::as_fem(w.hand(1));
+  ASSERT_EQ(w.hand_name(0), "right_hand");
   const int box = w.rigid()->find("box");
   const int table = w.rigid()->find("table");
   const GraspSpec g = box_grasp();
   const Eigen::Quaterniond q_right = scene.hands[0].pose.q_W, q_left = scene.hands[1].pose.q_W;
   struct Driven {
-    WorldHand* hand;
+    hand::FemHand* hand;
     Eigen::Quaterniond q;
     bool left;
     hand::HandJointAngles angles = hand::rest_joint_angles();
@@ -533,11 +536,12 @@ TEST(WorldGloveHandover, RightHandSetsTheBoxOnTheLeftPalmAndTheLeftCarriesItAway
   move(L, open, away, R, open, R.palm, 1.0, watch);
   move(L, open, away, R, open, R.palm, 1.0, watch);
   const Eigen::Vector3d on_palm = in_left_palm();
-  std::printf("[handover] box at (%.1f, %.1f, %.1f) mm in the left palm frame after the right let go; largest "
-              "drift while carried %.2f mm; right hand touching the box after letting go: %s; steps with "
-              "hand-hand contact %ld of %ld; resets %ld\n",
-              held0.x() / kMm, held0.y() / kMm, held0.z() / kMm, drift / kMm,
-              right_touches_after_release ? "yes" : "no", hand_hand_steps, steps, w.snapshot().resets);
+  std::printf(
+      "[handover] box at (%.1f, %.1f, %.1f) mm in the left palm frame after the right let go; largest "
+      "drift while carried %.2f mm; right hand touching the box after letting go: %s; steps with "
+      "hand-hand contact %ld of %ld; resets %ld\n",
+      held0.x() / kMm, held0.y() / kMm, held0.z() / kMm, drift / kMm, right_touches_after_release ? "yes" : "no",
+      hand_hand_steps, steps, w.snapshot().resets);
   EXPECT_EQ(w.snapshot().resets, 0);
   EXPECT_FALSE(right_touches_after_release);
   EXPECT_FALSE(touches(0, box));
@@ -562,13 +566,13 @@ World glove_over_table(ContactModel contact) {
 }
 
 // Every handle's distance from its target, largest, m.
-double largest_target_error(const WorldHand& hand, int first = 0, int last = 16) {
+double largest_target_error(const hand::FemHand& hand, int first = 0, int last = 16) {
   double e = 0;
   for (int j = first; j < last; ++j) e = std::max(e, (hand.state.handles[j].p_WH - hand.state.targets[j].p_W).norm());
   return e;
 }
 
-bool inverted_elements(const WorldHand& hand) {
+bool inverted_elements(const hand::FemHand& hand) {
   for (int e = 0; e < hand.model->fem().num_tets(); ++e)
     if (!(hand.model->fem().deformation_gradient(e, hand.state.x).determinant() > 0)) return true;
   return false;
@@ -585,11 +589,12 @@ class WorldGloveHardCases : public testing::TestWithParam<ContactModel> {};
 // nothing resets or stays inverted.
 TEST_P(WorldGloveHardCases, IndexDrivenFiveCentimetresIntoTheTable) {
   World w = glove_over_table(GetParam());
-  WorldHand& hand = w.hand(0);
+  hand::FemHand& hand = hand::as_fem(w.hand(0));
   const Eigen::Vector3d palm(0, 0, 0.035);
   const std::vector<hand::HandleTarget> rest =
       posture_targets(hand.shape, *hand.model, hand::rest_joint_angles(), palm, Eigen::Quaterniond::Identity(), false);
-  for (int k = 0; k < 20; ++k) set_posture(w, hand, hand::rest_joint_angles(), palm, Eigen::Quaterniond::Identity(), false), w.step();
+  for (int k = 0; k < 20; ++k)
+    set_posture(w, hand, hand::rest_joint_angles(), palm, Eigen::Quaterniond::Identity(), false), w.step();
   const int index_first = 1 + 3 * 1, index_last = index_first + 3;  // handles of the index phalanges
   double deepest = 0, others = 0;
   const int ramp = 6, held = 60;
@@ -603,17 +608,20 @@ TEST_P(WorldGloveHardCases, IndexDrivenFiveCentimetresIntoTheTable) {
     w.step();
     ASSERT_TRUE(hand.state.x.allFinite());
     deepest = std::max(deepest, w.snapshot().max_penetration_m);
-    if (k > ramp + 15) others = std::max({others, largest_target_error(hand, 0, index_first), largest_target_error(hand, index_last, 16)});
+    if (k > ramp + 15)
+      others =
+          std::max({others, largest_target_error(hand, 0, index_first), largest_target_error(hand, index_last, 16)});
   }
   const double index_held = largest_target_error(hand, index_first, index_last);
   for (int k = 0; k < 30; ++k) {
     for (int j = 0; j < 16; ++j) set_target(hand.state, j, rest[j]);
     w.step();
   }
-  std::printf("[glove hard] %s: index targets 5 cm under the table: deepest skin point %.2f mm, index handles %.1f mm "
-              "from their targets, the other handles within %.3f mm; 0.5 s after release within %.3f mm; resets %ld\n",
-              GetParam() == ContactModel::constraint ? "constraint" : "penalty", deepest / kMm, index_held / kMm,
-              others / kMm, largest_target_error(hand) / kMm, w.snapshot().resets);
+  std::printf(
+      "[glove hard] %s: index targets 5 cm under the table: deepest skin point %.2f mm, index handles %.1f mm "
+      "from their targets, the other handles within %.3f mm; 0.5 s after release within %.3f mm; resets %ld\n",
+      GetParam() == ContactModel::constraint ? "constraint" : "penalty", deepest / kMm, index_held / kMm, others / kMm,
+      largest_target_error(hand) / kMm, w.snapshot().resets);
   EXPECT_EQ(w.snapshot().resets, 0);
   EXPECT_LT(deepest, GetParam() == ContactModel::constraint ? 3 * kMm : 20 * kMm);
   EXPECT_LT(others, 2 * kMm);
@@ -627,11 +635,12 @@ TEST_P(WorldGloveHardCases, IndexDrivenFiveCentimetresIntoTheTable) {
 // safety response: the hand placed back on the palm's target, at rest).
 TEST_P(WorldGloveHardCases, EveryFingerTeleportedByTrackingGlitches) {
   World w = glove_over_table(GetParam());
-  WorldHand& hand = w.hand(0);
+  hand::FemHand& hand = hand::as_fem(w.hand(0));
   const Eigen::Vector3d palm(0, 0, 0.06);
   const std::vector<hand::HandleTarget> rest =
       posture_targets(hand.shape, *hand.model, hand::rest_joint_angles(), palm, Eigen::Quaterniond::Identity(), false);
-  for (int k = 0; k < 30; ++k) set_posture(w, hand, hand::rest_joint_angles(), palm, Eigen::Quaterniond::Identity(), false), w.step();
+  for (int k = 0; k < 30; ++k)
+    set_posture(w, hand, hand::rest_joint_angles(), palm, Eigen::Quaterniond::Identity(), false), w.step();
   std::srand(7);
   auto jump = []() -> Eigen::Vector3d {  // a value, not an expression of the local d
     const Eigen::Vector3d d = Eigen::Vector3d::Random().normalized();
@@ -656,9 +665,10 @@ TEST_P(WorldGloveHardCases, EveryFingerTeleportedByTrackingGlitches) {
     worst_back = std::max(worst_back, largest_target_error(hand));
     EXPECT_FALSE(inverted_elements(hand)) << glitch_steps << " glitch steps";
   }
-  std::printf("[glove hard] %s: tracking glitches of 3-10 cm on every phalanx: back within %.3f mm 0.5 s later; "
-              "resets %ld\n",
-              GetParam() == ContactModel::constraint ? "constraint" : "penalty", worst_back / kMm, w.snapshot().resets);
+  std::printf(
+      "[glove hard] %s: tracking glitches of 3-10 cm on every phalanx: back within %.3f mm 0.5 s later; "
+      "resets %ld\n",
+      GetParam() == ContactModel::constraint ? "constraint" : "penalty", worst_back / kMm, w.snapshot().resets);
   EXPECT_LT(worst_back, 2 * kMm);
   EXPECT_EQ(w.snapshot().resets, 0);
 }

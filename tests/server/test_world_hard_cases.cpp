@@ -6,6 +6,7 @@
 
 #include <algorithm>
 
+#include "hand_models/fem_hand.hpp"
 #include "server/world/world.hpp"
 #include "world_test_util.hpp"
 
@@ -47,29 +48,23 @@ class WorldHardCases : public testing::TestWithParam<ContactModel> {
 };
 
 bool finite(const World& w) {
-  const WorldHand& h = w.hand(0);
+  const hand::FemHand& h = hand::as_fem(w.hand(0));
   bool ok = h.state.x.allFinite() && h.state.v.allFinite();
   for (const RigidBodyState& b : w.snapshot().bodies) ok = ok && b.p_WO.allFinite() && b.v_WO.allFinite();
   return ok;
 }
 
 // The lowest skin point of a hand, m.
-double lowest_skin_z(const WorldHand& hand) {
-  const hand::TetMesh& mesh = hand.model->mesh();
+double lowest_skin_z(const hand::Hand& hand) {
   double lowest = 1e9;
-  for (size_t v = 0; v < hand.shape.skin_vertices.size(); ++v) {
-    const hand::Tet& t = mesh.tets[hand.shape.skin_tet[v]];
-    double z = 0;
-    for (int i = 0; i < 4; ++i) z += hand.shape.skin_bary[v][i] * hand.state.x[3 * t[i] + 2];
-    lowest = std::min(lowest, z);
-  }
+  for (int v = 0; v < hand.num_skin_points(); ++v) lowest = std::min(lowest, hand.skin_point(v).z());
   return lowest;
 }
 
 // Presses the test hand's handle 5.5 cm down from its start (2.5 cm past the
 // top of a slab under it: ~75 N of drive), ramped over 0.5 s, for 2 s.
 void press_into_slab(World& world) {
-  WorldHand& hand = world.hand(0);
+  hand::FemHand& hand = hand::as_fem(world.hand(0));
   const hand::HandleState start = hand.state.handles[0];
   for (int k = 0; k < 120; ++k) {
     set_target(hand.state, 0, target_at(start, {0, 0, -0.055 * std::min(1.0, k / 30.0)}));
@@ -80,7 +75,7 @@ void press_into_slab(World& world) {
 
 TEST_P(WorldHardCases, HandleDriven10cmIntoAStaticBoxInOneStepRecoversWithinHalfASecond) {
   World world(slab_scene(0.1, 0), options());
-  WorldHand& hand = world.hand(0);
+  hand::FemHand& hand = hand::as_fem(world.hand(0));
   const hand::HandleState start = hand.state.handles[0];
   for (int k = 0; k < 30; ++k) {  // 0.5 s with the target 10 cm inside the slab
     set_target(hand.state, 0, target_at(start, {0, 0, -0.1}));
@@ -125,7 +120,7 @@ TEST(WorldConstraintContacts, ReservePointsHoldTheSkinBetweenSparseRows) {
 
 TEST_P(WorldHardCases, HandAt3MetresPerSecondIntoABoxStaysFiniteAndSettles) {
   World world(slab_scene(0.1, 0), options());
-  WorldHand& hand = world.hand(0);
+  hand::FemHand& hand = hand::as_fem(world.hand(0));
   const hand::HandleState start = hand.state.handles[0];
   // The target dives at 3 m/s from 3 cm above the slab to 2 cm inside it in 1/60 s steps, then holds there.
   for (int k = 0; k < 60; ++k) {
@@ -145,7 +140,7 @@ TEST_P(WorldHardCases, PushingObjectsAThousandTimesLighterAndHeavierThanTheHand)
   const double hand_mass = 0.3;  // kg, about the procedural hand's
   for (double ratio : {1e-3, 1e3}) {
     World world(slab_scene(0.1, ratio * hand_mass), options());
-    WorldHand& hand = world.hand(0);
+    hand::FemHand& hand = hand::as_fem(world.hand(0));
     RigidWorld& rigid = *world.rigid();
     const int box = rigid.find("box");
     const Eigen::Vector3d box0 = rigid.state(box).p_WO;
@@ -170,7 +165,7 @@ TEST_P(WorldHardCases, PushingObjectsAThousandTimesLighterAndHeavierThanTheHand)
 
 TEST_P(WorldHardCases, ADivergedBodyUnderTheHandIsResetCountedAndNeverReachesTheSnapshotOrTheModel) {
   World world(slab_scene(0.1, 0.3), options());
-  WorldHand& hand = world.hand(0);
+  hand::FemHand& hand = hand::as_fem(world.hand(0));
   RigidWorld& rigid = *world.rigid();
   const int box = rigid.find("box");
   const hand::HandleState start = hand.state.handles[0];
@@ -182,9 +177,9 @@ TEST_P(WorldHardCases, ADivergedBodyUnderTheHandIsResetCountedAndNeverReachesThe
     // Mid-push: a NaN velocity, then 200 m/s (4x the bound), set on the box between two steps.
     if (k == 50 || k == 70) {
       const auto& contacts = world.snapshot().contacts;
-      ASSERT_TRUE(std::any_of(contacts.begin(), contacts.end(), [&](const ContactRecord& c) {
-        return c.hand == 0 && c.object == box;
-      })) << "the hand touches the box at step " << k;
+      ASSERT_TRUE(std::any_of(contacts.begin(), contacts.end(),
+                              [&](const ContactRecord& c) { return c.hand == 0 && c.object == box; }))
+          << "the hand touches the box at step " << k;
       RigidBodyState b = rigid.state(box);
       b.v_WO = k == 50 ? Eigen::Vector3d(NAN, 0, 0) : Eigen::Vector3d(0, 200, 0);
       rigid.set_state(box, b);

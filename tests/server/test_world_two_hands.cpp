@@ -13,6 +13,7 @@
 #include <cstdio>
 #include <numbers>
 
+#include "hand_models/fem_hand.hpp"
 #include "hand_models/procedural_hand.hpp"
 #include "server/world/scene_loader.hpp"
 #include "server/world/world.hpp"
@@ -80,7 +81,7 @@ Eigen::Vector3d total(const Eigen::VectorXd& f) {
 }
 
 // The drive's force on handle 0 (the palm), N.
-Eigen::Vector3d drive_force(const WorldHand& hand) {
+Eigen::Vector3d drive_force(const hand::FemHand& hand) {
   const hand::DriveParams& d = hand.model->config().drive;
   const hand::HandleState& h = hand.state.handles[0];
   const hand::HandleTarget& t = hand.state.targets[0];
@@ -90,7 +91,7 @@ Eigen::Vector3d drive_force(const WorldHand& hand) {
 // The deepest skin point of hand `skin` inside hand `flesh`, m: every skin
 // point (not only those the contacts kept), through a query of the flesh's
 // own (a world without hand-hand contact has none).
-double deepest_skin_point(const WorldHand& skin, const WorldHand& flesh) {
+double deepest_skin_point(const hand::FemHand& skin, const hand::FemHand& flesh) {
   DeformedMeshQuery query(flesh.model->mesh(), hand::SurfaceMesh{flesh.shape.skin_vertices, flesh.shape.skin_triangles},
                           0.003, 6);
   query.update(flesh.state.x);
@@ -126,7 +127,8 @@ struct PressResult {
 };
 PressResult press(World& world, int steps) {
   PressResult r;
-  const hand::HandleTarget start[2] = {world.hand(0).state.targets[0], world.hand(1).state.targets[0]};
+  const hand::HandleTarget start[2] = {hand::as_fem(world.hand(0)).state.targets[0],
+                                       hand::as_fem(world.hand(1)).state.targets[0]};
   constexpr double kTravel = 0.0115, kSpeed = 0.03;  // m, m/s (each hand)
   double time_ms = 0;
   for (int k = 0; k < steps; ++k) {
@@ -136,7 +138,7 @@ PressResult press(World& world, int steps) {
       const double sign = h == 0 ? -1 : 1;  // the right hand comes down, the left hand up
       target.p_W.z() += sign * std::min(kTravel, kSpeed * t);
       target.v_W.z() = kSpeed * t < kTravel ? sign * kSpeed : 0;
-      set_target(world.hand(h).state, 0, target);
+      set_target(hand::as_fem(world.hand(h)).state, 0, target);
     }
     const auto t0 = std::chrono::steady_clock::now();
     world.step();
@@ -157,10 +159,10 @@ PressResult press(World& world, int steps) {
 TEST_P(TwoHands, PressedPalmToPalmTheyStopAtEachOtherWithEqualAndOppositeForces) {
   World world(palm_to_palm(0.02), options());
   ASSERT_EQ(world.num_hands(), 2);
-  WorldHand& right = world.hand(0);
-  WorldHand& left = world.hand(1);
-  ASSERT_NE(right.query, nullptr);
-  ASSERT_NE(left.query, nullptr);
+  hand::FemHand& right = hand::as_fem(world.hand(0));
+  hand::FemHand& left = hand::as_fem(world.hand(1));
+  ASSERT_NE(world.hand_query(0), nullptr);
+  ASSERT_NE(world.hand_query(1), nullptr);
   const PressResult r = press(world, 240);  // 4 s: 0.4 s moving, then holding
   const WorldSnapshot& s = world.snapshot();
   ASSERT_TRUE(right.state.x.allFinite() && left.state.x.allFinite());
@@ -184,7 +186,7 @@ TEST_P(TwoHands, PressedPalmToPalmTheyStopAtEachOtherWithEqualAndOppositeForces)
   EXPECT_GT(left_in_right, 0);
 
   // Equal and opposite: what each hand's step took from the other.
-  const Eigen::Vector3d on_right = total(right.f_hands_W), on_left = total(left.f_hands_W);
+  const Eigen::Vector3d on_right = total(world.hand_contact_forces(0)), on_left = total(world.hand_contact_forces(1));
   // The drives at rest hold what the other hand pushes (no gravity, no other contact).
   const Eigen::Vector3d drive_right = drive_force(right), drive_left = drive_force(left);
   const double force = on_right.norm();
@@ -225,8 +227,8 @@ TEST_P(TwoHands, PressedPalmToPalmTheyStopAtEachOtherWithEqualAndOppositeForces)
 // momentum: the contacts only move it from one hand to the other.
 TEST_P(TwoHands, LetGoAfterAPushTheyConserveMomentum) {
   World world(palm_to_palm(0.01, 0.0, {0.015, 0.02, 0}, 0.35), options(hand::DriveParams{0, 0, 0, 0}));
-  WorldHand& right = world.hand(0);
-  WorldHand& left = world.hand(1);
+  hand::FemHand& right = hand::as_fem(world.hand(0));
+  hand::FemHand& left = hand::as_fem(world.hand(1));
   const Eigen::Vector3d v0(0, 0, -0.3);
   for (int i = 0; i < right.model->num_nodes(); ++i) right.state.v.segment<3>(3 * i) = v0;
   right.state.handles[0].v_WH = v0;
@@ -275,8 +277,8 @@ TEST(TwoHandsCost, OneHandBuildsNoHandHandQueryAndWithoutItHandsPassThrough) {
   SceneDesc one;
   testing_util::add_test_hand(one);
   const World single(one);
-  EXPECT_EQ(single.hand(0).query, nullptr);
-  EXPECT_EQ(single.hand(0).f_hands_W.size(), 0);
+  EXPECT_EQ(single.hand_query(0), nullptr);
+  EXPECT_EQ(single.hand_contact_forces(0).size(), 0);
 
   WorldOptions with = WorldOptions{};
   with.hand_gravity = false;
@@ -284,15 +286,15 @@ TEST(TwoHandsCost, OneHandBuildsNoHandHandQueryAndWithoutItHandsPassThrough) {
   WorldOptions without = with;
   without.hand_hand_contacts = false;
   World off(palm_to_palm(0.02), without);
-  EXPECT_EQ(off.hand(0).query, nullptr);
-  EXPECT_EQ(off.hand(1).query, nullptr);
+  EXPECT_EQ(off.hand_query(0), nullptr);
+  EXPECT_EQ(off.hand_query(1), nullptr);
   const PressResult r_off = press(off, 150);
   EXPECT_EQ(r_off.touching_steps, 0);
   EXPECT_EQ(off.snapshot().resets, 0);
   World on(palm_to_palm(0.02), with);
   const PressResult r_on = press(on, 150);
-  const double deepest_off = deepest_skin_point(off.hand(0), off.hand(1));
-  const double deepest_on = deepest_skin_point(on.hand(0), on.hand(1));
+  const double deepest_off = deepest_skin_point(hand::as_fem(off.hand(0)), hand::as_fem(off.hand(1)));
+  const double deepest_on = deepest_skin_point(hand::as_fem(on.hand(0)), hand::as_fem(on.hand(1)));
   std::printf(
       "step %.2f ms with hand-hand contact, %.2f ms without (+%.0f %%), of which collision %.2f / %.2f ms; "
       "deepest skin point %.2f mm with it, %.2f mm without\n",
@@ -341,13 +343,13 @@ TEST(TwoHandsScene, LoadsAndSteps) {
     if (scene_contact) options.contact.reset();
     World world(scene, options);
     ASSERT_EQ(world.num_hands(), 2);
-    EXPECT_NE(world.hand(0).query, nullptr);
+    EXPECT_NE(world.hand_query(0), nullptr);
     // Nothing touches the hands where they start.
     for (const ContactRecord& c : world.snapshot().contacts) EXPECT_LT(c.hand, 0);
     for (int k = 0; k < 30; ++k) world.step();
     const WorldSnapshot& s = world.snapshot();
     EXPECT_EQ(s.resets, 0);
-    for (int h = 0; h < 2; ++h) EXPECT_TRUE(world.hand(h).state.x.allFinite());
+    for (int h = 0; h < 2; ++h) EXPECT_TRUE(hand::as_fem(world.hand(h)).state.x.allFinite());
     for (const RigidBodyState& b : s.bodies) EXPECT_TRUE(b.p_WO.allFinite());
     // The box rests on the table.
     const RigidBodyState b = world.rigid()->state(world.rigid()->find("box"));

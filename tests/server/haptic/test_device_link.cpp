@@ -5,6 +5,7 @@
 
 #include <Eigen/Geometry>
 
+#include "hand_models/fem_hand.hpp"
 #include "hand_models/skeleton/hand_skeleton.hpp"
 #include "server/haptic/device_link.hpp"
 #include "server/world/world.hpp"
@@ -41,7 +42,7 @@ TEST(DeviceLink, GloveFramesAtRestLandOnTheHandles) {
     options.hand_gravity = false;
     const world::World world(scene, options);
     const DeviceLink link = make_device_link(world, scene.devices[0], 1000);
-    const hand::HandState& s = world.hand(0).state;
+    const hand::HandState& s = hand::as_fem(world.hand(0)).state;
     ASSERT_EQ(link.handles, static_cast<int>(s.handles.size()));
     // The glove at rest: palm = hand frame at the device origin, phalanges from the skeleton.
     const hand::SkeletonPose skeleton = hand::skeleton_pose(hand::rest_joint_angles());
@@ -111,8 +112,8 @@ TEST(DeviceLink, FingerLinesProjectEachFingersForcesOntoItsActuator) {
     device_W[j].p_W.setZero();
     device_W[j].q_W = Eigen::Quaterniond(Eigen::AngleAxisd(0.3 * j, Eigen::Vector3d::UnitX()));
   }
-  w[0].f_D = {1, 2, 3};  // the palm: no actuator
-  w[1].f_D = {0, 0, 2};  // thumb pushed dorsally
+  w[0].f_D = {1, 2, 3};   // the palm: no actuator
+  w[1].f_D = {0, 0, 2};   // thumb pushed dorsally
   w[2].f_D = {0, 0, -2};  // index pushed palmar: a cable cannot push
   w[1].tau_D = {1, 1, 1};
   const Eigen::Matrix3d R_DW = link.map.R_WD.toRotationMatrix().transpose();

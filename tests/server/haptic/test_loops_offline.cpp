@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "box_scene.hpp"
+#include "hand_models/fem_hand.hpp"
 #include "server/offline/offline_run.hpp"
 #include "server/world/scene_loader.hpp"
 
@@ -27,8 +28,8 @@ struct Settled {
 struct LoopRun {
   double max_force_n = 0, max_force_late_n = 0;
   std::vector<Settled> settled;  // at the times asked for
-  double energy_j = 0;        // net work of the rendered force on the device
-  double gross_energy_j = 0;  // the work exchanged either way, sum |f . v| dt
+  double energy_j = 0;           // net work of the rendered force on the device
+  double gross_energy_j = 0;     // the work exchanged either way, sum |f . v| dt
   long resets = 0;
 };
 
@@ -66,7 +67,7 @@ LoopRun run_loops(double seconds, const offline::SimulatedStylus::Command& comma
     if (t > 0.5 * seconds) out.max_force_late_n = std::max(out.max_force_late_n, f.norm());
     for (double at : settle_at)
       if (k == static_cast<int>(std::lround(at / period))) {
-        const world::WorldHand& hand = loops.world().hand(0);
+        const hand::FemHand& hand = hand::as_fem(loops.world().hand(0));
         out.settled.push_back({f.z(), sample.p_D[0].z(), loops.proxy().proxy(0).p_W.z() - h0.p_WH.z(),
                                coupling_wrench(*hand.model, hand.state.x, hand.state.v, hand.state.handles)[2]});
       }
@@ -85,7 +86,8 @@ TEST(LoopsOffline, DeviceHeldStillInFreeSpaceFeelsNothing) {
 
 TEST(LoopsOffline, DeviceSweptThroughFreeSpaceFeelsTheHandsInertiaAndIsPassive) {
   // A 2 cm, 1 Hz sweep along y for 6 s (4 cm in the world: the 0.4 kg hand at 1.6 m/s^2).
-  const LoopRun r = run_loops(6.0, [](double t) { return Eigen::Vector3d(0, 0.02 * std::sin(2 * std::numbers::pi * t), 0); });
+  const LoopRun r =
+      run_loops(6.0, [](double t) { return Eigen::Vector3d(0, 0.02 * std::sin(2 * std::numbers::pi * t), 0); });
   std::printf("swept: max force %.3f N, net energy %.3e J of %.3e J exchanged\n", r.max_force_n, r.energy_j,
               r.gross_energy_j);
   EXPECT_GT(r.max_force_n, 0.5);  // the hand's inertia is felt (2 x 0.4 kg x 1.6 m/s^2 on the device side)...
@@ -104,9 +106,12 @@ TEST(LoopsOffline, StylusPressedOnAStaticBoxFeelsTheSeriesStiffnessOfCouplingAnd
   // box, whose stiffness the world shows between the same two settled states
   // (contact makes the hand path dependent, so both come from one run).
   const double scale = 2.0, k_dev = 1000.0;
-  const LoopRun r = run_loops(
-      6.0, [](double t) { return Eigen::Vector3d(0, 0, -0.012 * std::min(1.0, t) - 0.001 * std::clamp(2 * (t - 3), 0.0, 1.0)); },
-      0, test::static_box_scene(), {3.0, 5.99});
+  const LoopRun r =
+      run_loops(6.0,
+                [](double t) {
+                  return Eigen::Vector3d(0, 0, -0.012 * std::min(1.0, t) - 0.001 * std::clamp(2 * (t - 3), 0.0, 1.0));
+                },
+                0, test::static_box_scene(), {3.0, 5.99});
   ASSERT_EQ(r.settled.size(), 2u);
   const Settled &a = r.settled[0], &b = r.settled[1];
   ASSERT_GT(a.f_D, 0.2) << "the stylus presses on the box";
@@ -139,4 +144,3 @@ TEST(LoopsOffline, PressAndStrokeOnTheBunnyWithModelsArrivingHalfAStepLateIsPass
 
 }  // namespace
 }  // namespace hapticd::haptic
-

@@ -6,11 +6,11 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <new>
 #include <thread>
 
-#include <new>
-
 #include "box_scene.hpp"
+#include "hand_models/fem_hand.hpp"
 #include "haptic_server_test_util.hpp"
 #include "server/haptic/visual_loop.hpp"
 #include "server/offline/offline_run.hpp"
@@ -87,13 +87,14 @@ struct Threads {
     scene.dt_s = 1.0 / visual_hz;
     world = std::make_unique<world::World>(scene, served_world_options());
     link = make_device_link(*world, scene.devices[0], 1000.0);
-    server = std::make_unique<HapticServer>(std::vector<DeviceLink>{link}, ServerOptions{}, *snapshots, *targets, &report);
+    server =
+        std::make_unique<HapticServer>(std::vector<DeviceLink>{link}, ServerOptions{}, *snapshots, *targets, &report);
     preparer = std::make_unique<TickSolverPreparer>(std::vector<DeviceLink>{link}, 1e-3);
     step = std::make_unique<VisualStep>(*world, *snapshots, *targets, preparer.get());
     step->build_models(protocol::now_ns(), 1.0 / visual_hz);
     step->publish();
     loop = std::make_unique<VisualLoop>(*step, visual_hz, &report, [this](const std::string&) { ++logged; });
-    const hand::HandleState& h = world->hand(0).state.handles[0];
+    const hand::HandleState& h = hand::as_fem(world->hand(0)).state.handles[0];
     Eigen::Quaterniond q;
     link.map.to_device(0, {h.p_WH, h.q_WH}, start_D, q);
   }
@@ -198,7 +199,8 @@ TEST(VisualLoopThreads, AThrowInTheWorldStepIsAFaultTheServerKeepsAnsweringAndFa
   const std::vector<Reply> replies = press_and_hold(t, 3.0);
   t.halt();
   ASSERT_NE(first_ns.load(), 0u) << "no fault was injected";
-  const double fault_from = 1e-9 * static_cast<double>(first_ns - t0), fault_to = 1e-9 * static_cast<double>(last_ns - t0);
+  const double fault_from = 1e-9 * static_cast<double>(first_ns - t0),
+               fault_to = 1e-9 * static_cast<double>(last_ns - t0);
   const ServerOptions o;
   // The safe model is reached within the watchdog's delay and fade, plus a visual period for the
   // last good model's step to end.
@@ -219,8 +221,9 @@ TEST(VisualLoopThreads, AThrowInTheWorldStepIsAFaultTheServerKeepsAnsweringAndFa
   }
   ASSERT_GT(before, 50);
   f_before /= before;
-  std::printf("faults %ld (logged %d) from %.2f to %.2f s; force before %.3f N, max while safe %.4f N, max after %.3f N\n",
-              t.loop->stats().faults, t.logged.load(), fault_from, fault_to, f_before, f_safe_max, f_after_max);
+  std::printf(
+      "faults %ld (logged %d) from %.2f to %.2f s; force before %.3f N, max while safe %.4f N, max after %.3f N\n",
+      t.loop->stats().faults, t.logged.load(), fault_from, fault_to, f_before, f_safe_max, f_after_max);
   EXPECT_EQ(unanswered, 0) << "the server stopped answering while the visual step failed";
   EXPECT_GT(t.loop->stats().faults, 10);
   EXPECT_EQ(t.loop->stats().faults, t.logged.load());
@@ -271,9 +274,9 @@ TEST(VisualLoopThreads, TheRealTimeAndTheLockstepRunnersRenderTheSamePress) {
   };
   const double f_threaded = held([&](std::size_t k) { return threaded[k].t_s; },
                                  [&](std::size_t k) { return threaded[k].f_z; }, threaded.size());
-  const double f_lockstep = held([](std::size_t k) { return 1e-3 * static_cast<double>(k); },
-                                 [&](std::size_t k) { return lockstep.replies[k].wrench[0].f_D.z(); },
-                                 lockstep.replies.size());
+  const double f_lockstep =
+      held([](std::size_t k) { return 1e-3 * static_cast<double>(k); },
+           [&](std::size_t k) { return lockstep.replies[k].wrench[0].f_D.z(); }, lockstep.replies.size());
   double sq = 0;
   int n = 0;
   for (const Reply& r : threaded) {
