@@ -25,7 +25,7 @@ Eigen::Vector3d PressProfile::offset(double t_s) const {
 }
 
 PressProfile default_press() { return {}; }
-PressProfile tiny_press() { return {0.05, 0.3, 0.1, 0.05, 0.01}; }
+PressProfile tiny_press() { return {0.05, 0.5, 0.1, 0.05, 0.02}; }
 
 world::SceneDesc wall_scene(const std::string& path, int hand_tets, double gap_m) {
   world::SceneDesc scene = world::load_scene(path);

@@ -9,6 +9,7 @@ namespace hapticd::haptic {
 world::WorldOptions served_world_options() {
   world::WorldOptions o;
   o.hand_gravity = false;
+  o.palm_hand_mass_scale = kServedPalmHandMassScale;
   o.drive = kProxyDrive;
   o.linearize = false;
   return o;

@@ -19,9 +19,22 @@ namespace hapticd::haptic {
 // the flesh's answer to the proxy's own motion.
 constexpr hand::DriveParams kProxyDrive{1e6, 1e3, 1e3, 10.0};
 
+// A served palm-driven hand's mass as a share of its material's (WorldOptions::palm_hand_mass_scale).
+// A stylus renders what the hand touches and the give of its flesh; the avatar's own inertia would be
+// felt on top of the user's real hand, the whole hand's on one point, times the workspace scale
+// squared: at full density (skin, 1070 kg/m^3: ~0.4 kg, 1.6 kg on a stylus at scale 2) lifting the
+// stylus off the bunny at 15 cm/s pulled it back 1.1-1.6 N, in free space as much, and the user's arm
+// rang for a second after (0.02-0.16 N). At 0.03 (~12 g: 48 g at the stylus, a light pen) the same
+// lifts pull 0.16-0.21 N, 0.15 N of it the coupling's damping, and nothing is felt a second later
+// (Touch/PressHoldLiftForces); at 0.1 they still pulled up to 0.38 N. A glove keeps its fingers'
+// mass: each frame feels only its segment's share, and with light flesh the tripod grasp at 15 Hz
+// lifted the box 2.3 mm of 50 and gave the glove +0.10 J.
+constexpr double kServedPalmHandMassScale = 0.03;
+
 // The world a server steps: the scene's step is the visual period, hands are weightless (a device
-// in free space feels no virtual hand weight), their handles follow the proxies (kProxyDrive), and
-// the visual step builds the coming step's model itself (no in-step linearization).
+// in free space feels no virtual hand weight) and light (kServedPalmHandMassScale), their handles
+// follow the proxies (kProxyDrive), and the visual step builds the coming step's model itself (no
+// in-step linearization).
 world::WorldOptions served_world_options();
 
 // What the visual step publishes for a hand between two steps.

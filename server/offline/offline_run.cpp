@@ -1,12 +1,11 @@
 #include "server/offline/offline_run.hpp"
 
 #include <algorithm>
+#include <boost/asio/ip/address_v4.hpp>
 #include <chrono>
 #include <cmath>
 #include <stdexcept>
 #include <utility>
-
-#include <boost/asio/ip/address_v4.hpp>
 
 #include "protocol/percentile.hpp"
 
@@ -64,6 +63,7 @@ OfflineLoops::OfflineLoops(world::SceneDesc scene, const OfflineOptions& options
   scene.visual_rate_hz = 1.0 / dt;
   world::WorldOptions world_options = haptic::served_world_options();
   world_options.contact = options_.contact;
+  if (options_.palm_hand_mass_scale) world_options.palm_hand_mass_scale = *options_.palm_hand_mass_scale;
   // CHOLMOD's OpenMP regions: one thread, as the visual thread runs it.
   hand::single_threaded_cholmod();
   world_ = std::make_unique<world::World>(scene, world_options);
@@ -110,7 +110,9 @@ OfflineLoops::OfflineLoops(world::SceneDesc scene, const OfflineOptions& options
 OfflineLoops::~OfflineLoops() = default;
 
 // Simulated time starts at 1 s, so no time of the run is the core's "never" (0).
-std::uint64_t OfflineLoops::now_ns() const { return 1'000'000'000ull + static_cast<std::uint64_t>(ticks_) * period_ns_; }
+std::uint64_t OfflineLoops::now_ns() const {
+  return 1'000'000'000ull + static_cast<std::uint64_t>(ticks_) * period_ns_;
+}
 
 void OfflineLoops::send(const protocol::EncodeResult& encoded) {
   if (!encoded.ok())

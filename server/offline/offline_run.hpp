@@ -54,6 +54,9 @@ struct OfflineOptions {
   bool passivity_control = true;
   // The hands' contact model (WorldOptions::contact; unset: the scene's, as hapticd).
   std::optional<world::ContactModel> contact;
+  // A palm-driven hand's mass as a share of its material's (WorldOptions::palm_hand_mass_scale;
+  // unset: hapticd's, haptic::kServedPalmHandMassScale). 1: the full-mass hand, a baseline.
+  std::optional<double> palm_hand_mass_scale;
 };
 
 // A device's frames in device space, per tick.

@@ -37,6 +37,7 @@ std::unique_ptr<hand::Hand> make_fem_hand(const HandDesc& d, const HandBuild& bu
   config.material.youngs_modulus_pa = d.material.youngs_modulus_pa;
   config.material.poisson_ratio = d.material.poisson_ratio;
   config.material.density_kg_m3 = embedding_density(h->shape, d.material.density_kg_m3);
+  if (d.handles == HandleSet::palm) config.material.density_kg_m3 *= build.palm_mass_scale;
   config.material.rayleigh_alpha_per_s = d.material.rayleigh_alpha_per_s;
   config.material.rayleigh_beta_s = d.material.rayleigh_beta_s;
   config.coupling.stiffness_n_m = d.coupling_stiffness_n_m;

@@ -16,6 +16,8 @@ struct HandBuild {
   Eigen::Vector3d gravity_m_s2{0, 0, -9.81};  // zero: a weightless hand (as the server runs them)
   hand::SolverKind solver = hand::SolverKind::schur_cholmod;
   hand::DriveParams drive;  // how each handle is pulled toward its target
+  // A palm-driven hand's density as a share of its material's (WorldOptions::palm_hand_mass_scale).
+  double palm_mass_scale = 1.0;
 };
 
 // The hand `desc` describes, placed at its scene pose, at rest. Throws std::runtime_error naming

@@ -34,6 +34,7 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
   hand_build.gravity_m_s2 = options.hand_gravity ? scene.gravity_m_s2 : Eigen::Vector3d::Zero();
   hand_build.solver = options.solver;
   hand_build.drive = options.drive;
+  hand_build.palm_mass_scale = options.palm_hand_mass_scale;
   for (const HandDesc& d : scene.hands) {
     HandSlot slot;
     slot.name = d.name;

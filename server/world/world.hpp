@@ -42,6 +42,11 @@ struct WorldOptions {
   // False: hands are weightless (their inertia stays), as the server runs them, so
   // a device in free space feels no virtual hand weight; objects keep gravity.
   bool hand_gravity = true;
+  // The mass (flesh and handles: the density) of a hand driven by its palm alone (a stylus's) as a
+  // share of its material's. A served one is light (haptic::kServedPalmHandMassScale): its device
+  // renders the contacts and the flesh's give, not the avatar's mass, which the user's own hand
+  // already has. Hands with finger handles (gloves) keep their material's mass.
+  double palm_hand_mass_scale = 1.0;
   // False: no handle-space model in the snapshot (a caller that builds the model
   // of the coming step itself, as the server's visual loop does, skips the cost).
   bool linearize = true;

@@ -18,9 +18,9 @@
 // at a time (it rocked 10-15 degrees a step), 3.0 mm with its vertices as supports while ODE still
 // stepped it (1-2 degrees a step), and 0.02 mm since it ends each step where the hand's solve took it.
 //
-// Issue17KnownFault/HardPressQuiet (one ctest expected to fail, tests/CMakeLists.txt): the issue's
-// "no force a second after the release" (0.05 N). Measured at 60 Hz: 0.15 N (the served hand's own
-// slow settling, as in Issue17KnownFault/PressHoldLiftForces).
+// A second after the release nothing is felt (the issue's 0.05 N): with the served hand at its
+// material's full mass the user's arm still rang with it, 0.15 N at 60 Hz; the served stylus hand is
+// light now (haptic::kServedPalmHandMassScale).
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -83,7 +83,8 @@ HardPressRun run_hard_press(const HardPressCase& c) {
     if (t < 4.3) return -deep;
     return std::min(0.02, -deep + (deep + 0.02) * (t - 4.3));
   };
-  SimulatedStylus stylus(start, [&command](double t) { return Eigen::Vector3d(0, 0, command(t)); }, kPeriod);
+  SimulatedStylus stylus(
+      start, [&command](double t) { return Eigen::Vector3d(0, 0, command(t)); }, kPeriod);
   const long ticks = std::lround(6.5 / kPeriod);
   const long hold_start = std::lround(1.3 / kPeriod), hold_end = std::lround(4.3 / kPeriod);
   long seen_step = -1;
@@ -126,22 +127,13 @@ TEST_P(HardPress, FiveTimesTheForceLimitNeverReachesTheTableAndPushesTheDeviceOu
   EXPECT_GE(r.lowest_skin_z_m, r.table_top_z_m - 2e-3) << "the hand went into or through the table";
   EXPECT_LE(r.deepest_m, 2e-3) << "the skin went into the bunny";
   EXPECT_LE(r.pulled_in_n, 0.0) << "the device was pulled into the object";
-  EXPECT_LE(r.after_n, 0.3);
+  EXPECT_LE(r.after_n, 0.05);
   EXPECT_FALSE(r.flagged);
   EXPECT_EQ(r.resets, 0);
   EXPECT_LE(r.energy_j, 0.0);
 }
 
 INSTANTIATE_TEST_SUITE_P(Touch, HardPress, kHardPressCases, hard_press_name);
-
-class HardPressQuiet : public ::testing::TestWithParam<HardPressCase> {};
-
-TEST_P(HardPressQuiet, NothingIsFeltASecondAfterTheRelease) {
-  const HardPressRun r = run_hard_press(GetParam());
-  EXPECT_LE(r.after_n, 0.05);
-}
-
-INSTANTIATE_TEST_SUITE_P(Issue17KnownFault, HardPressQuiet, kHardPressCases, hard_press_name);
 
 }  // namespace
 }  // namespace hapticd::offline
