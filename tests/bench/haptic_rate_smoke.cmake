@@ -1,7 +1,18 @@
 cmake_minimum_required(VERSION 3.25)
 # ctest smoke run of `haptic-bench haptic_rate --size tiny`: it runs, its JSON has a row per
 # haptic rate (1, 2, 4 kHz) with the documented fields, tick times are positive with p99 >= median,
-# every rate renders some stiffness passively, and 4 kHz renders at least what 1 kHz does.
+# and the passive stiffness found at each rate agrees with the closed forms the bench reports
+# (bench/haptic_rate_bench.cpp, Theory):
+#  - above Colgate & Schenkel's sufficient bound (colgate_passivity_bound_n_per_m): no stiffness under
+#    it can be active, so the first stiffness found active lies above it;
+#  - under the ideal wall's stability bound (theory_n_per_m): past it the sampled loop rings and puts
+#    energy into the device, so nothing beyond it is passive (a meter that missed that energy would
+#    find the whole sweep passive);
+#  - growing with the rate as that bound does (~ m / T^2, 4x per doubling): the ratio of the true
+#    passive stiffness at 2 or 4 kHz to that at 1 kHz lies in the window the bisection's brackets
+#    leave (max_passive_f / first_active_1k, first_active_f / max_passive_1k), and the theory's ratio
+#    must lie in that window. The tolerance is the bracket itself (tiny: bisected to 1.5x), not a
+#    chosen number.
 # Usage: cmake -DBENCH=haptic-bench -DOUT=file.json -P haptic_rate_smoke.cmake
 include(${CMAKE_CURRENT_LIST_DIR}/smoke_lib.cmake)
 smoke_run(haptic_rate)
@@ -45,9 +56,36 @@ foreach(i RANGE ${last})
   if(energy GREATER tolerance)
     message(FATAL_ERROR "${hz} Hz: ${energy} J put into the device at the stiffness reported passive")
   endif()
-  set(k_${hz} ${k})
+  # CMake's math() is integer only: the stiffnesses as whole N/m (truncation moves a ratio by < 1e-5).
+  foreach(field k theory)
+    if(NOT ${field} MATCHES "^[0-9]+(\\.[0-9]*)?$")
+      message(FATAL_ERROR "${hz} Hz: ${field} = ${${field}} is not a plain decimal")
+    endif()
+    string(REGEX REPLACE "\\..*$" "" ${field}_${hz} "${${field}}")
+  endforeach()
+  string(JSON active GET "${doc}" rows ${i} first_active_n_per_m)
+  string(JSON colgate GET "${doc}" rows ${i} colgate_passivity_bound_n_per_m)
+  if(active EQUAL 0)
+    message(FATAL_ERROR "${hz} Hz: nothing active up to the sweep's top, over the stability bound ${theory} N/m")
+  endif()
+  if(NOT active GREATER colgate)
+    message(FATAL_ERROR "${hz} Hz: ${active} N/m found active, under Colgate's sufficient passivity bound ${colgate} N/m")
+  endif()
+  if(NOT k LESS theory)
+    message(FATAL_ERROR "${hz} Hz: ${k} N/m found passive, beyond the ideal wall's stability bound ${theory} N/m")
+  endif()
+  string(REGEX REPLACE "\\..*$" "" active_${hz} "${active}")
 endforeach()
-if(k_4000 LESS k_1000)
-  message(FATAL_ERROR "passive stiffness ${k_4000} N/m at 4 kHz, below ${k_1000} N/m at 1 kHz")
-endif()
-message(STATUS "haptic_rate smoke: 3 rows; passive stiffness ${k_1000} / ${k_2000} / ${k_4000} N/m at 1 / 2 / 4 kHz")
+foreach(hz 2000 4000)
+  # theory_f / theory_1k within (k_f / active_1k, active_f / k_1k), cross-multiplied.
+  math(EXPR lo_lhs "${k_${hz}} * ${theory_1000}")
+  math(EXPR lo_rhs "${theory_${hz}} * ${active_1000}")
+  math(EXPR hi_lhs "${theory_${hz}} * ${k_1000}")
+  math(EXPR hi_rhs "${active_${hz}} * ${theory_1000}")
+  if(NOT lo_lhs LESS lo_rhs OR NOT hi_lhs LESS hi_rhs)
+    message(FATAL_ERROR "${hz} Hz over 1 kHz: passive ${k_${hz}} / ${k_1000} N/m (active ${active_${hz}} / "
+                        "${active_1000}) does not bracket the stability bound's ratio ${theory_${hz}} / ${theory_1000}")
+  endif()
+endforeach()
+message(STATUS "haptic_rate smoke: 3 rows; passive stiffness ${k_1000} / ${k_2000} / ${k_4000} N/m at 1 / 2 / 4 kHz "
+               "(stability bound ${theory_1000} / ${theory_2000} / ${theory_4000} N/m)")

@@ -6,11 +6,16 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <sodium.h>
+
 #include <algorithm>
+#include <array>
 #include <chrono>
+#include <cstring>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -202,37 +207,76 @@ TEST(Auth, SealVerifyAndTheWindowAllocateNothing) {
   EXPECT_EQ(ok, 1003);
 }
 
-// The figure the README quotes: one seal (MAC) and one verify per datagram, each side.
+// The figures the README quotes (protocol/README.md, Authentication, Cost), against baselines
+// measured in the same run: verifying is one keyed BLAKE2b over the datagram ("an unauthenticated
+// datagram costs one MAC and reaches nothing else"), sealing is a copy and that MAC. Each rep times
+// every operation and its baseline back to back in turn, in blocks of 100 (tens of microseconds, shorter
+// than a scheduler's slice, so most blocks run unpreempted) so a noisy neighbour slows both alike;
+// medians of 301 reps. The absolute figures (about a microsecond) are printed: they are libsodium's on this machine.
 TEST(Auth, AMacCostsAboutAMicrosecondPerDatagram) {
+  ASSERT_GE(sodium_init(), 0);
   Encoder encoder;
   Sealer sealer;
   const Key key = test_key(4);
+  constexpr int kReps = 301, kN = 100;
+  const auto median = [](std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    return v[v.size() / 2];
+  };
   for (const std::size_t frames : {std::size_t{1}, std::size_t{20}, kMaxFrames}) {
     const EncodeResult e = encoder.encode(test::sample_pose(frames));
-    std::vector<double> seal_ns, verify_ns;
-    for (int rep = 0; rep < 21; ++rep) {
-      constexpr int kN = 2000;
-      auto t0 = std::chrono::steady_clock::now();
-      std::size_t sink = 0;
-      std::span<const std::uint8_t> sealed;
-      for (int i = 0; i < kN; ++i) {
-        sealed = sealer.seal(e.bytes, {TrailerKind::kClientToServer, 1, static_cast<std::uint64_t>(i + 1)}, key);
-        sink += sealed[sealed.size() - 1];
+    const std::span<const std::uint8_t> sealed_once =
+        sealer.seal(e.bytes, {TrailerKind::kClientToServer, 1, 1}, key);
+    const std::vector<std::uint8_t> sealed_copy(sealed_once.begin(), sealed_once.end());
+    const std::size_t covered = sealed_copy.size() - kMacBytes;
+    std::vector<std::uint8_t> copy_out(sealed_copy.size());
+    std::vector<double> seal_ns, verify_ns, hash_ns, copy_hash_ns;
+    std::size_t sink = 0, verified = 0;
+    const auto per_op_ns = [](auto t0, auto t1) { return std::chrono::duration<double, std::nano>(t1 - t0).count() / kN; };
+    std::uint8_t tag[kMacBytes];
+    // The four timed operations: seal, verify, and their baselines.
+    const std::array<std::function<void(int)>, 4> ops = {
+        [&](int i) {
+          const auto s = sealer.seal(e.bytes, {TrailerKind::kClientToServer, 1, static_cast<std::uint64_t>(i + 1)}, key);
+          sink += s[s.size() - 1];
+        },
+        [&](int) { verified += verify_mac(sealed_copy, key); },
+        // Baseline of verify: libsodium's keyed BLAKE2b (16-byte tag) over the same covered bytes.
+        [&](int) {
+          crypto_generichash(tag, kMacBytes, sealed_copy.data(), covered, key.data(), key.size());
+          sink += tag[0];
+        },
+        // Baseline of seal: the message and the trailer's head copied, then the same MAC.
+        [&](int i) {
+          std::memcpy(copy_out.data(), e.bytes.data(), e.bytes.size());
+          std::memcpy(copy_out.data() + e.bytes.size(), sealed_copy.data() + e.bytes.size(),
+                      kAuthTrailerBytes - kMacBytes);
+          copy_out[e.bytes.size() + 16] = static_cast<std::uint8_t>(i);
+          crypto_generichash(copy_out.data() + covered, kMacBytes, copy_out.data(), covered, key.data(), key.size());
+          sink += copy_out.back();
+        }};
+    std::array<std::vector<double>*, 4> times = {&seal_ns, &verify_ns, &hash_ns, &copy_hash_ns};
+    for (int rep = 0; rep < kReps; ++rep) {
+      for (int k = 0; k < 4; ++k) {
+        const int op = (rep + k) % 4;  // each operation first, second, ... in turn
+        const auto t0 = std::chrono::steady_clock::now();
+        for (int i = 0; i < kN; ++i) ops[op](i);
+        times[op]->push_back(per_op_ns(t0, std::chrono::steady_clock::now()));
       }
-      auto t1 = std::chrono::steady_clock::now();
-      for (int i = 0; i < kN; ++i) sink += verify_mac(sealed, key);
-      auto t2 = std::chrono::steady_clock::now();
-      seal_ns.push_back(std::chrono::duration<double, std::nano>(t1 - t0).count() / kN);
-      verify_ns.push_back(std::chrono::duration<double, std::nano>(t2 - t1).count() / kN);
-      EXPECT_GE(sink, static_cast<std::size_t>(kN));
     }
-    std::sort(seal_ns.begin(), seal_ns.end());
-    std::sort(verify_ns.begin(), verify_ns.end());
+    EXPECT_EQ(verified, static_cast<std::size_t>(kReps) * kN) << "every verify passed";
+    EXPECT_NE(sink, 0u);
+    const double seal = median(seal_ns), verify = median(verify_ns), hash = median(hash_ns),
+                 copy_hash = median(copy_hash_ns);
     std::printf(
-        "PoseSample, %zu frame(s), %zu B sealed: seal (copy + MAC) %.0f ns, verify %.0f ns (median of 21 x 2000)\n",
-        frames, e.bytes.size() + kAuthTrailerBytes, seal_ns[10], verify_ns[10]);
-    // Loose: a shared VM under a build; the figure above is what matters.
-    EXPECT_LT(verify_ns[10], 20000.0);
+        "PoseSample, %zu frame(s), %zu B sealed: seal (copy + MAC) %.0f ns, verify %.0f ns; baselines: keyed "
+        "BLAKE2b of the same bytes %.0f ns, copy + it %.0f ns (medians of %d x %d)\n",
+        frames, sealed_copy.size(), seal, verify, hash, copy_hash, kReps, kN);
+    // One MAC and nothing else: what verify and seal add to the BLAKE2b (a 24-byte trailer parsed or
+    // written, a 16-byte constant-time compare) is a few tens of ns, under a quarter of the hash of the
+    // smallest datagram (~400 ns); a second pass over the bytes would double the time.
+    EXPECT_LT(verify, 1.25 * hash) << "verify is one MAC";
+    EXPECT_LT(seal, 1.25 * copy_hash) << "seal is a copy and one MAC";
   }
 }
 

@@ -1,18 +1,34 @@
 // The authenticated server and a simulated stylus pressing its wall through the chaos relay
 // (clients/chaos): with loss, reordering, duplication and jitter the session stays alive, no force
 // passes the Welcome's limit or its rate limit, the work on the device stays within 1 % of the energy
-// stored (see below), and every duplicate is refused as a replay; with corrupted bytes every
-// corrupted datagram is refused by its MAC.
+// stored (see below for why not <= 0), and every duplicate is refused as a replay; with corrupted
+// bytes every corrupted datagram is refused by its MAC, and the work on the device is <= 0 up to
+// what float32 on the wire accounts for.
 //
 // One 4 s press cycle each here: the wall is a fixed linear model (a spring on both sides of z = 0,
 // at rest at z = 0), so the press starts and ends at rest at z = 0, a closed path on which a passive
 // rendering does no net work on the device; 4000 samples at 1 kHz exercise every fault hundreds of
 // times. The wall is lossless, so the only dissipation is the coupling's damping, and it is thin on
-// a slow press: -1.4e-5 J over the cycle without faults, against 6.7 mJ stored at the bottom. Loss
-// and jitter hold each force longer and eat that margin (measured: -6e-6 J with 10 % loss alone,
-// +9e-6 J with every fault of the first test), so here the work is bounded by 1 % of the energy
-// stored. The 20 s run, with its bound (<= 0), is tests/e2e/chaos_loopback.sh, against the
-// real world (whose flesh and contacts dissipate).
+// a slow press: -1.4e-5 J over the cycle without faults, against 6.7 mJ stored at the bottom.
+// float32 on the wire accounts for < 1e-7 J of work (float32_work_j: 9.8e-8 J here).
+// With 1 % corrupted datagrams (each refused, so ~2 % of the replies missing) the work stays
+// negative: -1.26e-5 to -1.31e-5 J in 10 runs on a quiet machine, -1.3e-5 to -3.3e-5 J in 4 with
+// both cores saturated by busy loops; a coupling without damping puts +6e-6 J in, which fails it.
+// With 10 % loss both ways, reordering, duplication and 1 ms jitter the strict bound does not hold,
+// with the passivity controller on (the default for every device):
+//  - loss and jitter hold each force longer than the 1 ms the coupling's damping was sized for,
+//    which eats its margin: +3.3e-6 to +8.5e-6 J in 10 runs on a quiet machine (0.05-0.13 % of the
+//    energy stored; 33-87x what float32 accounts for);
+//  - the passivity controller does not take that back: it damps only past kPassivityBudget_J
+//    (1e-4 J, 1.5 % of the energy stored here) of deficit, and its observer sums the work of the
+//    replies the server sent, not of those the device applied (10 % of them lost, others held
+//    longer): in those runs it read -1.3e-4 to +2.8e-3 J (the rendering absorbing, mostly) while
+//    the device received +3.3e-6 to +8.5e-6 J; it acted in 1 of the 10 (211 replies, 4e-6 J damped)
+//    and that run's work was still positive (with both cores busy it acted 250-300 times).
+// So that test bounds the work by 1 % of the energy stored (f^2 / 2k at the bottom), and that bound
+// is weak: a coupling without damping (+3.9e-5 J, 0.58 %) or with negative damping -k T / 2
+// (+6.1e-5 J, 0.91 %) passes it. The 20 s run, with its bound (<= 0), is
+// tests/e2e/chaos_loopback.sh, against the real world (whose flesh and contacts dissipate).
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -34,6 +50,7 @@ namespace {
 using protocol::RejectReason;
 
 constexpr double kSeconds = 4.0;
+constexpr double kPressDepth_m = 0.02;
 
 protocol::Key test_key() {
   protocol::Key k;
@@ -53,7 +70,7 @@ sim::Trajectory closed_press() {
     for (int i = 0; i <= 400; ++i) {
       const double t = 0.01 * i;
       const auto ramp = [](double u) { return 0.5 - 0.5 * std::cos(std::numbers::pi * std::clamp(u, 0.0, 1.0)); };
-      const double depth = 0.02 * (t < 2.5 ? ramp(t - 0.5) : 1.0 - ramp(t - 2.5));
+      const double depth = kPressDepth_m * (t < 2.5 ? ramp(t - 0.5) : 1.0 - ramp(t - 2.5));
       csv << t << ",0,0," << -depth << "\n";
     }
   }
@@ -141,9 +158,35 @@ std::uint64_t rejected(const ChaosRun& r, RejectReason reason) { return r.server
 // bottom (f^2 / 2k, k = 750 N/m: the coupling's 1000 N/m in series with the wall's 3000 N/m).
 void expect_about_passive(const ChaosRun& r) {
   const double stored_j = r.result.force_max_n * r.result.force_max_n / (2 * 750.0);
-  std::printf("work on the device over the cycle %.3g J, %.2f %% of the %.3g J stored\n", r.result.passivity_energy_j,
-              100 * r.result.passivity_energy_j / stored_j, stored_j);
+  std::printf("work on the device over the cycle %.3g J, %.2f %% of the %.3g J stored; the server's observer %.3g J, "
+              "its controller acted %llu times (%.3g J damped)\n",
+              r.result.passivity_energy_j, 100 * r.result.passivity_energy_j / stored_j, stored_j,
+              r.server_stats.passivity_energy_j, static_cast<unsigned long long>(r.server_stats.passivity_actions),
+              r.server_stats.passivity_damped_j);
   EXPECT_LE(r.result.passivity_energy_j, 0.01 * stored_j);
+}
+
+// What float32 on the wire can add to the work over the path, J: the force's rounding, and the pose's
+// through the coupling's spring and its damper (on velocities from pose differences: twice the
+// rounding over a period), each at most half an ulp of the largest value, over the path's length
+// (down and up the press, at most twice its depth).
+double float32_work_j(const ChaosRun& r) {
+  const auto half_ulp = [](double x) {
+    const float f = static_cast<float>(x);
+    return 0.5 * static_cast<double>(std::nextafter(f, HUGE_VALF) - f);
+  };
+  const haptic::CouplingGains g = test::stylus_link().gains;
+  const double dp = half_ulp(kPressDepth_m), df = half_ulp(r.result.force_max_n);
+  return 2 * kPressDepth_m * (df + g.k_n_m * dp + g.b_ns_m * 2 * dp * r.welcome.rate_hz);
+}
+
+// Net work on the device over the closed path: none but what float32 on the wire accounts for.
+void expect_passive(const ChaosRun& r) {
+  std::printf("work on the device over the cycle %.3g J; float32 on the wire accounts for %.3g J; the server's "
+              "observer %.3g J, its controller acted %llu times\n",
+              r.result.passivity_energy_j, float32_work_j(r), r.server_stats.passivity_energy_j,
+              static_cast<unsigned long long>(r.server_stats.passivity_actions));
+  EXPECT_LE(r.result.passivity_energy_j, float32_work_j(r));
 }
 
 void expect_safe_and_alive(const ChaosRun& r) {
@@ -187,7 +230,7 @@ TEST(HapticServerChaos, EveryCorruptedDatagramIsRefusedByItsMacAndTheServerCarri
   config.seed = 99;
   const ChaosRun r = run_through(config);
   expect_safe_and_alive(r);
-  expect_about_passive(r);
+  expect_passive(r);
   ASSERT_GT(r.relay.to_server.corrupted, 10u);
   // One changed byte anywhere: the trailer's magic (missing_mac), its session id (unknown_session) or
   // anything else (bad_mac). Every one refused, nothing else refused.
