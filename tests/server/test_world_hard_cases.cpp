@@ -81,7 +81,7 @@ struct SettledPress {
   int points = 0;  // contacts with a positive depth
 };
 SettledPress settled_press(const World& world, const WorldOptions& o) {
-  const auto& hand = world.hand(0);
+  const hand::FemHand& hand = hand::as_fem(world.hand(0));
   SettledPress r;
   r.mass_kg = hand.model->fem().lumped_mass().sum();
   for (const hand::RigidHandle& h : hand.model->handles()) r.mass_kg += h.mass_kg;
@@ -164,7 +164,7 @@ TEST_P(WorldHardCases, HandAt3MetresPerSecondIntoABoxStaysFiniteAndSettles) {
   World slow(slab_scene(0.1, 0), o);
   for (int k = 0; k < 120; ++k) {
     const double dz = -0.05 * std::min(1.0, (k + 1) / 60.0);
-    set_target(slow.hand(0).state, 0, target_at(start, {0, 0, dz}, {0, 0, k < 59 ? -0.05 : 0.0}));
+    slow.hand(0).set_target(0, target_at(start, {0, 0, dz}, {0, 0, k < 59 ? -0.05 : 0.0}));
     slow.step();
   }
   const SettledPress ref = settled_press(slow, o);
