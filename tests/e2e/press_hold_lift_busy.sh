@@ -8,7 +8,7 @@
 # flagged InContact and no force above 0.3 N (the pull the issue allows after a lift; the glue was
 # 7.35 N); no proxy or hand resets; the stylus touched. The largest pull toward the bunny while
 # lifting is printed, not asserted: the issue's 0.3 N bound there fails in the lockstep runner too
-# (Issue17KnownFault/PressHoldLiftForces: the served hand's own inertia).
+# (at a0bcf11 the full-mass served hand's own inertia; the served stylus hand is light since).
 # Usage: press_hold_lift_busy.sh BIN_DIR SCENE
 set -euo pipefail
 bin=$1
