@@ -118,7 +118,7 @@ class RigidWorld {
   void contacts_of(int i, std::vector<BodyContact>& out) const;
   // A box's or a mesh's supports are its corners or vertices on static geometry, measured by
   // penetration() with gaps up to `margin_m` (speculative supports: depth < 0 is a gap the next step
-  // may close but not cross), up to 8 per object spread over the patch, and ODE's contacts on other
+  // may close but not cross), up to 16 per object spread over the patch, and ODE's contacts on other
   // bodies. ODE reports only what touches: the scenes' bunny rocking on its two feet at a 15 Hz step
   // had supports under one foot at a time, so a hand's step tipped it about that foot and the other
   // went into the table, by 10 degrees from one step to the next.
