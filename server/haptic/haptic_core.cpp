@@ -164,8 +164,8 @@ void HapticCore::tick(std::uint64_t now) {
     }
     // Silence: the force fades out over ramp_s; poses bring it back at the same rate.
     const double step = dt / std::max(options_.ramp_s, dt);
-    s.output_scale = silent_s > options_.silence_s ? std::max(0.0, s.output_scale - step)
-                                                   : std::min(1.0, s.output_scale + step);
+    s.output_scale =
+        silent_s > options_.silence_s ? std::max(0.0, s.output_scale - step) : std::min(1.0, s.output_scale + step);
     const DeviceLink& link = links_[s.link];
     // Until the visual loop has moved the hand to a re-synced proxy, its model
     // would pull the proxy back to where the hand was: the proxy feels the device only.
@@ -416,7 +416,8 @@ void HapticCore::on_hello(const protocol::Hello& hello, const protocol::Nonce* c
   }
   if (best < 0) {
     send_error(protocol::ErrorCode::kUnsupportedDevice,
-               hello.hand == protocol::Hand::kUnspecified ? "the scene has no device of this kind with one handle per tracked frame"
+               hello.hand == protocol::Hand::kUnspecified
+                   ? "the scene has no device of this kind with one handle per tracked frame"
                : hello.hand == protocol::Hand::kLeft
                    ? "the scene has no device of this kind on a left hand with one handle per tracked frame"
                    : "the scene has no device of this kind on a right hand with one handle per tracked frame");
@@ -456,6 +457,7 @@ void HapticCore::on_hello(const protocol::Hello& hello, const protocol::Nonce* c
   for (int j = 0; j < s.frames; ++j) s.frame_id[j] = hello.frames[j].id;
   s.proxy.configure(link.handles, link.mass_kg, link.inertia_B, link.gains, link.limits, link.map);
   s.proxy.set_passivity_control(options_.passivity_control);
+  s.proxy.set_fingers_grounded_on_palm(link.kind == protocol::DeviceKind::kGlove && link.handles > 1);
   s.last_seen_ns = now;
   ++stats_->sessions_opened;
   protocol::Welcome& w = reply_->welcome;

@@ -77,8 +77,7 @@ bool prepare_tick_solver(HapticModel& model, int handles, const double* mass_kg,
   s.prepared = false;
   const int m = model.handles, n = 6 * m;
   if (m < kMinPreparedHandles || m != handles || m > kMaxHapticHandles || !(dt > 0) || model.K.rows() != n ||
-      model.K.cols() != n || model.D.rows() != n || model.D.cols() != n || !model.K.allFinite() ||
-      !model.D.allFinite())
+      model.K.cols() != n || model.D.rows() != n || model.D.cols() != n || !model.K.allFinite() || !model.D.allFinite())
     return false;
   // B = P - h D, P as ProxyHand::integrate builds it under a model: mass, coupling, and each
   // proxy's inertia at its handle's anchor orientation x0.
@@ -287,8 +286,8 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
   }
   const double h = weight * dt;
   // The prepared solver serves gloves at full weight with the parameters it was prepared for.
-  const bool prepared = use_model && handles_ >= kMinPreparedHandles && weight == 1.0 &&
-                        solver_matches(model.solver, dt);
+  const bool prepared =
+      use_model && handles_ >= kMinPreparedHandles && weight == 1.0 && solver_matches(model.solver, dt);
   if (use_model) {
     b_.noalias() += h * (model.K * x_rel_);
     if (prepared) {
@@ -414,8 +413,7 @@ bool ProxyHand::solve_contacts(const HapticModel& model, double dt, double tau, 
     return false;
   }
   // Warm start: the last tick's impulses under the same model, else the model's own at its anchor.
-  const bool same_model = model.t_end_ns == lambda_t_end_ns_ && model.resyncs == lambda_resyncs_ &&
-                          lambda_.size() == r;
+  const bool same_model = model.t_end_ns == lambda_t_end_ns_ && model.resyncs == lambda_resyncs_ && lambda_.size() == r;
   if (!same_model) lambda_ = c.lambda0;
   for (int i = 0; i < c.count; ++i) {
     lambda_.segment<3>(3 * i) = hand::project_to_cone(lambda_.segment<3>(3 * i), c.mu[i]);
@@ -606,8 +604,17 @@ ReplyWrench ProxyHand::reply(int j, double output_scale, double dt_since_last_s)
   }
   const double dt = std::clamp(dt_since_last_s, kMinReplyInterval_s, kMaxReplyInterval_s);
   // The port's power is f . v + tau . w with both about the handle; tau about
-  // the frame's origin adds r x f, and v there lacks w x r: the same power.
-  const Eigen::Vector3d v_D = R_DW * v_dev_[j] / map_.scale, w_D = R_DW * w_dev_[j];
+  // the frame's origin adds r x f, and v there lacks w x r: the same power. A finger actuator that
+  // pushes against the palm does work only through the finger's motion relative to the palm: counted
+  // against its own velocity, a glove lifting a box with its palm was credited with the box's weight
+  // on its fingers times the lift (the observer found its ports passive, -0.01 to -0.03 J, while the
+  // glove gained +0.017 to +0.037 J: Touch/GraspRelease).
+  Eigen::Vector3d v_port_W = v_dev_[j], w_port_W = w_dev_[j];
+  if (fingers_on_palm_ && j > 0) {
+    v_port_W -= v_dev_[0] + w_dev_[0].cross(device_[j].p_W - device_[0].p_W);
+    w_port_W -= w_dev_[0];
+  }
+  const Eigen::Vector3d v_D = R_DW * v_port_W / map_.scale, w_D = R_DW * w_port_W;
   const Eigen::Vector3d r_D = R_DW * r_W / map_.scale;
   // Passivity controller: the damping that brings the observer's deficit back to zero this tick,
   // shared by the two channels in proportion to what each can take.

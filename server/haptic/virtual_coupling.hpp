@@ -197,6 +197,10 @@ class ProxyHand {
   // The passivity controller of reply(), on by default (kPassivityBudget_J). Off: the rendering's
   // own passivity, unguarded (the tests of the model switch it off).
   void set_passivity_control(bool on) { passivity_control_ = on; }
+  // Frames after the first are driven by actuators that push against the first (a glove's finger
+  // actuators on its palm): their ports move at their velocity relative to the first frame's body,
+  // which is what those actuators do work through; the first frame's port stays absolute.
+  void set_fingers_grounded_on_palm(bool on) { fingers_on_palm_ = on; }
 
   // A pose sample: the device pose of every handle in device space (set_device_pose
   // for each, then commit_sample with the sample's time). A first sample, or one
@@ -294,6 +298,7 @@ class ProxyHand {
   double damped_j_[kMaxHapticHandles]{};
   double passivity_b_[kMaxHapticHandles]{};  // the controller's last damping, device units N s/m
   bool passivity_control_ = true;
+  bool fingers_on_palm_ = false;
   long resets_ = 0, clamps_ = 0, passivity_actions_ = 0, solver_fallbacks_ = 0, solver_refinements_ = 0;
   long clearance_limits_ = 0;
   // The prepared solve of A(tau) v = b (TickSolver), refined against the exact matrix; false

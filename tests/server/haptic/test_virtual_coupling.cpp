@@ -149,10 +149,10 @@ TEST(VirtualCoupling, StiffWallAtTheDeclaredStiffnessIsPassiveAndDoesNotRing) {
   const double k_dev = 1000.0;
   // A wall far stiffer than the device: the coupling is what the user feels.
   const PressResult r = press_and_release(wall_model(1e5), k_dev);
-  std::printf("energy %.3e J, hold force %.3f N +- %.2e, max %.3f N\n", r.energy_j, r.hold_force_mean,
-              r.hold_force_std, r.max_force);
+  std::printf("energy %.3e J, hold force %.3f N +- %.2e, max %.3f N\n", r.energy_j, r.hold_force_mean, r.hold_force_std,
+              r.max_force);
   EXPECT_LE(r.energy_j, 0.0);
-  EXPECT_GT(r.hold_force_mean, 1.0);                        // it pushes back
+  EXPECT_GT(r.hold_force_mean, 1.0);                      // it pushes back
   EXPECT_LT(r.hold_force_std, 1e-3 * r.hold_force_mean);  // no sustained oscillation while held
   EXPECT_LE(r.max_force, 8.0 + 1e-9);
 }
@@ -187,9 +187,10 @@ TEST(VirtualCoupling, PassivityControllerTakesBackWhatAnActiveModelGivesOut) {
     actions[control] = p.passivity_actions();
     damped[control] = p.passivity_damped_j(0);
   }
-  std::printf("energy into the device: %.4f J without the controller, %.4f J with it (%ld actions, %.4f J taken "
-              "back; observer at least %.2e J)\n",
-              energy[0], energy[1], actions[1], damped[1], lowest[1]);
+  std::printf(
+      "energy into the device: %.4f J without the controller, %.4f J with it (%ld actions, %.4f J taken "
+      "back; observer at least %.2e J)\n",
+      energy[0], energy[1], actions[1], damped[1], lowest[1]);
   EXPECT_GT(energy[0], 0.05);
   EXPECT_EQ(actions[0], 0);
   // Passive with the controller: the device gains nothing over the stroke (the controller's observer
@@ -201,6 +202,56 @@ TEST(VirtualCoupling, PassivityControllerTakesBackWhatAnActiveModelGivesOut) {
   EXPECT_EQ(damped[0], 0.0);
   EXPECT_GT(damped[1], 0.0);
   EXPECT_GT(lowest[1], lowest[0]);
+}
+
+// A glove's finger actuators push against its palm: lifting the palm with a finger that holds a weight
+// does no work through the finger's actuator, whatever the finger's force. The observer of a frame
+// grounded on the palm counts the replies' work over the finger's motion relative to the palm (here
+// none); counted over its own motion it credits the rendering with the weight times the lift, the
+// work the replies do on that motion (summed here from the replies, independently of the observer).
+TEST(VirtualCoupling, AFingerGroundedOnThePalmDoesNoWorkWhenThePalmLiftsIt) {
+  HapticModel weight;
+  weight.handles = 2;
+  weight.F0 = HapticVector::Zero(12);
+  weight.F0(6 + 2) = -1.0;  // N on the finger's handle, down
+  weight.K = HapticMatrix::Zero(12, 12);
+  weight.D = HapticMatrix::Zero(12, 12);
+  for (int j = 0; j < 2; ++j) weight.v0[j].setZero(), weight.w0[j].setZero();
+  weight.x0[1].p_W = Eigen::Vector3d(0.05, 0, 0);
+  double observed[2], replies_work = 0;
+  for (const bool grounded : {false, true}) {
+    ProxyHand p;
+    const double mass[2] = {0.05, 0.01};
+    const Eigen::Matrix3d inertia[2] = {1e-5 * Eigen::Matrix3d::Identity(), 1e-6 * Eigen::Matrix3d::Identity()};
+    p.configure(2, mass, inertia, coupling_gains_for(1000.0, 1.0, kPeriod), DeviceLimits{}, DeviceMap{});
+    p.set_passivity_control(false);
+    p.set_fingers_grounded_on_palm(grounded);
+    double t = 0, work = 0;
+    Eigen::Vector3d lift = Eigen::Vector3d::Zero();
+    for (int k = 0; k < 2000; ++k) {  // held 0.5 s, then both frames lifted together at 5 cm/s for 1.5 s
+      t += kPeriod;
+      const Eigen::Vector3d next(0, 0, 0.05 * std::max(0.0, t - 0.5));
+      p.set_device_pose(0, next, Eigen::Quaterniond::Identity());
+      p.set_device_pose(1, next + Eigen::Vector3d(0.05, 0, 0), Eigen::Quaterniond::Identity());
+      p.commit_sample(t, 0.05);
+      const double before = p.energy_in(1);
+      const ReplyWrench r = p.reply(1, 1.0, kPeriod);
+      if (k == 499) observed[grounded] = -before;  // from the lift's start
+      p.reply(0, 1.0, kPeriod);
+      p.integrate(weight, kPeriod);
+      work += r.f_D.dot(next - lift);  // the reply held over the step just taken, as the observer sums it
+      lift = next;
+    }
+    observed[grounded] += p.energy_in(1);
+    if (!grounded) replies_work = work;
+  }
+  std::printf(
+      "lifting a 1 N finger 7.5 cm with the palm: the replies did %+.4f J on the frame's motion; observer "
+      "%+.4f J (frame's own motion), %+.6f J (relative to the palm)\n",
+      replies_work, observed[0], observed[1]);
+  ASSERT_LT(replies_work, -0.05);  // the weight's ~1 N held against the 7.5 cm lift
+  EXPECT_NEAR(observed[0], -replies_work, 0.02 * std::abs(replies_work));
+  EXPECT_LT(std::abs(observed[1]), 1e-3 * std::abs(replies_work));
 }
 
 // A passive wall never trips the controller: it changes nothing there.
@@ -340,10 +391,10 @@ TEST(VirtualCoupling, EveryHandleOfAMultiHandleModelFeelsItsOwnAnchorVelocity) {
     m.K = HapticMatrix::Zero(6 * handles, 6 * handles);
     m.D = HapticMatrix::Zero(6 * handles, 6 * handles);
     for (int j = 0; j < handles; ++j) {
-      m.D.block<3, 3>(6 * j, 6 * j) = -5.0 * Eigen::Matrix3d::Identity();            // N s/m
+      m.D.block<3, 3>(6 * j, 6 * j) = -5.0 * Eigen::Matrix3d::Identity();           // N s/m
       m.D.block<3, 3>(6 * j + 3, 6 * j + 3) = -0.01 * Eigen::Matrix3d::Identity();  // N m s/rad
-      m.v0[j] = Eigen::Vector3d(0.1, -0.2, 0.3);                                     // m/s
-      m.w0[j] = Eigen::Vector3d(1.0, 0.5, -2.0);                                     // rad/s
+      m.v0[j] = Eigen::Vector3d(0.1, -0.2, 0.3);                                    // m/s
+      m.w0[j] = Eigen::Vector3d(1.0, 0.5, -2.0);                                    // rad/s
     }
     return m;
   };
@@ -448,8 +499,7 @@ TEST(VirtualCoupling, TheSafeModelIsPassiveAtEveryBlend) {
         p.reply(0, 1.0, kPeriod);
         p.integrate(wall, kPeriod, 0, weight);
       }
-      std::printf("weight %.1f, %4.0f Hz: the device did %+.3e J on the rendering\n", weight, hz,
-                  p.energy_in(0) - e0);
+      std::printf("weight %.1f, %4.0f Hz: the device did %+.3e J on the rendering\n", weight, hz, p.energy_in(0) - e0);
       EXPECT_GE(p.energy_in(0) - e0, 0.0) << "weight " << weight << ", " << hz << " Hz";
       EXPECT_EQ(p.clamps(), 0);
     }
@@ -681,7 +731,8 @@ TEST(VirtualCoupling, TheTickCatchesPreparedFactorsThatDoNotSolveTheirMatrix) {
 // DeviceMap::to_device inverts to_world(j, .) for a scaled, turned and offset workspace with a
 // handle carried off its frame's origin.
 TEST(VirtualCoupling, DeviceMapToDeviceInvertsToWorld) {
-  DeviceMap map(0.5, Eigen::Vector3d(0.1, -0.2, 0.85), Eigen::Quaterniond(Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 2, 3).normalized())));
+  DeviceMap map(0.5, Eigen::Vector3d(0.1, -0.2, 0.85),
+                Eigen::Quaterniond(Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 2, 3).normalized())));
   map.handle_p_F[2] = Eigen::Vector3d(0.01, 0.03, -0.005);
   map.handle_q_F[2] = Eigen::Quaterniond(Eigen::AngleAxisd(0.4, Eigen::Vector3d::UnitY()));
   const Eigen::Vector3d p_D(0.03, -0.02, 0.05);
