@@ -16,7 +16,7 @@ constexpr int kMaxContactsPerPair = 8;
 // hold it: 8 left a mesh's other vertices free to go into the table, and the bunny pressed by the
 // hand rocked on them, 0.5-0.9 mm into the table at up to 0.55 rad/s in a cycle of four visual steps
 // (a light served hand passed it to the device: +0.0004 J over the gentle press at 60 Hz); with 16,
-// 0.17 mm and 0.28 rad/s, and that press takes energy out (-0.0012 J).
+// 0.17 mm and 0.25 rad/s, and that press takes energy out (-0.0012 J).
 constexpr int kMaxSupportsPerPair = 16;
 // What ODE is asked for per pair before the contacts are thinned to kMaxContactsPerPair.
 constexpr int kCandidateContactsPerPair = 64;
