@@ -39,8 +39,7 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
     HandSlot slot;
     slot.name = d.name;
     slot.model = make_hand(d, hand_build);
-    slot.flesh = slot.model->flesh();
-    if (!slot.flesh)
+    if (!slot.model->flesh())
       throw std::runtime_error("hands." + d.name + ": the world's collision needs a hand with flesh (model \"" +
                                std::string(slot.model->model_name()) + "\" has none)");
     hands_.push_back(std::move(slot));
@@ -65,7 +64,7 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
     b.last.resize(flesh.point_tet->size());
     soft_.push_back(std::move(b));
   };
-  for (int h = 0; h < num_hands(); ++h) add_soft(*hands_[h].flesh, h, -1);
+  for (int h = 0; h < num_hands(); ++h) add_soft(*hands_[h].model->flesh(), h, -1);
   for (int d = 0; d < num_deformables(); ++d) add_soft(detail::flesh_of(*deformables_[d]), -1, d);
   // Hand-hand contact only when the scene has two hands or more: each hand's
   // flesh as a point-location query on its deformed tets, depths from the
@@ -77,8 +76,9 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
   bool meshes = false;
   for (int g = 0; rigid_ && g < rigid_->num_objects(); ++g) meshes = meshes || rigid_->is_mesh(g);
   if (hand_hand_ || ((meshes || !deformables_.empty()) && options.hand_contacts)) {
-    for (HandSlot& h : hands_) {
-      const hand::Flesh& f = *h.flesh;
+    for (int i = 0; i < num_hands(); ++i) {
+      HandSlot& h = hands_[i];
+      const hand::Flesh& f = soft_[i].flesh;
       const hand::SurfaceMesh skin{*f.rest_surface_vertices, *f.surface_triangles};
       Eigen::AlignedBox3d box;
       for (const Eigen::Vector3d& v : skin.vertices) box.extend(v);
@@ -121,8 +121,8 @@ void World::step(double dt_s) {
     }
     hand.step(options_.linearize ? &snapshot_.linear_models[h] : nullptr);
     snapshot_.linear_model_valid[h] = snapshot_.linear_models[h].K.size() > 0;
-    timings.linearize_ms += hands_[h].flesh->state->timings.linearize_ms;
-    timings.contact_ms += hands_[h].flesh->state->timings.contact_ms;
+    timings.linearize_ms += soft_[h].flesh.state->timings.linearize_ms;
+    timings.contact_ms += soft_[h].flesh.state->timings.contact_ms;
     if (hand_hand_) sum_hand_forces(h);
     remember_impulses(soft_[h]);
   }

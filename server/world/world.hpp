@@ -194,7 +194,6 @@ class World {
   struct HandSlot {
     std::string name;
     std::unique_ptr<hand::Hand> model;
-    hand::Flesh* flesh = nullptr;              // model->flesh(): the world builds only hands with flesh
     std::unique_ptr<DeformedMeshQuery> query;  // hand_query()
     Eigen::AlignedBox3d skin_bounds;           // of the deformed skin, at the last collision
     bool query_current = false;                // query rebuilt for the last collision (another hand or a mesh near)

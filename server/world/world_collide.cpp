@@ -298,7 +298,6 @@ void World::collide(SoftBody& b) {
 // How the two bodies share a contact is in step_deformables().
 void World::collide_with_deformables(SoftBody& b, std::unordered_map<std::uint64_t, int>& cluster) {
   hand::HandState& s = *b.flesh.state;
-  const hand::TetMesh& mesh = b.flesh.model->mesh();
   const double margin = constraint_contact_ ? kSpeculativeMargin_m : 0.0;
   const int first_key = rigid_ ? rigid_->num_objects() : 0;
   const int vertex_key = 2 * first_key + num_deformables() + 2 * num_hands();
@@ -308,11 +307,9 @@ void World::collide_with_deformables(SoftBody& b, std::unordered_map<std::uint64
     const Eigen::Vector3d grow = Eigen::Vector3d::Constant(margin);
     const Eigen::AlignedBox3d box(o.surface_bounds.min() - grow, o.surface_bounds.max() + grow);
     int proxy = -1;  // constraint contacts: the object's index in s.bodies
-    for (size_t v = 0; v < b.flesh.point_tet->size(); ++v) {
-      const hand::Tet& t = mesh.tets[(*b.flesh.point_tet)[v]];
+    for (int v = 0; v < b.flesh.num_points(); ++v) {
       const Eigen::Vector4d& w = (*b.flesh.point_bary)[v];
-      Eigen::Vector3d p = Eigen::Vector3d::Zero();
-      for (int k = 0; k < 4; ++k) p += w[k] * s.x.segment<3>(3 * t[k]);
+      const Eigen::Vector3d p = b.flesh.point(v, s.x);
       MeshPenetration pen;
       if (!box.contains(p) || !o.query->penetration(p, margin, pen)) continue;
       hand::PointContact c;
@@ -422,7 +419,7 @@ void World::find_hand_hits() {
   for (int h = 0; h < num_hands(); ++h) {
     HandSlot& hand = hands_[h];
     if (!hand.query) continue;
-    const hand::Flesh& flesh = *hand.flesh;
+    const hand::Flesh& flesh = soft_[h].flesh;
     hand.skin_bounds.setEmpty();
     for (int v = 0; v < flesh.num_points(); ++v) hand.skin_bounds.extend(flesh.point(v, flesh.state->x));
     // Rebuilt (a few ms for a glove's flesh) only when it is asked: another hand, or a mesh or a
@@ -455,7 +452,7 @@ void World::find_hand_hits() {
       const Eigen::AlignedBox3d both = box_a.intersection(box_o);
       for (const bool reversed : {false, true}) {
         const int skin = reversed ? o : a, flesh = reversed ? a : o;
-        const hand::Flesh& S = *hands_[skin].flesh;
+        const hand::Flesh& S = soft_[skin].flesh;
         for (int v = 0; v < S.num_points(); ++v) {
           HandHit hit;
           hit.skin = skin, hit.flesh = flesh, hit.vertex = v;
@@ -506,8 +503,8 @@ void World::collide_with_hands(SoftBody& b, std::unordered_map<std::uint64_t, in
     const bool reversed = hit.flesh == a;  // the other hand's skin point, in a's flesh
     const int o = reversed ? hit.skin : hit.flesh;
     if (constraint_contact_ && o < a) continue;  // the lower-numbered hand holds them
-    const hand::Flesh& skin = *hands_[hit.skin].flesh;
-    const hand::Flesh& flesh = *hands_[hit.flesh].flesh;
+    const hand::Flesh& skin = soft_[hit.skin].flesh;
+    const hand::Flesh& flesh = soft_[hit.flesh].flesh;
     const int tet = (*skin.point_tet)[hit.vertex];
     const Eigen::Vector4d& w = (*skin.point_bary)[hit.vertex];
     const MeshPenetration& pen = hit.pen;

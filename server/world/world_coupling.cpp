@@ -84,8 +84,8 @@ void World::step_deformables() {
 // visual loop's linearize_next_step) predicts them unchanged: as a force,
 // without the contacts' stiffness.
 void World::take_hand_reactions(int h) {
-  hand::HandState& s = *hands_[h].flesh->state;
-  const hand::TetMesh& mesh = hands_[h].flesh->model->mesh();
+  hand::HandState& s = *soft_[h].flesh.state;
+  const hand::TetMesh& mesh = soft_[h].flesh.model->mesh();
   s.f_ext.setZero();
   for (int g = 0; g < h; ++g) {
     const SoftBody& from = soft_[g];
@@ -107,9 +107,9 @@ void World::take_hand_reactions(int h) {
 // at 0.3 m/s lost nearly all their momentum within five steps. The recorded contact
 // forces (f_W) have it: they take the relative velocity.
 void World::anchor_hand_contacts(int h, double dt) {
-  hand::HandState& s = *hands_[h].flesh->state;
+  hand::HandState& s = *soft_[h].flesh.state;
   const SoftBody& b = soft_[h];
-  const hand::TetMesh& mesh = hands_[h].flesh->model->mesh();
+  const hand::TetMesh& mesh = soft_[h].flesh.model->mesh();
   s.f_ext.setZero();
   for (size_t k = 0; k < b.touches.size(); ++k) {
     const hand::PointContact& c = s.contacts[k];
@@ -125,8 +125,8 @@ void World::anchor_hand_contacts(int h, double dt) {
 void World::sum_hand_forces(int h) {
   HandSlot& hand = hands_[h];
   const SoftBody& b = soft_[h];
-  const hand::TetMesh& mesh = hand.flesh->model->mesh();
-  const hand::HandState& s = *hand.flesh->state;
+  const hand::TetMesh& mesh = soft_[h].flesh.model->mesh();
+  const hand::HandState& s = *soft_[h].flesh.state;
   if (constraint_contact_) {
     hand.f_hands_W = s.f_ext;  // the impulses taken
   } else {
