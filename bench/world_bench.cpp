@@ -35,8 +35,10 @@ struct RunStats {
   // |F of the model published before this step (the coming step's, as the server
   // builds it) at this step's end state - the coupling force at that state|, N:
   // what the haptic loop renders against what the step finds (hand 0, the force
-  // part of the worst handle).
-  std::vector<double> force_error_n;
+  // part of the worst handle). The published model (ContactLinearization::unilateral: its
+  // constraint contacts solved at that state, as the haptic tick does) and, a baseline in the same
+  // run, the same linearization with the last step's contacts held bilaterally (GO09).
+  std::vector<double> force_error_n, force_error_bilateral_n;
   double max_penetration_m = 0;
   long resets = 0;
 };
@@ -93,7 +95,7 @@ RunStats run(const world::SceneDesc& scene, world::WorldOptions options, int ste
   options.linearize = false;  // the model is the coming step's, built after each step as the server does
   world::World world(scene, options);
   const std::vector<GloveScript> gloves = glove_scripts(scene, world);
-  hand::HandleLinearization model;
+  hand::HandleLinearization model, model_bilateral;
   std::vector<std::vector<hand::HandleState>> start;
   for (int h = 0; h < world.num_hands(); ++h) start.push_back(world.hand(h).handles());
   Eigen::Vector3d goal = start.empty() ? Eigen::Vector3d::Zero() : start[0][0].p_WH;
@@ -145,25 +147,30 @@ RunStats run(const world::SceneDesc& scene, world::WorldOptions options, int ste
         world.hand(h).set_target(static_cast<int>(j), target);
       }
     }
-    const hand::HandleLinearization previous = model;
+    const hand::HandleLinearization previous = model, previous_bilateral = model_bilateral;
     world.step();
     const auto t_model = std::chrono::steady_clock::now();
     for (int h = 0; h < world.num_hands(); ++h) {
       hand::HandleLinearization lin;
-      world.hand(h).linearize_next_step(lin, hand::ContactLinearization::held);
+      world.hand(h).linearize_next_step(lin, hand::ContactLinearization::unilateral);
       if (h == 0) model = lin;
     }
     const double model_ms =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_model).count();
+    if (world.num_hands() > 0) world.hand(0).linearize_next_step(model_bilateral, hand::ContactLinearization::held);
     const world::WorldSnapshot& s = world.snapshot();
     if (k < 10) continue;  // warm-up
     if (previous.K.size() > 0 && world.num_hands() > 0) {
-      const Eigen::VectorXd predicted = previous.evaluate(world.hand(0).handles()),
-                            actual = world.hand(0).coupling_wrench();
-      double err = 0;
-      for (int j = 0; j < predicted.size() / 6; ++j)
-        err = std::max(err, (predicted.segment<3>(6 * j) - actual.segment<3>(6 * j)).norm());
-      r.force_error_n.push_back(err);
+      const Eigen::VectorXd actual = world.hand(0).coupling_wrench();
+      auto worst_handle_error = [&](const hand::HandleLinearization& m) {
+        const Eigen::VectorXd predicted = m.evaluate(world.hand(0).handles());
+        double err = 0;
+        for (int j = 0; j < predicted.size() / 6; ++j)
+          err = std::max(err, (predicted.segment<3>(6 * j) - actual.segment<3>(6 * j)).norm());
+        return err;
+      };
+      r.force_error_n.push_back(worst_handle_error(previous));
+      r.force_error_bilateral_n.push_back(worst_handle_error(previous_bilateral));
     }
     r.total.push_back(s.timings.total_ms + model_ms);
     r.collide.push_back(s.timings.collide_ms);
@@ -180,20 +187,24 @@ RunStats run(const world::SceneDesc& scene, world::WorldOptions options, int ste
 }
 
 nlohmann::json to_json(const RunStats& r) {
-  return {{"step_ms_median", median(r.total)},
-          {"step_ms_p99", percentile(r.total, 99)},
-          {"collision_ms", median(r.collide)},
-          {"hand_ms", median(r.hands)},
-          {"contact_solve_ms", median(r.contact)},
-          {"force_error_n_median", r.force_error_n.empty() ? 0.0 : median(r.force_error_n)},
-          {"force_error_n_p99", r.force_error_n.empty() ? 0.0 : percentile(r.force_error_n, 99)},
-          {"ode_ms", median(r.rigid)},
-          {"linearization_ms", median(r.linearize)},
-          {"deformable_ms", median(r.deformable)},
-          {"contacts_median", median(r.contacts)},
-          {"contacts_max", percentile(r.contacts, 100)},
-          {"max_penetration_mm", 1e3 * r.max_penetration_m},
-          {"resets", r.resets}};
+  return {
+      {"step_ms_median", median(r.total)},
+      {"step_ms_p99", percentile(r.total, 99)},
+      {"collision_ms", median(r.collide)},
+      {"hand_ms", median(r.hands)},
+      {"contact_solve_ms", median(r.contact)},
+      {"force_error_n_median", r.force_error_n.empty() ? 0.0 : median(r.force_error_n)},
+      {"force_error_n_p99", r.force_error_n.empty() ? 0.0 : percentile(r.force_error_n, 99)},
+      {"force_error_bilateral_n_median", r.force_error_bilateral_n.empty() ? 0.0 : median(r.force_error_bilateral_n)},
+      {"force_error_bilateral_n_p99",
+       r.force_error_bilateral_n.empty() ? 0.0 : percentile(r.force_error_bilateral_n, 99)},
+      {"ode_ms", median(r.rigid)},
+      {"linearization_ms", median(r.linearize)},
+      {"deformable_ms", median(r.deformable)},
+      {"contacts_median", median(r.contacts)},
+      {"contacts_max", percentile(r.contacts, 100)},
+      {"max_penetration_mm", 1e3 * r.max_penetration_m},
+      {"resets", r.resets}};
 }
 
 void run_world_bench(const WorldBenchArgs& a) {
@@ -222,14 +233,16 @@ void run_world_bench(const WorldBenchArgs& a) {
                         {"threads", 1},
                         {"cpu", machine.cpu},
                         {"machine", to_json(machine)}};
-  std::printf("%-18s %-10s %9s %9s %9s %9s %9s %9s %9s %9s %9s %9s %9s\n", "scene", "contact", "step_med", "step_p99",
-              "collide", "hand", "contact", "ode", "linearize", "deform", "contacts", "pen_mm", "ferr_N");
+  std::printf("%-18s %-10s %9s %9s %9s %9s %9s %9s %9s %9s %9s %9s %9s %9s\n", "scene", "contact", "step_med",
+              "step_p99", "collide", "hand", "contact", "ode", "linearize", "deform", "contacts", "pen_mm", "ferr_N",
+              "ferr_bil_N");
   for (const auto& [label, r] :
        {std::pair<const char*, const RunStats&>{"penalty", penalty}, {"constraint", constraint}, {"off", without}})
-    std::printf("%-18s %-10s %9.3f %9.3f %9.3f %9.3f %9.3f %9.3f %9.3f %9.3f %9.0f %9.3f %9.4f\n", scene.name.c_str(),
-                label, median(r.total), percentile(r.total, 99), median(r.collide), median(r.hands), median(r.contact),
-                median(r.rigid), median(r.linearize), median(r.deformable), median(r.contacts),
-                1e3 * r.max_penetration_m, r.force_error_n.empty() ? 0.0 : median(r.force_error_n));
+    std::printf("%-18s %-10s %9.3f %9.3f %9.3f %9.3f %9.3f %9.3f %9.3f %9.3f %9.0f %9.3f %9.4f %9.4f\n",
+                scene.name.c_str(), label, median(r.total), percentile(r.total, 99), median(r.collide), median(r.hands),
+                median(r.contact), median(r.rigid), median(r.linearize), median(r.deformable), median(r.contacts),
+                1e3 * r.max_penetration_m, r.force_error_n.empty() ? 0.0 : median(r.force_error_n),
+                r.force_error_bilateral_n.empty() ? 0.0 : median(r.force_error_bilateral_n));
   std::printf("machine: %s, %d cores, BLAS %s, revision %s (times in ms, one thread)\n", machine.cpu.c_str(),
               machine.cores, machine.blas.c_str(), machine.git_revision.c_str());
   if (!a.json.empty()) write_json(a.json, doc);
