@@ -14,10 +14,10 @@
 namespace hapticd::hand {
 
 struct ContactProblem {
-  Eigen::MatrixXd W;        // 3c x 3c, symmetric positive semi-definite, contact frames (n, t1, t2)
-  Eigen::VectorXd u_free;   // 3c: relative velocities without contact impulses, m/s
-  Eigen::VectorXd bias;     // c: least normal velocity (> 0 pushes penetrating points out), m/s
-  std::vector<double> mu;   // c: friction coefficients
+  Eigen::MatrixXd W;       // 3c x 3c, symmetric positive semi-definite, contact frames (n, t1, t2)
+  Eigen::VectorXd u_free;  // 3c: relative velocities without contact impulses, m/s
+  Eigen::VectorXd bias;    // c: least normal velocity (> 0 pushes penetrating points out), m/s
+  std::vector<double> mu;  // c: friction coefficients
 };
 
 struct PgsOptions {
@@ -51,14 +51,17 @@ double pgs_tangent_step(const MatW& W, int i) {
 }
 
 // The sweeps of solve_contacts_pgs on the caller's storage, so that the haptic tick (fixed-capacity
-// matrices) and the hand step (dynamic ones) run one implementation and neither allocates here:
-// c contacts; W (3c x 3c), bias (c), mu (c), tangent_step (c, pgs_tangent_step); lambda (3c) the first
-// iterate (inside the cone) and the answer; u = u_free + W lambda on entry, kept so. Per contact: the
-// normal row with its own diagonal, then the tangent, each followed by its projection. Stops when a
-// sweep changes no impulse by more than `tolerance` times the largest. Returns the sweeps run.
-template <class MatW, class VecB, class VecU, class VecL>
-int pgs_sweeps(const MatW& W, const VecB& bias, const double* mu, const double* tangent_step, int c, VecU& u,
-               VecL& lambda, int max_iterations, double tolerance, bool& converged) {
+// matrices, its Delassus operator dense or in low-rank form) and the hand step (dynamic ones) run one
+// implementation and neither allocates here. `op` is the Delassus operator W together with the rows'
+// velocities u = u_free + W lambda, kept so: op.block(i) is W's 3x3 diagonal block of contact i,
+// op.velocity(i) contact i's three rows of u, op.add(i, delta) moves u by W's three columns of
+// contact i times delta. c contacts; bias (c), mu (c), tangent_step (c, pgs_tangent_step); lambda (3c)
+// the first iterate (inside the cone) and the answer. Per contact: the normal row with its own
+// diagonal, then the tangent, each followed by its projection. Stops when a sweep changes no impulse
+// by more than `tolerance` times the largest. Returns the sweeps run.
+template <class Op, class VecB, class VecL>
+int pgs_sweeps_on(Op& op, const VecB& bias, const double* mu, const double* tangent_step, int c, VecL& lambda,
+                  int max_iterations, double tolerance, bool& converged) {
   converged = false;
   int sweep = 1;
   for (; sweep <= max_iterations; ++sweep) {
@@ -66,17 +69,16 @@ int pgs_sweeps(const MatW& W, const VecB& bias, const double* mu, const double* 
     for (int i = 0; i < c; ++i) {
       const Eigen::Vector3d old = lambda.template segment<3>(3 * i);
       Eigen::Vector3d l = old;
-      const double Wnn = W(3 * i, 3 * i);
-      if (Wnn > 0) l[0] = std::max(0.0, l[0] - (u[3 * i] - bias[i]) / Wnn);
+      const Eigen::Matrix3d W_ii = op.block(i);
+      const Eigen::Vector3d u = op.velocity(i);
+      if (W_ii(0, 0) > 0) l[0] = std::max(0.0, l[0] - (u[0] - bias[i]) / W_ii(0, 0));
       // Tangential: the impulse that would stop sliding, clipped to the cone of the new normal.
-      const Eigen::Vector2d u_t =
-          u.template segment<2>(3 * i + 1) + W.template block<2, 1>(3 * i + 1, 3 * i) * (l[0] - old[0]);
+      const Eigen::Vector2d u_t = u.tail<2>() + W_ii.block<2, 1>(1, 0) * (l[0] - old[0]);
       l.tail<2>() -= tangent_step[i] * u_t;
       l = project_to_cone(l, mu[i]);
       const Eigen::Vector3d delta = l - old;
       if (delta.squaredNorm() > 0) {
-        for (int d = 0; d < 3; ++d)
-          if (delta[d] != 0) u.head(3 * c) += W.col(3 * i + d).head(3 * c) * delta[d];
+        op.add(i, delta);
         lambda.template segment<3>(3 * i) = l;
       }
       change = std::max(change, delta.cwiseAbs().maxCoeff());
@@ -88,6 +90,28 @@ int pgs_sweeps(const MatW& W, const VecB& bias, const double* mu, const double* 
     }
   }
   return std::min(sweep, max_iterations);
+}
+
+// A dense Delassus operator for pgs_sweeps_on: W (3c x 3c) and u (3c) held by reference.
+template <class MatW, class VecU>
+struct DenseDelassus {
+  const MatW& W;
+  VecU& u;
+  int c;
+  Eigen::Matrix3d block(int i) const { return W.template block<3, 3>(3 * i, 3 * i); }
+  Eigen::Vector3d velocity(int i) const { return u.template segment<3>(3 * i); }
+  void add(int i, const Eigen::Vector3d& delta) {
+    for (int d = 0; d < 3; ++d)
+      if (delta[d] != 0) u.head(3 * c) += W.col(3 * i + d).head(3 * c) * delta[d];
+  }
+};
+
+// pgs_sweeps_on a dense W, u = u_free + W lambda on entry and kept so.
+template <class MatW, class VecB, class VecU, class VecL>
+int pgs_sweeps(const MatW& W, const VecB& bias, const double* mu, const double* tangent_step, int c, VecU& u,
+               VecL& lambda, int max_iterations, double tolerance, bool& converged) {
+  DenseDelassus<MatW, VecU> op{W, u, c};
+  return pgs_sweeps_on(op, bias, mu, tangent_step, c, lambda, max_iterations, tolerance, converged);
 }
 
 // `warm_start` (3c), when given, is the first iterate (the previous step's impulses).

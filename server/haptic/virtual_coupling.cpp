@@ -34,6 +34,27 @@ constexpr double kMaxReplyInterval_s = 0.1;
 // motion to damp, and the damping it would need grows without bound).
 constexpr double kMinPassivitySpeed2_m2_s2 = 1e-10;
 
+// The tick's Delassus operator for a proxy solved densely, W + P Q with P = h (tau U_K + U_D) (3c x 6m)
+// and Q = A(tau)^-1 G (6m x 3c), kept in that form for pgs_sweeps_on: the rows' velocities are
+// u = u_m + P y with u_m = u_free + W lambda and y = Q lambda, and an impulse moves u_m by W's columns
+// and y by Q's. Forming W + P Q (3c x 6m x 3c products) at every tick cost more than the sweeps.
+struct LowRankDelassus {
+  const TickRowMatrix& W;
+  const TickRowByDof& P;
+  const TickDofByRow& Q;
+  const Eigen::Matrix3d* blocks;  // W + P Q's diagonal blocks
+  TickRowVector& u_m;
+  HapticVector& y;
+  int c;
+  Eigen::Matrix3d block(int i) const { return blocks[i]; }
+  Eigen::Vector3d velocity(int i) const { return u_m.segment<3>(3 * i) + P.middleRows<3>(3 * i) * y; }
+  void add(int i, const Eigen::Vector3d& delta) {
+    for (int d = 0; d < 3; ++d)
+      if (delta[d] != 0) u_m.head(3 * c) += W.col(3 * i + d).head(3 * c) * delta[d];
+    y.noalias() += Q.middleCols<3>(3 * i) * delta;
+  }
+};
+
 // Limits |v| to `limit`; true if it had to.
 bool clamp_norm(Eigen::Vector3d& v, double limit) {
   const double n = v.norm();
@@ -400,15 +421,20 @@ bool ProxyHand::solve_contacts(const HapticModel& model, double dt, double tau, 
   u_.noalias() += c.U_K * x_look_;
   u_.noalias() += c.U_D * dv_;
   // Impulses lambda change the proxies' velocities by A^-1 dt G lambda, and the rows' by that through
-  // tau U_K + U_D besides the flesh's W lambda: the Delassus operator of the proxies and the flesh.
+  // tau U_K + U_D besides the flesh's W lambda: the Delassus operator of the proxies and the flesh,
+  // W + P Q (LowRankDelassus) when lu_ holds A, the prepared W_proxy otherwise.
   // A fading model's contacts hold at full strength (integrate).
+  low_rank_ = dense;
   if (dense) {
-    X_.noalias() = lu_.solve(c.G);
-    W_.noalias() = c.W;
-    UX_.noalias() = tau * c.U_K + c.U_D;
-    W_.noalias() += dt * (UX_ * X_);
+    Q_.noalias() = lu_.solve(c.G);
+    P_.noalias() = (dt * tau) * c.U_K;
+    P_.noalias() += dt * c.U_D;
+    for (int i = 0; i < c.count; ++i) {
+      blocks_[i] = c.W.block<3, 3>(3 * i, 3 * i);
+      blocks_[i].noalias() += P_.middleRows<3>(3 * i) * Q_.middleCols<3>(3 * i);
+    }
   } else if (c.proxy_prepared) {
-    W_ = c.W_proxy;
+    for (int i = 0; i < c.count; ++i) blocks_[i] = c.W_proxy.block<3, 3>(3 * i, 3 * i);
   } else {
     return false;
   }
@@ -417,33 +443,50 @@ bool ProxyHand::solve_contacts(const HapticModel& model, double dt, double tau, 
   if (!same_model) lambda_ = c.lambda0;
   for (int i = 0; i < c.count; ++i) {
     lambda_.segment<3>(3 * i) = hand::project_to_cone(lambda_.segment<3>(3 * i), c.mu[i]);
-    tangent_step_[i] = hand::pgs_tangent_step(W_, i);
+    tangent_step_[i] = hand::pgs_tangent_step(blocks_[i], 0);
   }
-  u_.noalias() += W_ * lambda_;
   // A few sweeps find the active set, which the polish then solves exactly; the rest of the sweeps
   // only when that is not a solution. All 8 sweeps at every tick made the first tick of each model
   // (warm-started from the model's own impulses) the tick's p99: 45 us against a median of 1.4 us,
   // the stylus press on the movable bunny at 30 Hz.
   bool converged = false;
-  contact_sweeps_ = hand::pgs_sweeps(W_, c.bias, c.mu, tangent_step_, c.count, u_, lambda_, kTickContactFirstSweeps,
-                                     kTickContactTolerance, converged);
+  const auto sweeps = [&](int count) {
+    if (low_rank_) {
+      LowRankDelassus op{c.W, P_, Q_, blocks_, u_, y_, c.count};
+      return hand::pgs_sweeps_on(op, c.bias, c.mu, tangent_step_, c.count, lambda_, count, kTickContactTolerance,
+                                 converged);
+    }
+    hand::DenseDelassus<TickRowMatrix, TickRowVector> op{c.W_proxy, u_, c.count};
+    return hand::pgs_sweeps_on(op, c.bias, c.mu, tangent_step_, c.count, lambda_, count, kTickContactTolerance,
+                               converged);
+  };
+  if (low_rank_) {
+    u_.noalias() += c.W * lambda_;
+    y_.noalias() = Q_ * lambda_;
+  } else {
+    u_.noalias() += c.W_proxy * lambda_;
+  }
+  contact_sweeps_ = sweeps(kTickContactFirstSweeps);
   if (!lambda_.allFinite()) return false;
   if (!polish_contacts(c) && !converged) {
-    contact_sweeps_ += hand::pgs_sweeps(W_, c.bias, c.mu, tangent_step_, c.count, u_, lambda_,
-                                        kTickContactSweeps - kTickContactFirstSweeps, kTickContactTolerance, converged);
+    contact_sweeps_ += sweeps(kTickContactSweeps - kTickContactFirstSweeps);
     if (!lambda_.allFinite()) return false;
     if (!polish_contacts(c) && !converged) ++contact_unconverged_;
   }
   lambda_t_end_ns_ = model.t_end_ns;
   lambda_resyncs_ = model.resyncs;
   // v += A^-1 dt G lambda.
-  rhs_.noalias() = dt * (c.G * lambda_);
   if (dense) {
-    v_next_.noalias() += lu_.solve(rhs_);
+    v_next_.noalias() += dt * (Q_ * lambda_);
     return true;
   }
+  rhs_.noalias() = dt * (c.G * lambda_);
   b_ += rhs_;
   return solve_prepared(model, dt, tau);
+}
+
+double ProxyHand::delassus(const TickContacts& c, int row, int col) const {
+  return low_rank_ ? c.W(row, col) + P_.row(row).dot(Q_.col(col)) : c.W_proxy(row, col);
 }
 
 bool ProxyHand::polish_contacts(const TickContacts& c) {
@@ -462,13 +505,16 @@ bool ProxyHand::polish_contacts(const TickContacts& c) {
       active_[a++] = 3 * i + 1, active_[a++] = 3 * i + 2;
   }
   if (a == 0) return false;
+  // The rows' velocities now, every row (the low-rank operator keeps them in two parts).
+  u_candidate_ = u_;
+  if (low_rank_) u_candidate_.noalias() += P_ * y_;
   W_aa_.resize(a, a);
   rhs_a_.resize(a);
   for (int i = 0; i < a; ++i) {
     const int row = active_[i];
     // The target: the bias on a normal row, no slip on a tangent row.
-    rhs_a_[i] = (row % 3 == 0 ? c.bias[row / 3] : 0.0) - u_[row];
-    for (int k = 0; k < a; ++k) W_aa_(i, k) = W_(row, active_[k]);
+    rhs_a_[i] = (row % 3 == 0 ? c.bias[row / 3] : 0.0) - u_candidate_[row];
+    for (int k = 0; k < a; ++k) W_aa_(i, k) = delassus(c, row, active_[k]);
   }
   // rhs_a_ = target - u now; the correction d of the active impulses solves W_AA d = rhs_a_.
   lu_rows_.compute(W_aa_);
@@ -476,16 +522,22 @@ bool ProxyHand::polish_contacts(const TickContacts& c) {
   if (!delta_a_.allFinite()) return false;
   candidate_ = lambda_;
   for (int i = 0; i < a; ++i) candidate_[active_[i]] += delta_a_[i];
-  u_candidate_ = u_;
-  for (int i = 0; i < a; ++i) u_candidate_.head(r) += W_.col(active_[i]).head(r) * delta_a_[i];
+  // u += (W + P Q) d over the active columns.
+  const TickRowMatrix& W = low_rank_ ? c.W : c.W_proxy;
+  dy_.setZero(6 * handles_);
+  for (int i = 0; i < a; ++i) {
+    u_candidate_.head(r) += W.col(active_[i]).head(r) * delta_a_[i];
+    if (low_rank_) dy_.noalias() += Q_.col(active_[i]) * delta_a_[i];
+  }
+  if (low_rank_) u_candidate_.noalias() += P_ * dy_;
   constexpr double kSlack = 1e-12;
   for (int i = 0; i < c.count; ++i) {
     const double ln = candidate_[3 * i];
     if (ln < 0 || u_candidate_[3 * i] - c.bias[i] < -kSlack * (1 + std::abs(c.bias[i]))) return false;
     if (candidate_.segment<2>(3 * i + 1).norm() > c.mu[i] * ln * (1 + 1e-9) + 1e-300) return false;
   }
+  // The answer; the rows' velocities are not needed past it (the next tick starts them afresh).
   lambda_ = candidate_;
-  u_ = u_candidate_;
   return true;
 }
 

@@ -317,14 +317,20 @@ class ProxyHand {
   // The active set of the sweeps' answer solved exactly, kept if it is a solution (solve_contacts):
   // true then.
   bool polish_contacts(const TickContacts& c);
+  // Entry (row, col) of the tick's Delassus operator (solve_contacts).
+  double delassus(const TickContacts& c, int row, int col) const;
+  // The rows' velocities: u_ = u_free + W lambda_, plus P_ y_ in the low-rank form (low_rank_:
+  // the operator W + P_ Q_, never formed; else the model's prepared W_proxy).
   TickRowVector u_, lambda_, candidate_, u_candidate_, rhs_a_, delta_a_;
+  HapticVector y_, dy_;
+  bool low_rank_ = false;
   int active_[kMaxTickRows]{};
   TickRowMatrix W_aa_;
   Eigen::PartialPivLU<TickRowMatrix> lu_rows_;
   HapticVector x_look_, rhs_;
-  TickDofByRow X_;
-  TickRowByDof UX_;
-  TickRowMatrix W_;
+  TickDofByRow Q_;
+  TickRowByDof P_;
+  Eigen::Matrix3d blocks_[kMaxTickContacts];  // the operator's diagonal blocks
   double tangent_step_[kMaxTickContacts]{};
   std::uint64_t lambda_t_end_ns_ = 0;
   std::uint32_t lambda_resyncs_ = 0;
