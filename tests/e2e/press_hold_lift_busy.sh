@@ -23,16 +23,9 @@ busy_pid=""
 trap 'kill "$server_pid" "$busy_pid" 2>/dev/null || true; rm -rf "$work"' EXIT
 source "$(dirname "$0")/lib.sh"
 
-# Device space (scale 2 in the scene): the palm handle starts 3 cm up and meets the bunny ~1 cm down.
-cat > "$work/press_hold_lift.csv" <<'CSV'
-t_s,x_m,y_m,z_m
-0,0,0,0.03
-0.5,0,0,0.03
-1.5,0,0,0.01
-3.5,0,0,0.01
-4.0,0,0,0.05
-7.0,0,0,0.05
-CSV
+# Device space (scale 2 in the scene): the palm handle starts 3 cm up, meets the bunny ~1 cm down at
+# 1.5 s, holds to 3.5 s and is 4 cm up at 4 s (scenes/trajectories/stylus_press_hold_lift.csv).
+trajectory="$(dirname "$0")/../../scenes/trajectories/stylus_press_hold_lift.csv"
 lift_end=4.0
 
 device_priority=()
@@ -40,7 +33,7 @@ if chrt -f 20 true 2>/dev/null; then device_priority=(chrt -f 20); fi
 bash -c 'while :; do :; done' &
 busy_pid=$!
 start_hapticd "$bin" "$scene" "$seconds" "$work" "${@:3}"
-"${device_priority[@]}" "$bin/haptic-device" --server "127.0.0.1:$port" --device stylus --trajectory "$work/press_hold_lift.csv" \
+"${device_priority[@]}" "$bin/haptic-device" --server "127.0.0.1:$port" --device stylus --trajectory "$trajectory" \
   --rate 1000 --duration "$seconds" --report "$work/device.json" --trace "$work/trace.csv"
 kill "$busy_pid"
 busy_pid=""
