@@ -251,7 +251,7 @@ bool solve_constraint_contacts(const HandModel& model, HandState& s, CoupledSolv
     if (static_cast<int>(rows.size()) > first) {
       if (!append_rows(first)) return false;
       PgsOptions options;
-      options.max_iterations = 500;
+      options.max_iterations = kStepContactSweeps;
       options.tolerance = 1e-8;
       const PgsResult r = solve_contacts_pgs(problem, options, &lambda);
       if (!r.lambda.allFinite()) return false;

@@ -42,7 +42,7 @@ struct FloorParams {
   double height_m = 0.0;
   double stiffness_n_m = 2000.0;  // per node in contact
   double damping_ns_m = 2.0;
-  double friction = 0.0;          // Coulomb coefficient (regularized, see PointContact)
+  double friction = 0.0;  // Coulomb coefficient (regularized, see PointContact)
 };
 
 // Penalty contact of one point embedded in the body (barycentric in a tet)
@@ -54,7 +54,7 @@ struct PointContact {
   static constexpr double kStickSpeed_m_s = 0.01;
   int tet = 0;
   Eigen::Vector4d bary{1, 0, 0, 0};
-  Eigen::Vector3d n_W = Eigen::Vector3d::UnitZ();      // unit, out of the other body
+  Eigen::Vector3d n_W = Eigen::Vector3d::UnitZ();  // unit, out of the other body
   double depth_m = 0;  // penetration along n_W, > 0 (a constraint contact may carry a gap, < 0)
   Eigen::Vector3d v_other_W = Eigen::Vector3d::Zero();  // the other body's velocity at the point
   double stiffness_n_m = 2000.0, damping_ns_m = 2.0, friction = 0.0;
@@ -76,6 +76,13 @@ struct PointContact {
 // The most constraint contacts one step solves (its contacts and supports, 3 rows each): W (3c x 3c)
 // and A^-1 J^T (the tool DOFs x 3c) are dense.
 constexpr int kMaxStepContacts = 256;
+// The most Gauss-Seidel sweeps of a step's constraint contacts (an easy problem stops earlier, at a
+// sweep that changes no impulse by 1e-8 of the largest). A palm pressed flat on a body couples its
+// rows through the flesh and the handle, and the sweeps converge slowly there: on the stylus
+// bunny's 130 N press (`haptic-bench world`), the published model missed the step's force by 2.89 N
+// at the median with 500 sweeps (the step's own answer unconverged), 0.88 N with 1000, 0.16 N with
+// 2000, for 1.7 ms more at the median step (0.01 N with 4000, 3.7 ms more).
+constexpr int kStepContactSweeps = 2000;
 // Constraint contacts push a penetrating point out at this fraction of its depth per step.
 constexpr double kContactDepthRecovery = 0.2;
 // A reserve constraint contact (HandState::reserve_contacts) joins the step's
@@ -189,8 +196,8 @@ struct HandleTarget {
 // Per-stage wall time of the last step, ms (measured for the stats; nothing steps by it), and
 // the solver's iteration and factorization counts.
 struct StepTimings {
-  double assembly_ms = 0, factor_ms = 0, schur_ms = 0, solve_ms = 0, contact_ms = 0, linearize_ms = 0,
-         integrate_ms = 0, total_ms = 0;
+  double assembly_ms = 0, factor_ms = 0, schur_ms = 0, solve_ms = 0, contact_ms = 0, linearize_ms = 0, integrate_ms = 0,
+         total_ms = 0;
   long iterations = 0;
   int factorizations = 0;      // the solver's numeric factorizations (SolveReport::factorizations)
   int contact_iterations = 0;  // Gauss-Seidel sweeps of the constraint contacts (last round)
@@ -242,7 +249,7 @@ struct HandState {
   std::vector<PointContact> active_contacts;  // valid contacts + floor, as last assembled
   // Per active contact: index into contacts, -1 for the floor, kReserveSource - r for reserve r.
   std::vector<int> active_source;
-  HeldContacts held;                          // the last step's held constraint contacts
+  HeldContacts held;  // the last step's held constraint contacts
 
   // The step length, s: the model's dt_s unless the caller sets another (a
   // visual loop that keeps its simulated time on the wall clock).
