@@ -107,20 +107,29 @@ void contact_rows(const HandModel& model, const HandState& s, int max_contacts, 
     if (pc.constraint && valid_contact(model, s, pc)) candidates.push_back({&pc, nullptr, 2, pc.depth_m});
   if (static_cast<int>(candidates.size()) > max_contacts) {
     // By rank, then the deepest first (a gap is a negative depth). The bodies' supports keep up to a
-    // third of the rows however many the hand's own contacts are: without them the haptic tick lets
-    // a body the hand presses move as if nothing held it (a hand pressing the bunny hard found 44
-    // contacts of its own, and the proxy sank at 1 m/s through a model with the table left out).
+    // third of the rows and the reserves two, however many the hand's own contacts are; the hand's
+    // contacts take the rest. Without the supports the haptic tick lets a body the hand presses move
+    // as if nothing held it (a hand pressing the bunny hard found 44 contacts of its own, and the
+    // proxy sank at 1 m/s through a model with the table left out). Without the deepest reserves it
+    // misses what the step promotes under a hard press: on the stylus bunny's 120 N press, 1-3 of 60
+    // reserves carry up to a third of the impulse, and the model's force error p99 was 18 N. More reserves
+    // cost the hand's contacts their coverage (one per cluster cell): on the blocks' flat faces the
+    // median error grows 0.9 -> 1.3 N with two reserves, 5 N with eight (`scripts/bench-world`).
     std::stable_sort(candidates.begin(), candidates.end(), [](const Candidate& a, const Candidate& b) {
       return a.rank != b.rank ? a.rank < b.rank : a.depth > b.depth;
     });
     int count[3] = {0, 0, 0};
     for (const Candidate& cand : candidates) ++count[cand.rank];
     const int budget = std::max(0, max_contacts);
-    int take[3];
-    take[1] = std::min(count[1], budget / 3);
-    take[0] = std::min(count[0], budget - take[1]);
-    take[1] = std::min(count[1], budget - take[0]);
-    take[2] = std::min(count[2], budget - take[0] - take[1]);
+    int take[3], left = budget;
+    left -= take[1] = std::min(count[1], budget / 3);
+    left -= take[2] = std::min(count[2], budget / 12);
+    left -= take[0] = std::min(count[0], left);
+    for (int rank = 0; rank < 3; ++rank) {  // what a rank leaves goes to the others, in rank order
+      const int more = std::min(count[rank] - take[rank], left);
+      take[rank] += more;
+      left -= more;
+    }
     std::vector<Candidate> kept;
     kept.reserve(budget);
     int first = 0;
@@ -239,7 +248,7 @@ bool solve_constraint_contacts(const HandModel& model, HandState& s, CoupledSolv
     X_t.rightCols(3 * added) = X_t_new;
     // W = J A^-1 J^T = J_h X_h + J_t (X_t - Y X_h); J by rows, so its products run down X's columns.
     const Eigen::SparseMatrix<double, Eigen::RowMajor> J_h = Jt.topRows(nh).transpose(),
-                                                      J_t = Jt.bottomRows(nt).transpose();
+                                                       J_t = Jt.bottomRows(nt).transpose();
     problem.W = J_h * X_h + J_t * X_t;
     if (Y_tool) problem.W.noalias() -= (J_t * Y_tool->middleCols(1, nh)) * X_h;
     return true;
@@ -289,8 +298,8 @@ bool solve_constraint_contacts(const HandModel& model, HandState& s, CoupledSolv
   s.v_t_next = V.tail(nt);
   const int c = static_cast<int>(rows.size());
   for (int k = 0; k < c; ++k)
-    if (rows[k].contact >= 0) impulses[rows[k].contact] = contact_frame(s.active_contacts[rows[k].contact].n_W) *
-                                                           lambda.segment<3>(3 * k);
+    if (rows[k].contact >= 0)
+      impulses[rows[k].contact] = contact_frame(s.active_contacts[rows[k].contact].n_W) * lambda.segment<3>(3 * k);
 
   // Held for the linearization: pushing rows' normals, and the tangents of those inside the cone.
   std::vector<int> held_cols;

@@ -19,7 +19,8 @@ namespace hapticd::hand {
 // The constraint rows of the coming step as solve_constraint_contacts builds them, for the haptic
 // loop's contact model: the hand's constraint contacts in s.active_contacts, the valid supports of
 // its implicit bodies, then its reserve contacts (rows the step may promote); at most `max_contacts`,
-// in that order and the deepest first within each (a gap is a negative depth).
+// in that order and the deepest first within each (a gap is a negative depth); when there are more,
+// the supports keep up to a third of the rows and the reserves two.
 struct ContactRows {
   Eigen::SparseMatrix<double> Jt;        // (handle + body + tool DOFs) x 3c, contact frames
   Eigen::VectorXd u_known;               // 3c: the kinematic other side's part of the relative velocity, m/s
