@@ -204,7 +204,8 @@ void ProxyHand::configure(int handles, const double* mass_kg, const Eigen::Matri
   have_device_ = false;
   for (int j = 0; j < kMaxHapticHandles; ++j) {
     v_[j].setZero(), w_[j].setZero(), v_dev_[j].setZero(), w_dev_[j].setZero();
-    last_f_D_[j].setZero(), last_tau_D_[j].setZero();
+    last_f_D_[j].setZero(), last_tau_D_[j].setZero(), last_r_D_[j].setZero();
+    moved_p_W_[j].setZero(), moved_theta_W_[j].setZero();
     energy_in_[j] = 0, damped_j_[j] = 0, passivity_b_[j] = 0;
   }
 }
@@ -220,6 +221,7 @@ void ProxyHand::resync() {
   for (int j = 0; j < handles_; ++j) {
     proxy_[j] = device_[j];
     v_[j].setZero(), w_[j].setZero(), v_dev_[j].setZero(), w_dev_[j].setZero();
+    moved_p_W_[j].setZero(), moved_theta_W_[j].setZero();
   }
 }
 
@@ -236,6 +238,9 @@ bool ProxyHand::commit_sample(double t_s, double resync_gap_s) {
       const Eigen::Vector3d w = hand::rotation_difference(pending_[j].q_W, device_[j].q_W) / dt;
       v_dev_[j] += kVelocityFilter * (v - v_dev_[j]);
       w_dev_[j] += kVelocityFilter * (w - w_dev_[j]);
+      if (motion_booked_[j]) moved_p_W_[j].setZero(), moved_theta_W_[j].setZero(), motion_booked_[j] = false;
+      moved_p_W_[j] += pending_[j].p_W - device_[j].p_W;
+      moved_theta_W_[j] += hand::rotation_difference(pending_[j].q_W, device_[j].q_W);
     }
     device_[j] = pending_[j];
   }
@@ -661,13 +666,27 @@ ReplyWrench ProxyHand::reply(int j, double output_scale, double dt_since_last_s)
   // against its own velocity, a glove lifting a box with its palm was credited with the box's weight
   // on its fingers times the lift (the observer found its ports passive, -0.01 to -0.03 J, while the
   // glove gained +0.017 to +0.037 J: Touch/GraspRelease).
-  Eigen::Vector3d v_port_W = v_dev_[j], w_port_W = w_dev_[j];
-  if (fingers_on_palm_ && j > 0) {
-    v_port_W -= v_dev_[0] + w_dev_[0].cross(device_[j].p_W - device_[0].p_W);
-    w_port_W -= w_dev_[0];
-  }
-  const Eigen::Vector3d v_D = R_DW * v_port_W / map_.scale, w_D = R_DW * w_port_W;
+  const auto port = [&](const Eigen::Vector3d& v_W, const Eigen::Vector3d& w_W, const Eigen::Vector3d& v0_W,
+                        const Eigen::Vector3d& w0_W, Eigen::Vector3d& v_D, Eigen::Vector3d& w_D) {
+    Eigen::Vector3d v = v_W, w = w_W;
+    if (fingers_on_palm_ && j > 0) {
+      v -= v0_W + w0_W.cross(device_[j].p_W - device_[0].p_W);
+      w -= w0_W;
+    }
+    v_D = R_DW * v / map_.scale;
+    w_D = R_DW * w;
+  };
+  Eigen::Vector3d v_D, w_D, moved_D, turned_D;
+  port(v_dev_[j], w_dev_[j], v_dev_[0], w_dev_[0], v_D, w_D);
   const Eigen::Vector3d r_D = R_DW * r_W / map_.scale;
+  // The observer: the device held the last reply while it moved from its last pose to this one, so
+  // that reply's work is exactly its wrench times this motion (against the filtered velocity times the
+  // interval instead, it lagged the motion and missed +0.002 J of a glove's grasp).
+  if (!motion_booked_[j]) {
+    port(moved_p_W_[j], moved_theta_W_[j], moved_p_W_[0], moved_theta_W_[0], moved_D, turned_D);
+    energy_in_[j] -= last_f_D_[j].dot(moved_D) + (last_tau_D_[j] - last_r_D_[j].cross(last_f_D_[j])).dot(turned_D);
+    motion_booked_[j] = true;
+  }
   // Passivity controller: the damping that brings the observer's deficit back to zero this tick,
   // shared by the two channels in proportion to what each can take.
   const double v2 = v_D.squaredNorm() + kPassivityRotationWeight_m2 * w_D.squaredNorm();
@@ -691,8 +710,7 @@ ReplyWrench ProxyHand::reply(int j, double output_scale, double dt_since_last_s)
   r.tau_D = last_tau_D_[j] + dtau;
   last_f_D_[j] = r.f_D;
   last_tau_D_[j] = r.tau_D;
-  // The device moving against the wrench it feels does work on the rendering.
-  energy_in_[j] -= (r.f_D.dot(v_D) + (r.tau_D - r_D.cross(r.f_D)).dot(w_D)) * dt;
+  last_r_D_[j] = r_D;
   if (r.clamped) ++clamps_;
   return r;
 }
