@@ -4,8 +4,6 @@
 // keeps its deepest. Every row is told apart by its depth, recovered from its bias.
 #include <gtest/gtest.h>
 
-#include <algorithm>
-#include <functional>
 #include <vector>
 
 #include "hand_models/contact_solve.hpp"
