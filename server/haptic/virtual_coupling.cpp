@@ -234,13 +234,13 @@ bool ProxyHand::commit_sample(double t_s, double resync_gap_s) {
   const bool resync_now = !have_device_ || !(dt <= resync_gap_s) || dt < 0;
   for (int j = 0; j < handles_; ++j) {
     if (!resync_now && dt > 0) {
-      const Eigen::Vector3d v = (pending_[j].p_W - device_[j].p_W) / dt;
-      const Eigen::Vector3d w = hand::rotation_difference(pending_[j].q_W, device_[j].q_W) / dt;
-      v_dev_[j] += kVelocityFilter * (v - v_dev_[j]);
-      w_dev_[j] += kVelocityFilter * (w - w_dev_[j]);
+      const Eigen::Vector3d moved = pending_[j].p_W - device_[j].p_W;
+      const Eigen::Vector3d turned = hand::rotation_difference(pending_[j].q_W, device_[j].q_W);
+      v_dev_[j] += kVelocityFilter * (moved / dt - v_dev_[j]);
+      w_dev_[j] += kVelocityFilter * (turned / dt - w_dev_[j]);
       if (motion_booked_[j]) moved_p_W_[j].setZero(), moved_theta_W_[j].setZero(), motion_booked_[j] = false;
-      moved_p_W_[j] += pending_[j].p_W - device_[j].p_W;
-      moved_theta_W_[j] += hand::rotation_difference(pending_[j].q_W, device_[j].q_W);
+      moved_p_W_[j] += moved;
+      moved_theta_W_[j] += turned;
     }
     device_[j] = pending_[j];
   }
