@@ -691,7 +691,7 @@ ReplyWrench ProxyHand::reply(int j, double output_scale, double dt_since_last_s)
   // shared by the two channels in proportion to what each can take.
   const double v2 = v_D.squaredNorm() + kPassivityRotationWeight_m2 * w_D.squaredNorm();
   passivity_b_[j] = 0;
-  if (passivity_control_ && energy_in_[j] < -kPassivityBudget_J && v2 > kMinPassivitySpeed2_m2_s2) {
+  if (passivity_control_ && energy_in_[j] < -kPassivityBudget_J / handles_ && v2 > kMinPassivitySpeed2_m2_s2) {
     const double b = std::min(-energy_in_[j] / (dt * v2), kMaxPassivityDamping_ns_m);
     damped_j_[j] += b * v2 * dt;
     passivity_b_[j] = b;

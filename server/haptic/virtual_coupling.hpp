@@ -166,15 +166,17 @@ constexpr double kCouplingDampingMargin = 1.5;
 // a fast haptic rate) the coupling still damps.
 constexpr double kMinCouplingDamping_ns_m = 0.5;
 
-// The passivity controller's energy budget per frame, J: it damps while the observer's energy is below
-// minus this (the rendering has given out more than it took), taking the whole deficit back within the
-// damping it may add (kMaxPassivityDamping_ns_m: a strongly active rendering can run the deficit past
-// the budget for a while, less far than without it). The observer books each reply against the
-// device's motion while it held it, exactly; a budget of 1e-5 J took back the last +0.3 mJ of the
-// glove's grasp-release but left VirtualCoupling.PassivityControllerTakesBackWhatAnActiveModelGivesOut
-// at +1.1 mJ where 1e-4 leaves -1.0 mJ: there the active model rings the proxy, the observer swings by
-// up to 10 mJ within a stroke, dipping to -3 mJ with either budget (the capped damping, on the
-// filtered velocity, does not keep up), and the test's last instant lands on either side.
+// The passivity controller's energy budget per device, J, shared evenly by its frames (a glove's 16 get
+// 6.25e-6 J each): a frame's controller damps while its observer's energy is below minus its share
+// (the rendering has given out more than it took), taking the whole deficit back within the damping
+// it may add (kMaxPassivityDamping_ns_m: a strongly active rendering can run the deficit past the
+// budget for a while, less far than without it). The observer books each reply against the device's
+// motion while it held it, exactly. With 1e-4 J per frame a glove could keep 1.6 mJ, and its
+// grasp-release ended at +0.2 and +0.3 mJ; a stylus at 1e-5 J ended
+// VirtualCoupling.PassivityControllerTakesBackWhatAnActiveModelGivesOut at +1.1 mJ where 1e-4 leaves
+// -1.0 mJ: there the active model rings the proxy, the observer swings by up to 10 mJ within a stroke,
+// dipping to -3 mJ with either budget (the capped damping, on the filtered velocity, does not keep
+// up), and the test's last instant lands on either side.
 constexpr double kPassivityBudget_J = 1e-4;
 // Device-space damping the passivity controller may add, N s/m (a Phantom-class
 // device renders a few N s/m stably at 1 kHz).
@@ -240,7 +242,7 @@ class ProxyHand {
   // `dt_since_last_s` ago. With set_passivity_control(true), a time-domain
   // passivity controller (Hannaford and Ryu) guards the device port: an
   // observer sums the work the device does on the rendering, and while the
-  // rendering has given out more than it took by over kPassivityBudget_J (multi-rate
+  // rendering has given out more than it took by over its share of kPassivityBudget_J (multi-rate
   // lag, gating, a model that changed under the finger) the reply adds the damping
   // that takes the deficit back, up to kMaxPassivityDamping. The same damping acts on the
   // proxy at the next integrate(): the coupling saturates at the device's limits, so an active
