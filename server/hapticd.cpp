@@ -81,8 +81,8 @@ int main(int argc, char** argv) {
   app.add_option("--log-level", level, "error | warn | info | debug")
       ->check(CLI::IsMember({"error", "warn", "info", "debug"}));
   app.add_flag("--no-passivity-control", [&options](std::int64_t) { options.passivity_control = false; },
-               "switch off the passivity controller of every device (on by default: it damps a device's port "
-               "once the rendering has given it more than 0.1 mJ)");
+               "switch off the passivity controller of every device (on by default: it damps a device's frame "
+               "once the rendering has given it more than its share of 0.1 mJ a device)");
   app.add_flag("--busy-poll", options.busy_poll, "spin on the socket instead of sleeping (for a dedicated core)");
   app.add_option("--session-timeout", options.session_timeout_s, "drop a silent session after this many seconds")
       ->check(CLI::Range(0.2, 3600.0));
