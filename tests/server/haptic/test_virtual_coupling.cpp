@@ -6,6 +6,7 @@
 #include <cmath>
 #include <numbers>
 #include <random>
+#include <vector>
 
 #include "allocation_counter.hpp"
 #include "hand_models/rigid_handle.hpp"
@@ -210,6 +211,52 @@ TEST(VirtualCoupling, PassivityControllerTakesBackWhatAnActiveModelGivesOut) {
   EXPECT_EQ(damped[0], 0.0);
   EXPECT_GT(damped[1], 0.0);
   EXPECT_GT(lowest[1], lowest[0]);
+}
+
+// The controller's budget is the device's, shared by its frames (kPassivityBudget_J). A constant
+// 0.1 N on frame 0 of a device of 1, 2 or 16 frames while that frame's device moves along it at 2 mm/s:
+// the rendering gives out 0.2 mW, 0.2 uJ a reply, and that frame's controller first acts at the first
+// reply past 1e-4 J / frames of deficit. With the budget per frame, a glove's 16 frames could keep
+// 1.6 mJ.
+TEST(VirtualCoupling, PassivityControllerSharesTheDevicesBudgetAmongItsFrames) {
+  for (const int frames : {1, 2, 16}) {
+    HapticModel push;
+    push.handles = frames;
+    push.F0 = HapticVector::Zero(6 * frames);
+    push.F0(0) = 0.1;  // N along x on frame 0
+    push.K = HapticMatrix::Zero(6 * frames, 6 * frames);
+    push.D = HapticMatrix::Zero(6 * frames, 6 * frames);
+    for (int j = 0; j < frames; ++j) {
+      push.x0[j].p_W = Eigen::Vector3d(0, 0.05 * j, 0);
+      push.v0[j].setZero(), push.w0[j].setZero();
+    }
+    ProxyHand p;
+    std::vector<double> mass(frames, 0.05);
+    std::vector<Eigen::Matrix3d> inertia(frames, 1e-5 * Eigen::Matrix3d::Identity());
+    p.configure(frames, mass.data(), inertia.data(), coupling_gains_for(1000.0, 1.0, kPeriod), DeviceLimits{},
+                DeviceMap{});
+    double t = 0, previous = 0, largest_step = 0, at_first_action = 0;
+    for (int k = 0; k < 2000 && p.passivity_actions() == 0; ++k) {  // 0.5 s still, then 2 mm/s along x
+      t += kPeriod;
+      for (int j = 0; j < frames; ++j) {
+        const double x = j == 0 ? 0.002 * std::max(0.0, t - 0.5) : 0.0;
+        p.set_device_pose(j, push.x0[j].p_W + Eigen::Vector3d(x, 0, 0), Eigen::Quaterniond::Identity());
+      }
+      p.commit_sample(t, 0.05);
+      for (int j = 0; j < frames; ++j) p.reply(j, 1.0, kPeriod);
+      largest_step = std::max(largest_step, previous - p.energy_in(0));
+      previous = p.energy_in(0);
+      if (p.passivity_actions() > 0) at_first_action = p.energy_in(0);
+      p.integrate(push, kPeriod);
+    }
+    const double share = kPassivityBudget_J / frames;
+    std::printf("%2d frames: first action at %.4e J (its share %.4e J, a reply's work up to %.1e J)\n", frames,
+                at_first_action, share, largest_step);
+    ASSERT_GT(p.passivity_actions(), 0) << frames << " frames";
+    ASSERT_LT(largest_step, 0.1 * share);  // the motion resolves the share
+    EXPECT_LT(at_first_action, -share) << frames << " frames";
+    EXPECT_GE(at_first_action, -share - largest_step) << frames << " frames";
+  }
 }
 
 // A glove's finger actuators push against its palm: lifting the palm with a finger that holds a weight
