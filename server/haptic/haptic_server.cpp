@@ -55,6 +55,21 @@ struct HapticServer::Socket final : Transport {
   Io& io;
 };
 
+namespace {
+
+// Opens `socket` and binds it to the options' address (checked by check_bind) and port; throws
+// std::runtime_error with the address and the reason.
+void bind_socket(asio::ip::udp::socket& socket, const ServerOptions& options) {
+  boost::system::error_code ec;
+  const asio::ip::udp::endpoint endpoint(asio::ip::make_address(options.bind, ec), options.port);
+  socket.open(endpoint.protocol(), ec);
+  if (!ec) socket.bind(endpoint, ec);
+  if (ec)
+    throw std::runtime_error("cannot bind " + options.bind + ":" + std::to_string(options.port) + ": " + ec.message());
+}
+
+}  // namespace
+
 HapticServer::HapticServer(std::vector<DeviceLink> links, const ServerOptions& options,
                            TripleBuffer<HapticSnapshot>& snapshots, TripleBuffer<ProxyTargets>& targets,
                            const VisualReport* visual)
@@ -70,12 +85,8 @@ HapticServer::HapticServer(std::vector<DeviceLink> links, const ServerOptions& o
   // stats requests and jitter, and a source past it is flooding.
   limiter_ = std::make_unique<SourceRateLimiter>(
       options_.source_rate_hz > 0 ? options_.source_rate_hz : 4.0 * options_.haptic_rate_hz, options_.source_burst);
+  bind_socket(io_->socket, options_);
   boost::system::error_code ec;
-  const auto address = asio::ip::make_address(options_.bind, ec);
-  const asio::ip::udp::endpoint endpoint(address, options_.port);
-  io_->socket.open(endpoint.protocol(), ec);
-  if (!ec) io_->socket.bind(endpoint, ec);
-  if (ec) throw std::runtime_error("cannot bind " + options_.bind + ":" + std::to_string(options_.port) + ": " + ec.message());
   io_->socket.non_blocking(true, ec);
   // Room for ~15 ms of a one-core flood (~5000 small datagrams): the loop is late now and then
   // (a softirq on its core, a wake-up), and a full buffer drops good datagrams with the flood's.
@@ -105,6 +116,11 @@ void HapticServer::check_bind(const ServerOptions& options) {
                              " without a key: anyone who can reach it could open a session and move the device. Give "
                              "--key-file FILE (hapticd --generate-key FILE writes one), or --insecure-bind on a "
                              "network you trust");
+  // The address and port can be bound (a probe, closed at once): an address this host does not have
+  // or a port in use fails here, before hapticd builds the scene (48 s for the bunny under ASan).
+  asio::io_context io;
+  asio::ip::udp::socket probe(io);
+  bind_socket(probe, options);
 }
 
 std::uint16_t HapticServer::port() const { return io_->socket.local_endpoint().port(); }

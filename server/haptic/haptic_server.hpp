@@ -9,10 +9,9 @@
 #include <boost/asio/ip/udp.hpp>
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
-
-#include <optional>
 
 #include "server/haptic/haptic_core.hpp"
 #include "server/haptic/source_rate_limiter.hpp"
@@ -21,9 +20,9 @@ namespace hapticd::haptic {
 
 class HapticServer {
  public:
-  // Throws std::runtime_error when options.bind is not an IP address, or is not loopback while there
-  // is no key and no insecure_bind. The constructor checks it too; hapticd calls it before loading
-  // the scene.
+  // Throws std::runtime_error when options.bind is not an IP address, is not loopback while there
+  // is no key and no insecure_bind, or cannot be bound with options.port (an address this host does
+  // not have, a port in use). The constructor checks it too; hapticd calls it before loading the scene.
   static void check_bind(const ServerOptions& options);
   // Binds the socket (throws std::runtime_error with the address on failure). `visual`: the visual
   // runner's report for the Stats message (none: zeros).
