@@ -57,7 +57,19 @@ struct HapticServer::Socket final : Transport {
 
 namespace {
 
-// Opens `socket` and binds it to the options' address (checked by check_bind) and port; throws
+// The address policy of check_bind: an IP address, loopback unless there is a key or insecure_bind.
+void refuse_unsafe_bind(const ServerOptions& options) {
+  boost::system::error_code ec;
+  const auto address = asio::ip::make_address(options.bind, ec);
+  if (ec) throw std::runtime_error("--bind " + options.bind + ": not an IP address (" + ec.message() + ")");
+  if (!options.key && !options.insecure_bind && !address.is_loopback())
+    throw std::runtime_error("refusing to listen on " + options.bind +
+                             " without a key: anyone who can reach it could open a session and move the device. Give "
+                             "--key-file FILE (hapticd --generate-key FILE writes one), or --insecure-bind on a "
+                             "network you trust");
+}
+
+// Opens `socket` and binds it to the options' address (checked by refuse_unsafe_bind) and port; throws
 // std::runtime_error with the address and the reason.
 void bind_socket(asio::ip::udp::socket& socket, const ServerOptions& options) {
   boost::system::error_code ec;
@@ -80,7 +92,7 @@ HapticServer::HapticServer(std::vector<DeviceLink> links, const ServerOptions& o
       rx_batch_(std::make_unique<RxBatch>()) {
   if (!(options_.source_rate_hz >= 0) || !(options_.source_burst >= 1))
     throw std::invalid_argument("source rate limit: the rate must be >= 0 and the burst >= 1");
-  check_bind(options_);
+  refuse_unsafe_bind(options_);  // check_bind's policy; the bind below is its probe
   // A device sends one pose per granted period: 4x that leaves room for duplicates, heartbeats,
   // stats requests and jitter, and a source past it is flooding.
   limiter_ = std::make_unique<SourceRateLimiter>(
@@ -108,14 +120,7 @@ std::size_t HapticServer::memory_bytes() const {
 }
 
 void HapticServer::check_bind(const ServerOptions& options) {
-  boost::system::error_code ec;
-  const auto address = asio::ip::make_address(options.bind, ec);
-  if (ec) throw std::runtime_error("--bind " + options.bind + ": not an IP address (" + ec.message() + ")");
-  if (!options.key && !options.insecure_bind && !address.is_loopback())
-    throw std::runtime_error("refusing to listen on " + options.bind +
-                             " without a key: anyone who can reach it could open a session and move the device. Give "
-                             "--key-file FILE (hapticd --generate-key FILE writes one), or --insecure-bind on a "
-                             "network you trust");
+  refuse_unsafe_bind(options);
   // The address and port can be bound (a probe, closed at once): an address this host does not have
   // or a port in use fails here, before hapticd builds the scene (48 s for the bunny under ASan).
   asio::io_context io;

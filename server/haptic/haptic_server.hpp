@@ -22,7 +22,7 @@ class HapticServer {
  public:
   // Throws std::runtime_error when options.bind is not an IP address, is not loopback while there
   // is no key and no insecure_bind, or cannot be bound with options.port (an address this host does
-  // not have, a port in use). The constructor checks it too; hapticd calls it before loading the scene.
+  // not have, a port in use). The constructor checks the same; hapticd calls it before loading the scene.
   static void check_bind(const ServerOptions& options);
   // Binds the socket (throws std::runtime_error with the address on failure). `visual`: the visual
   // runner's report for the Stats message (none: zeros).
