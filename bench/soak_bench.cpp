@@ -286,14 +286,18 @@ void run_soak_bench(const SoakBenchArgs& a) {
   const long long hand_resets = counter("visual", "hand_resets");
   const long long body_resets = counter("visual", "body_resets");
   const long long overruns = counter("haptic", "overruns");
+  const long long lookahead_fallbacks = counter("haptic", "lookahead_fallbacks");
+  const long long contact_holds = counter("haptic", "contact_holds");
   std::printf(
       "soak: %.1f min, %d devices: hapticd RSS %.2f MiB after the first window, %.2f at the end (growth %+.2f MiB, "
       "slope %+.3f MiB/min, max %.2f); %llu samples sent, loss %.2f %%, late %.3f %%, RTT p50 %.1f p99 %.1f max "
-      "%.1f us; overruns %lld, resets: proxy %lld, hand %lld, body %lld; reconnects %llu; relay lost %llu / "
+      "%.1f us; overruns %lld, resets: proxy %lld, hand %lld, body %lld; contact solves without the lookahead "
+      "%lld, proxy holds %lld; reconnects %llu; relay lost %llu / "
       "corrupted %llu / duplicated %llu / reordered %llu of %llu to hapticd; hapticd exit %d\n",
       total_s / 60.0, a.devices, rss_first, rss_last, growth, growth_per_min, rss_max,
       static_cast<unsigned long long>(sent), sent ? 100.0 * lost / sent : 0.0, sent ? 100.0 * late / sent : 0.0,
-      rtt.p50_us, rtt.p99_us, rtt.max_us, overruns, proxy_resets, hand_resets, body_resets,
+      rtt.p50_us, rtt.p99_us, rtt.max_us, overruns, proxy_resets, hand_resets, body_resets, lookahead_fallbacks,
+      contact_holds,
       static_cast<unsigned long long>(reconnects), static_cast<unsigned long long>(counts.to_server.lost),
       static_cast<unsigned long long>(counts.to_server.corrupted),
       static_cast<unsigned long long>(counts.to_server.duplicated),

@@ -202,6 +202,8 @@ int main(int argc, char** argv) {
           {"cpu_s", st.cpu_s},
           {"solver_fallbacks", st.solver_fallbacks},
           {"solver_refinements", st.solver_refinements},
+          {"lookahead_fallbacks", st.lookahead_fallbacks},
+          {"contact_holds", st.contact_holds},
           {"model_watchdog",
            {{"stale_after_s", options.model_stale_after_s},
             {"fade_s", options.model_fade_s},

@@ -23,6 +23,8 @@ void add_proxy_counts(ServerStats& st, const ProxyHand& p) {
   st.resets += static_cast<std::uint64_t>(p.resets());
   st.solver_fallbacks += static_cast<std::uint64_t>(p.solver_fallbacks());
   st.solver_refinements += static_cast<std::uint64_t>(p.solver_refinements());
+  st.lookahead_fallbacks += static_cast<std::uint64_t>(p.lookahead_fallbacks());
+  st.contact_holds += static_cast<std::uint64_t>(p.contact_holds());
 }
 
 }  // namespace

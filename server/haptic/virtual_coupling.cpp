@@ -213,6 +213,7 @@ void ProxyHand::configure(int handles, const double* mass_kg, const Eigen::Matri
 void ProxyHand::reset() {
   ++resets_;
   resync();
+  warm_start_valid_ = false;  // impulses that diverged must not start the next tick
   for (int j = 0; j < handles_; ++j)
     last_f_D_[j].setZero(), last_tau_D_[j].setZero(), energy_in_[j] = 0, passivity_b_[j] = 0;
 }
@@ -253,6 +254,61 @@ bool ProxyHand::commit_sample(double t_s, double resync_gap_s) {
 void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_s, double model_weight) {
   if (handles_ == 0 || !have_device_) return;
   const double weight = std::clamp(model_weight, 0.0, 1.0);
+  const bool contacts_on = model.handles == handles_ && model.contacts.count > 0;
+  // seed 004 section 3: F* is taken at the pose extrapolated to the model's step end, x + tau v'
+  // (tau >= h).
+  const double tau = std::max(lookahead_s, dt);
+  // A model that arrives after its step's end (the visual step took longer than
+  // the step it simulated) has its anchor carried along by the handle's
+  // velocity for the time since: the flesh kept moving meanwhile.
+  const double late = std::max(0.0, -lookahead_s);
+  TickSolve solve = solve_velocities(model, dt, tau, late, weight);
+  if (solve != TickSolve::solved && contacts_on && tau > dt) {
+    // The tick's contact operator W + (tau U_K + U_D) h A(tau)^-1 G is not symmetric: the
+    // flesh's response to a handle's displacement and a contact's pull on the handles differ by
+    // the handle's spin and by a touched body's motion. Its part that tau scales can make it
+    // indefinite, and then the sweeps diverge: on the stylus bunny after a 100 ms visual step
+    // (kMaxStep_s: a stalled or loaded machine) its symmetric part's least eigenvalue was -22
+    // at tau = 0.08 s and -0.2 at tau = h, and the proxies, kicked past kMaxProxySpeed_m_s, were
+    // reset hundreds of times. The tick then solves again without the lookahead (tau = h),
+    // warm-started from the model's own impulses: the contacts still hold, only the proxy's
+    // motion toward the step end is not anticipated.
+    ++lookahead_fallbacks_;
+    warm_start_valid_ = false;
+    solve = solve_velocities(model, dt, dt, late, weight);
+  }
+  if (solve == TickSolve::too_fast && contacts_on) {
+    // A proxy centimetres from its model's anchor (the device moved on while the whole server
+    // was stalled, and the world has not stepped since) is outside the model's linearization: its
+    // rows ask the light proxy to undo the handle spring's pull on the flesh within one tick, and
+    // threw it at 25-60 m/s. The proxy holds still for this tick instead: a finite answer, so
+    // nothing is reset; the device keeps feeling the coupling to a still proxy (continuous and
+    // passive), and the next tick, or the next model, tries again.
+    ++contact_holds_;
+    warm_start_valid_ = false;
+    v_next_.setZero();
+    solve = TickSolve::solved;
+  }
+  if (solve != TickSolve::solved) {
+    // Safety (DESIGN.md section 5): a non-finite or absurd state never propagates;
+    // the proxies restart on the device and the force drops to zero at once.
+    reset();
+    return;
+  }
+  for (int j = 0; j < handles_; ++j) {
+    // The passivity controller's damping on the proxy's side (reply()), implicit: it only slows
+    // the proxy, so it takes energy out whatever the coupling between handles.
+    const double b_W = passivity_b_[j] / (map_.scale * map_.scale);
+    const double b_rot = passivity_b_[j] * kPassivityRotationWeight_m2;
+    v_[j] = v_next_.segment<3>(6 * j) / (1.0 + dt * b_W / mass_[j]);
+    w_[j] = v_next_.segment<3>(6 * j + 3) / (1.0 + dt * b_rot * 3.0 / inertia_B_[j].trace());
+    proxy_[j].p_W += dt * v_[j];
+    proxy_[j].q_W = hand::rotate_by(proxy_[j].q_W, dt * w_[j]);
+  }
+}
+
+ProxyHand::TickSolve ProxyHand::solve_velocities(const HapticModel& model, double dt, double tau, double late,
+                                                 double weight) {
   // The model's contacts and clearance planes hold at any weight: they are where the world's
   // surfaces are, and the world, which follows the proxies, must not be driven into them by a proxy
   // that the safe model carried through (a stalled or failed world resumes there). The device does
@@ -261,14 +317,8 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
   const bool use_model = has_model && weight > 0;  // F0, K and D, scaled by the weight
   const bool contacts_on = has_model && model.contacts.count > 0;
   const double safe = 1.0 - weight;  // the safe model's share
-  // seed 004 section 3: implicit Euler of the proxies under F* and the coupling, F*
-  // taken at the pose extrapolated to the model's step end, x + tau v' (tau >= h):
+  // seed 004 section 3: implicit Euler of the proxies under F* and the coupling, F* at x + tau v':
   //   [M - h D - h tau K + h B_c + h^2 K_c] v' = M v + h [F0 + K (x - x0) - D v0 + K_c (x_dev - x) + B_c v_dev].
-  const double tau = std::max(lookahead_s, dt);
-  // A model that arrives after its step's end (the visual step took longer than
-  // the step it simulated) has its anchor carried along by the handle's
-  // velocity for the time since: the flesh kept moving meanwhile.
-  const double late = std::max(0.0, -lookahead_s);
   b_.setZero();
   // The proxies' rotational inertia in world axes: for a glove-sized model (the prepared solver's,
   // faded or not), at the model's anchor orientations (its linearization point) rather than the
@@ -359,27 +409,11 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
     }
   }
   if (ok && contacts_on) ok = solve_contacts(model, dt, tau, dense);
-  if (ok) {
-    ok = v_next_.allFinite();
-    for (int j = 0; ok && j < handles_; ++j) ok = v_next_.segment<3>(6 * j).norm() < kMaxProxySpeed_m_s;
-  }
-  if (ok && has_model) limit_to_clearance(model, dt);
-  if (!ok) {
-    // Safety (DESIGN.md section 5): a non-finite or absurd state never propagates;
-    // the proxies restart on the device and the force drops to zero at once.
-    reset();
-    return;
-  }
-  for (int j = 0; j < handles_; ++j) {
-    // The passivity controller's damping on the proxy's side (reply()), implicit: it only slows
-    // the proxy, so it takes energy out whatever the coupling between handles.
-    const double b_W = passivity_b_[j] / (map_.scale * map_.scale);
-    const double b_rot = passivity_b_[j] * kPassivityRotationWeight_m2;
-    v_[j] = v_next_.segment<3>(6 * j) / (1.0 + dt * b_W / mass_[j]);
-    w_[j] = v_next_.segment<3>(6 * j + 3) / (1.0 + dt * b_rot * 3.0 / inertia_B_[j].trace());
-    proxy_[j].p_W += dt * v_[j];
-    proxy_[j].q_W = hand::rotate_by(proxy_[j].q_W, dt * w_[j]);
-  }
+  if (!ok || !v_next_.allFinite()) return TickSolve::failed;
+  for (int j = 0; j < handles_; ++j)
+    if (!(v_next_.segment<3>(6 * j).norm() < kMaxProxySpeed_m_s)) return TickSolve::too_fast;
+  if (has_model) limit_to_clearance(model, dt);
+  return TickSolve::solved;
 }
 
 void ProxyHand::limit_to_clearance(const HapticModel& model, double dt) {
@@ -444,7 +478,8 @@ bool ProxyHand::solve_contacts(const HapticModel& model, double dt, double tau, 
     return false;
   }
   // Warm start: the last tick's impulses under the same model, else the model's own at its anchor.
-  const bool same_model = model.t_end_ns == lambda_t_end_ns_ && model.resyncs == lambda_resyncs_ && lambda_.size() == r;
+  const bool same_model = warm_start_valid_ && model.t_end_ns == lambda_t_end_ns_ && model.resyncs == lambda_resyncs_ &&
+                          lambda_.size() == r;
   if (!same_model) lambda_ = c.lambda0;
   for (int i = 0; i < c.count; ++i) {
     lambda_.segment<3>(3 * i) = hand::project_to_cone(lambda_.segment<3>(3 * i), c.mu[i]);
@@ -480,6 +515,7 @@ bool ProxyHand::solve_contacts(const HapticModel& model, double dt, double tau, 
   }
   lambda_t_end_ns_ = model.t_end_ns;
   lambda_resyncs_ = model.resyncs;
+  warm_start_valid_ = true;
   // v += A^-1 dt G lambda.
   if (dense) {
     v_next_.noalias() += dt * (Q_ * lambda_);

@@ -273,6 +273,11 @@ class ProxyHand {
   const TickRowVector& contact_impulses() const { return lambda_; }
   int contact_sweeps() const { return contact_sweeps_; }
   long contact_unconverged() const { return contact_unconverged_; }
+  // Ticks whose contact solve threw a proxy past kMaxProxySpeed_m_s with the lookahead to the
+  // model's step end and were solved again without it, and ticks at which the proxies then held
+  // still instead (integrate()).
+  long lookahead_fallbacks() const { return lookahead_fallbacks_; }
+  long contact_holds() const { return contact_holds_; }
   // Replies the passivity controller added damping to.
   long passivity_actions() const { return passivity_actions_; }
   // Ticks at which a handle was held at its model's clearance (HapticModel::clearance).
@@ -327,6 +332,9 @@ class ProxyHand {
   bool solve_contacts(const HapticModel& model, double dt, double tau, bool dense);
   // The active set of the sweeps' answer solved exactly, kept if it is a solution (solve_contacts):
   // true then.
+  // integrate()'s implicit step into v_next_ with lookahead tau.
+  enum class TickSolve { solved, too_fast, failed };  // too_fast: a proxy past kMaxProxySpeed_m_s
+  TickSolve solve_velocities(const HapticModel& model, double dt, double tau, double late, double weight);
   bool polish_contacts(const TickContacts& c);
   // Entry (row, col) of the tick's Delassus operator (solve_contacts).
   double delassus(const TickContacts& c, int row, int col) const;
@@ -345,8 +353,9 @@ class ProxyHand {
   double tangent_step_[kMaxTickContacts]{};
   std::uint64_t lambda_t_end_ns_ = 0;
   std::uint32_t lambda_resyncs_ = 0;
+  bool warm_start_valid_ = false;  // lambda_ may start the next tick under the same model
   int contact_sweeps_ = 0;
-  long contact_unconverged_ = 0;
+  long contact_unconverged_ = 0, lookahead_fallbacks_ = 0, contact_holds_ = 0;
   // Workspace of the implicit step, sized once. The block diagonal part of A per handle:
   // translational (a multiple of the identity) and rotational.
   double a_lin_[kMaxHapticHandles]{};
