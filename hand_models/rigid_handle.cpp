@@ -1,5 +1,6 @@
 #include "hand_models/rigid_handle.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <stdexcept>
 
@@ -112,6 +113,21 @@ Eigen::Matrix<double, 4, 3> quaternion_rate_matrix(const Eigen::Quaterniond& q) 
       q.y(), -q.x(), q.w(),   //
       -q.x(), -q.y(), -q.z();
   return 0.5 * G;
+}
+
+double clearance_share(const ClearancePlane* planes, int count, const Eigen::Vector3d& dx,
+                       const Eigen::Vector3d& dtheta, const Eigen::Vector3d& move, const Eigen::Vector3d& turn) {
+  double share = 1.0;
+  for (int k = 0; k < count; ++k) {
+    const ClearancePlane& c = planes[k];
+    // How much a displacement closes the gap: -n . (dx + dtheta x r).
+    const Eigen::Vector3d g_lin = -c.n_W, g_rot = -c.r_W.cross(c.n_W);
+    const double closed = g_lin.dot(dx) + g_rot.dot(dtheta);
+    const double closing = g_lin.dot(move) + g_rot.dot(turn);
+    const double room = std::max(c.gap_m, closed) - closed;
+    if (closing > room) share = std::min(share, room / closing);
+  }
+  return share;
 }
 
 Eigen::Quaterniond rotate_by(const Eigen::Quaterniond& q, const Eigen::Vector3d& theta) {

@@ -88,6 +88,11 @@ struct ClearancePlane {
 // (the cosine between their normals below it).
 constexpr int kClearancePlanes = 4;
 constexpr double kClearanceSpread = 0.87;
+// The share in [0, 1] of a further motion (move, turn) that a handle displaced by (dx, dtheta) from
+// where `planes` were measured can make before it closes any of their gaps (a handle already past a
+// plane may only move back from it).
+double clearance_share(const ClearancePlane* planes, int count, const Eigen::Vector3d& dx,
+                       const Eigen::Vector3d& dtheta, const Eigen::Vector3d& move, const Eigen::Vector3d& turn);
 
 // q advanced by a world-frame rotation vector: exp(theta) q, renormalised.
 Eigen::Quaterniond rotate_by(const Eigen::Quaterniond& q, const Eigen::Vector3d& theta);

@@ -427,19 +427,9 @@ void ProxyHand::limit_to_clearance(const HapticModel& model, double dt) {
   for (int j = 0; j < handles_; ++j) {
     const int planes = std::min(model.clearance_count[j], hand::kClearancePlanes);
     if (planes <= 0) continue;
-    const Eigen::Vector3d dx = proxy_[j].p_W - model.x0[j].p_W;
-    const Eigen::Vector3d dtheta = hand::rotation_difference(proxy_[j].q_W, model.x0[j].q_W);
-    const Eigen::Vector3d v = v_next_.segment<3>(6 * j), w = v_next_.segment<3>(6 * j + 3);
-    double keep = 1.0;
-    for (int k = 0; k < planes; ++k) {
-      const hand::ClearancePlane& c = model.clearance[j][k];
-      // How much a displacement closes the gap: -n . (dx + dtheta x r).
-      const Eigen::Vector3d g_lin = -c.n_W, g_rot = -c.r_W.cross(c.n_W);
-      const double closed = g_lin.dot(dx) + g_rot.dot(dtheta);
-      const double rate = g_lin.dot(v) + g_rot.dot(w);
-      const double room = std::max(c.gap_m, closed) - closed;  // a handle already past may only come back
-      if (rate * dt > room) keep = std::min(keep, room / (rate * dt));
-    }
+    const double keep = hand::clearance_share(model.clearance[j], planes, proxy_[j].p_W - model.x0[j].p_W,
+                                              hand::rotation_difference(proxy_[j].q_W, model.x0[j].q_W),
+                                              dt * v_next_.segment<3>(6 * j), dt * v_next_.segment<3>(6 * j + 3));
     if (keep < 1.0) {
       v_next_.segment<6>(6 * j) *= keep;
       ++clearance_limits_;

@@ -124,11 +124,17 @@ void fill_held_model(world::World& world, int h, HapticModel& out) {
 
 }  // namespace
 
-hand::HandleTarget proxy_target(const ProxyTargets& targets, int h, int j, std::uint64_t until_ns) {
+hand::HandleTarget proxy_target(const ProxyTargets& targets, int h, int j, std::uint64_t until_ns,
+                                const hand::HandleState* from, const hand::ClearancePlane* planes, int planes_count) {
   const double ahead = std::clamp(1e-9 * (static_cast<double>(until_ns) - static_cast<double>(targets.t_ns)),
                                   -kMaxProxyExtrapolation_s, kMaxProxyExtrapolation_s);
   const HapticPose& p = targets.pose[h][j];
-  const Eigen::Vector3d &v = targets.v_W[h][j], &w = targets.w_W[h][j];
+  double share = 1.0;
+  if (from && planes && planes_count > 0)
+    share =
+        hand::clearance_share(planes, planes_count, p.p_W - from->p_WH, hand::rotation_difference(p.q_W, from->q_WH),
+                              ahead * targets.v_W[h][j], ahead * targets.w_W[h][j]);
+  const Eigen::Vector3d v = share * targets.v_W[h][j], w = share * targets.w_W[h][j];
   return {p.p_W + ahead * v, hand::rotate_by(p.q_W, ahead * w), v, w};
 }
 
@@ -146,8 +152,13 @@ void VisualStep::advance_world(std::uint64_t publish_ns, double dt_s) {
       resyncs_seen_[h] = targets.resyncs[h];
       hand.place(targets.pose[h][0].p_W, targets.pose[h][0].q_W);
     }
-    for (int j = 0; j < std::min(hand.num_handles(), kMaxHapticHandles); ++j)
-      hand.set_target(j, proxy_target(targets, h, j, publish_ns));
+    const std::vector<std::vector<hand::ClearancePlane>>& clearance = world_.clearance(h);
+    for (int j = 0; j < std::min(hand.num_handles(), kMaxHapticHandles); ++j) {
+      const bool planes = j < static_cast<int>(clearance.size()) && !clearance[j].empty();
+      hand.set_target(
+          j, proxy_target(targets, h, j, publish_ns, &hand.handles()[j], planes ? clearance[j].data() : nullptr,
+                          planes ? std::min(static_cast<int>(clearance[j].size()), hand::kClearancePlanes) : 0));
+    }
   }
   if (inject_) inject_();
   world_.step(dt_s);

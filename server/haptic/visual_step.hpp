@@ -69,9 +69,15 @@ void fill_contact_flags(const world::World& world, int h, HapticModel& out);
 
 // Handle j of hand h's target for a world that simulates up to `until_ns`: the proxy extrapolated
 // at its velocity from the time it is of (targets.t_ns) to then, by at most kMaxProxyExtrapolation_s
-// either way (a stalled haptic thread leaves old proxies).
+// either way (a stalled haptic thread leaves old proxies). With the handle's state `from` and the
+// clearance planes measured there (World::clearance), the extrapolation stops where it would close
+// one of their gaps, its velocity scaled alike: the tick holds the proxy itself to them
+// (ProxyHand::limit_to_clearance), but a proxy rushing after a device that jumped (4 m/s after a
+// stall) extrapolated over a late 100 ms step put the hand's target 9 cm on, through the bunny.
 constexpr double kMaxProxyExtrapolation_s = 0.1;
-hand::HandleTarget proxy_target(const ProxyTargets& targets, int h, int j, std::uint64_t until_ns);
+hand::HandleTarget proxy_target(const ProxyTargets& targets, int h, int j, std::uint64_t until_ns,
+                                const hand::HandleState* from = nullptr, const hand::ClearancePlane* planes = nullptr,
+                                int planes_count = 0);
 
 class VisualStep {
  public:

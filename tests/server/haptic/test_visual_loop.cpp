@@ -47,6 +47,31 @@ TEST(VisualLoopTargets, AProxyIsExtrapolatedFromTheTimeItIsOfToThePublication) {
   EXPECT_NEAR((h.p_W - Eigen::Vector3d(0.11, 0.2, 0.28)).norm(), 0.0, 1e-12);
 }
 
+TEST(VisualLoopTargets, TheExtrapolationStopsAtTheHandlesClearancePlanes) {
+  const std::uint64_t t = 5'000'000'000ull;
+  const ProxyTargets targets = moving_proxy(t);
+  // The handle 2 mm above where the proxy is; a floor 1 cm under the handle (a skin point 5 mm below
+  // it, 5 mm above the floor), and a wall far to the +x side. 100 ms ahead the proxy would be 2 cm
+  // lower: the floor's plane leaves 5 mm - 2 mm = 3 mm of it, a share of 0.15 of the motion.
+  hand::HandleState from;
+  from.p_WH = {0.1, 0.2, 0.302};
+  hand::ClearancePlane planes[2];
+  planes[0] = {Eigen::Vector3d::UnitZ(), Eigen::Vector3d(0, 0, -0.005), 0.005};
+  planes[1] = {-Eigen::Vector3d::UnitX(), Eigen::Vector3d::Zero(), 0.5};
+  hand::HandleTarget h = proxy_target(targets, 0, 1, t + 100'000'000, &from, planes, 2);
+  EXPECT_NEAR((h.p_W - Eigen::Vector3d(0.1 + 0.15 * 0.01, 0.2, 0.3 - 0.003)).norm(), 0.0, 1e-12);
+  EXPECT_NEAR((h.v_W - 0.15 * targets.v_W[0][1]).norm(), 0.0, 1e-12);
+  EXPECT_NEAR((h.w_W - 0.15 * targets.w_W[0][1]).norm(), 0.0, 1e-12);
+  // Moving away from the floor the planes leave it alone; a proxy already past a plane only comes back.
+  ProxyTargets rising = targets;
+  rising.v_W[0][1].z() = 0.2;
+  h = proxy_target(rising, 0, 1, t + 100'000'000, &from, planes, 2);
+  EXPECT_NEAR((h.p_W - Eigen::Vector3d(0.11, 0.2, 0.32)).norm(), 0.0, 1e-12);
+  from.p_WH.z() = 0.31;  // the proxy 1 cm below the handle: past the floor's 5 mm
+  h = proxy_target(targets, 0, 1, t + 100'000'000, &from, planes, 2);
+  EXPECT_NEAR((h.p_W - targets.pose[0][1].p_W).norm(), 0.0, 1e-12);
+}
+
 TEST(VisualLoopTargets, TheServerStampsItsProxiesWithTheEndOfTheTickThatWroteThem) {
   test::RunningServer s(ServerOptions{}, false);
   test::TestClient c(s.server.port());
