@@ -79,9 +79,9 @@ StallRun run_stalls(const world::SceneDesc& scene, double jump_m, int model_dela
   out.fallbacks = proxy.lookahead_fallbacks();
   out.holds = proxy.contact_holds();
   std::printf(
-      "%s, %.0f cm jumps, models %d ms late: proxy resets %ld, world resets %ld, contact solves without the lookahead "
-      "%ld, holds %ld, contact "
-      "ticks %ld, largest force %.2f N, fastest change %.0f N/s, deepest skin point %.1f mm\n",
+      "%s, %.0f cm jumps, models %d ms late: proxy resets %ld, world resets %ld, contact solves without the "
+      "lookahead %ld, holds %ld, contact ticks %ld, largest force %.2f N, fastest change %.0f N/s, deepest skin point "
+      "%.1f mm\n",
       scene.name.c_str(), 100 * jump_m, model_delay_ticks, out.proxy_resets, out.world_resets, out.fallbacks, out.holds,
       out.contact_ticks, out.max_force_n, out.max_rate_n_s, 1e3 * out.deepest_m);
   return out;
@@ -117,7 +117,7 @@ TEST(StalledServer, FiveCentimetreJumpsResetNoProxyAndKeepTheForceWithinTheDevic
   for (bool movable : {true, false}) {
     const world::SceneDesc scene = bunny_scene(movable);
     const StallRun r = run_stalls(scene, 0.05, 90);
-    EXPECT_GT(r.contact_ticks, 2000) << scene.name << ": the stylus pressed on the bunny";
+    EXPECT_GT(r.contact_ticks, 1000) << scene.name << ": the stylus pressed on the bunny";
     EXPECT_GT(r.fallbacks, 0) << scene.name << ": the stalls did not reach the case this test is about";
     expect_safe_force(scene, r);
   }
