@@ -132,7 +132,7 @@ class World {
   const std::string& hand_name(int i) const { return hands_[i].name; }
   int find_hand(const std::string& name) const;
   // Per handle of hand i, at the last collision: the nearest static or rigid surfaces its part of the
-  // skin could reach that are not among its contacts, measured up to 5 cm, at most kClearancePlanes
+  // skin could reach that are not among its contacts, measured up to 10 cm, at most kClearancePlanes
   // (hand::ClearancePlane, nearest first in each direction): the haptic tick carries the handle no
   // farther before the next step finds them. Deformable objects and other hands are not measured.
   const std::vector<std::vector<hand::ClearancePlane>>& clearance(int i) const { return hands_[i].clearance; }
