@@ -233,7 +233,9 @@ class ProxyHand {
   // coupling spring. The model's contacts and clearance planes hold at every weight, so the safe
   // model brings the proxy to its device only as far as the world's surfaces let it (a faded
   // model's force is not felt: the haptic loop scales the output by the weight).
-  // A non-finite model or state resets the proxies onto the device (counted).
+  // A solve with contacts that fails or throws a proxy past kMaxProxySpeed_m_s is solved again
+  // without the lookahead, and if still too fast the proxies hold still for the tick (both counted);
+  // a non-finite model or state resets the proxies onto the device (counted).
   void integrate(const HapticModel& model, double dt_s, double lookahead_s = 0, double model_weight = 1);
 
   // The wrench for handle j now: coupling force reversed, in device space,
@@ -273,9 +275,9 @@ class ProxyHand {
   const TickRowVector& contact_impulses() const { return lambda_; }
   int contact_sweeps() const { return contact_sweeps_; }
   long contact_unconverged() const { return contact_unconverged_; }
-  // Ticks whose contact solve threw a proxy past kMaxProxySpeed_m_s with the lookahead to the
-  // model's step end and were solved again without it, and ticks at which the proxies then held
-  // still instead (integrate()).
+  // Ticks whose solve with contacts failed (non-finite, or a proxy past kMaxProxySpeed_m_s) with the
+  // lookahead to the model's step end and were solved again without it, and ticks at which the
+  // proxies then held still instead, too fast still (integrate()).
   long lookahead_fallbacks() const { return lookahead_fallbacks_; }
   long contact_holds() const { return contact_holds_; }
   // Replies the passivity controller added damping to.
@@ -330,11 +332,11 @@ class ProxyHand {
   // tick into lambda_, v_next_ updated by weight times their effect; `dense`: lu_ holds A(tau).
   // False on a failure.
   bool solve_contacts(const HapticModel& model, double dt, double tau, bool dense);
-  // The active set of the sweeps' answer solved exactly, kept if it is a solution (solve_contacts):
-  // true then.
   // integrate()'s implicit step into v_next_ with lookahead tau.
   enum class TickSolve { solved, too_fast, failed };  // too_fast: a proxy past kMaxProxySpeed_m_s
   TickSolve solve_velocities(const HapticModel& model, double dt, double tau, double late, double weight);
+  // The active set of the sweeps' answer solved exactly, kept if it is a solution (solve_contacts):
+  // true then.
   bool polish_contacts(const TickContacts& c);
   // Entry (row, col) of the tick's Delassus operator (solve_contacts).
   double delassus(const TickContacts& c, int row, int col) const;
