@@ -14,9 +14,9 @@ DeviceSimulation::DeviceSimulation(Trajectory trajectory, const DeviceParams& pa
 void DeviceSimulation::advance() noexcept {
   ++steps_;
   const double t = time_s();
-  const double f = norm(f_DT_N_);
-  force_.add(f);
-  energy_j_ += step(params_, state_, trajectory_.position(t), trajectory_.velocity(t), f_DT_N_, dt_s_);
+  const Vec3d f_DT_N = force();
+  force_.add(norm(f_DT_N));
+  energy_j_ += step(params_, state_, trajectory_.position(t), trajectory_.velocity(t), f_DT_N, dt_s_);
 }
 
 void DeviceSimulation::set_force(Vec3d f_DT_N, bool in_contact) noexcept {

@@ -22,13 +22,16 @@ class DeviceSimulation {
   void advance() noexcept;
   // The newest force from the server and whether it reported contact; held until the next.
   void set_force(Vec3d f_DT_N, bool in_contact) noexcept;
+  // The share of the held force the device renders from the next advance() on (client::ReplyWatchdog).
+  void set_output_scale(double scale) noexcept { output_scale_ = scale; }
   // End of a tick: contact and penetration bookkeeping for the current state.
   void record_tick() noexcept;
 
   [[nodiscard]] double time_s() const noexcept { return static_cast<double>(steps_) * dt_s_; }
   [[nodiscard]] const DeviceState& state() const noexcept { return state_; }
   [[nodiscard]] Vec3d commanded() const noexcept { return trajectory_.position(time_s()); }
-  [[nodiscard]] Vec3d force() const noexcept { return f_DT_N_; }
+  // The force rendered: the held force times the output scale.
+  [[nodiscard]] Vec3d force() const noexcept { return output_scale_ * f_DT_N_; }
   [[nodiscard]] bool in_contact() const noexcept { return in_contact_; }
 
   // Sum over steps of f . dp (J): the energy the rendered force put into the device. A passive
@@ -52,6 +55,7 @@ class DeviceSimulation {
   double dt_s_;
   DeviceState state_;
   Vec3d f_DT_N_;
+  double output_scale_ = 1.0;
   bool in_contact_ = false;
   std::uint64_t steps_ = 0;
   std::uint64_t recorded_ticks_ = 0;

@@ -39,7 +39,10 @@ class GloveServo final : public ServoDevice {
   explicit GloveServo(GloveSimulation& sim, std::vector<GloveTraceRow>* trace = nullptr) : sim_(sim), trace_(trace) {}
 
   void begin(std::uint64_t ticks) override;
-  void advance() noexcept override { sim_.advance(); }
+  void advance(double scale) noexcept override {
+    sim_.set_output_scale(scale);
+    sim_.advance();
+  }
   // Frames 0 .. frames-1 with their ids, positions and orientations (float32 on the wire).
   void write_pose(protocol::PoseSample& pose) noexcept override;
   // Each wrench for a frame of this glove is held with its own InContact flag; frames the reply

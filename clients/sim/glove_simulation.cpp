@@ -42,8 +42,8 @@ JointVector GloveSimulation::external_joint_torques() const noexcept {
   for (Wrench6& w : wrenches_H) w.setZero();
   for (int id = 1; id < frames_; ++id) {
     const int i = glove_frame_phalanx(frames_, id);
-    wrenches_H[i].head<3>() = R_T * to_eigen(f_N_[id]);
-    wrenches_H[i].tail<3>() = R_T * to_eigen(t_Nm_[id]);
+    wrenches_H[i].head<3>() = R_T * to_eigen(force(id));
+    wrenches_H[i].tail<3>() = R_T * to_eigen(torque(id));
   }
   return joint_torques(phalanx_jacobians(hand::HandJointAngles::from_vector(joints_.q_rad), skeleton_, left_),
                        wrenches_H);
@@ -55,14 +55,14 @@ void GloveSimulation::advance() noexcept {
   Vec3d total;
   std::array<Vec3d, kGroups> group{};
   for (int id = 0; id < frames_; ++id) {
-    total += f_N_[id];
-    group[glove_frame_group(frames_, id)] += f_N_[id];
+    total += force(id);
+    group[glove_frame_group(frames_, id)] += force(id);
   }
   force_.add(norm(total));
   for (int g = 0; g < kGroups; ++g) group_force_[g].add(norm(group[g]));
   const JointVector tau = external_joint_torques();
   energy_j_ += step_joints(params_, joints_, trajectory_.angles(t), trajectory_.angle_rates(t), tau, dt_s_);
-  energy_j_ += step(params_.palm, palm_, trajectory_.palm_position(t), trajectory_.palm_velocity(t), f_N_[0], dt_s_);
+  energy_j_ += step(params_.palm, palm_, trajectory_.palm_position(t), trajectory_.palm_velocity(t), force(0), dt_s_);
   skeleton_ = skeleton_pose(hand::HandJointAngles::from_vector(joints_.q_rad), left_);
 }
 

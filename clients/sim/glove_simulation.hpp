@@ -37,6 +37,8 @@ class GloveSimulation {
   // The newest wrench on frame `frame` (force at its origin in N and torque in N m, both in D) and
   // whether it reported contact; held until the next. Unknown frame ids are ignored.
   void set_wrench(int frame, Vec3d f_N, Vec3d t_Nm, bool in_contact) noexcept;
+  // The share of the held wrenches the glove renders from the next advance() on (client::ReplyWatchdog).
+  void set_output_scale(double scale) noexcept { output_scale_ = scale; }
   // End of a tick: contact, penetration and joint-lag bookkeeping for the current state.
   void record_tick() noexcept;
 
@@ -52,8 +54,9 @@ class GloveSimulation {
   [[nodiscard]] RigidPose palm_pose() const noexcept;
   // Poses of frames 0 .. frames()-1 in D, for the current state.
   [[nodiscard]] std::array<RigidPose, kMaxGloveFrames> frame_poses() const noexcept;
-  [[nodiscard]] Vec3d force(int frame) const noexcept { return f_N_[static_cast<unsigned>(frame)]; }
-  [[nodiscard]] Vec3d torque(int frame) const noexcept { return t_Nm_[static_cast<unsigned>(frame)]; }
+  // The wrench rendered on a frame: the held one times the output scale.
+  [[nodiscard]] Vec3d force(int frame) const noexcept { return output_scale_ * f_N_[static_cast<unsigned>(frame)]; }
+  [[nodiscard]] Vec3d torque(int frame) const noexcept { return output_scale_ * t_Nm_[static_cast<unsigned>(frame)]; }
   [[nodiscard]] bool in_contact() const noexcept;
   // The joint torques the held wrenches apply at the current posture, N m.
   [[nodiscard]] JointVector external_joint_torques() const noexcept;
@@ -86,6 +89,7 @@ class GloveSimulation {
   std::array<Vec3d, kMaxGloveFrames> f_N_{};
   std::array<Vec3d, kMaxGloveFrames> t_Nm_{};
   std::array<bool, kMaxGloveFrames> contact_{};
+  double output_scale_ = 1.0;
   std::uint64_t steps_ = 0;
   std::uint64_t recorded_ticks_ = 0;
   std::uint64_t contact_ticks_ = 0;

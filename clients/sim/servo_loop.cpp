@@ -47,7 +47,10 @@ class StylusServo final : public ServoDevice {
   void begin(std::uint64_t ticks) override {
     if (trace_ != nullptr) trace_->reserve(trace_->size() + ticks);
   }
-  void advance() noexcept override { sim_.advance(); }
+  void advance(double scale) noexcept override {
+    sim_.set_output_scale(scale);
+    sim_.advance();
+  }
   void write_pose(protocol::PoseSample& pose) noexcept override {
     const Vec3d p = sim_.state().p_DT_m;
     pose.poses.resize(1);
@@ -107,6 +110,7 @@ ServoResult run_servo_loop(client::Client& client, ServoDevice& device, const Se
 
   protocol::PoseSample pose;
   protocol::ForceSample previous;  // the last reply applied (sequence 0: none yet)
+  client::ReplyWatchdog watchdog(config.watchdog);
   const auto track_force_rate = [&](const protocol::ForceSample& now) {
     if (previous.sequence != 0 && now.sequence == previous.sequence + 1 &&
         now.server_receive_ns > previous.server_receive_ns) {
@@ -130,6 +134,7 @@ ServoResult run_servo_loop(client::Client& client, ServoDevice& device, const Se
     if (reply.received_ns > deadline_of[index]) ++r.late;
     if (reply.sample.flags & protocol::ForceFlags::kClamped) ++r.clamped_replies;
     if (reply.sample.flags & protocol::ForceFlags::kStale) ++r.stale_replies;
+    watchdog.on_reply(reply.received_ns);
     device.apply(reply.sample);
   };
 
@@ -141,7 +146,11 @@ ServoResult run_servo_loop(client::Client& client, ServoDevice& device, const Se
     const std::uint64_t tick_end = tick_start + period_ns;
     sleep_until(tick_start);
     ++r.ticks;
-    if (k > 0) device.advance();
+    if (k > 0) {
+      // Silence is measured from the servo's own clock at the start of the period it renders.
+      const double scale = watchdog.scale(tick_start);
+      device.advance(scale);
+    }
     end = tick_end;
     if (protocol::now_ns() >= tick_end) {
       ++r.missed_ticks;
@@ -176,6 +185,7 @@ ServoResult run_servo_loop(client::Client& client, ServoDevice& device, const Se
   }
 
   r.lost = r.samples_sent - std::min(r.samples_sent, r.replies);
+  r.faded_ticks = watchdog.faded();
   device.summarize(r);
   r.elapsed_s = static_cast<double>(end - start) * 1e-9;
   r.rate_hz_achieved = r.elapsed_s > 0.0 ? static_cast<double>(r.samples_sent) / r.elapsed_s : 0.0;

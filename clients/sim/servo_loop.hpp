@@ -6,6 +6,8 @@
 //   2. sends its frames' poses (ServoDevice::write_pose, Client::send_pose),
 //   3. waits for its ForceSample until the end of the period; replies to earlier poses met on the
 //      way are applied too (the newest wrenches are the ones a device would render).
+// The wrenches held fade out when no reply has come for ServoConfig::watchdog's hold (a stalled or
+// dead server must not leave a motor pushing) and come back when replies do (client::ReplyWatchdog).
 // A reply that arrives after its pose's period ended is late; a pose never answered is lost (a
 // reply overtaken by a newer one is dropped as stale by the Client, so it counts as lost: an old
 // force is never applied). A tick whose whole period passed before the loop woke up is missed:
@@ -16,6 +18,7 @@
 #include <vector>
 
 #include "clients/cpp/client.hpp"
+#include "clients/cpp/reply_watchdog.hpp"
 #include "clients/sim/device_model.hpp"
 #include "clients/sim/trajectory.hpp"
 
@@ -38,6 +41,7 @@ struct ServoConfig {
   DeviceParams device;                      // the stylus only
   std::uint16_t frame_id = 0;               // the stylus only: the Hello's frame the tip pose is sent as
   double drain_s = 0.1;                     // after the last tick, how long outstanding replies may still arrive
+  client::ReplyWatchdogOptions watchdog;    // a silent server's held wrenches fade out (reply_watchdog.hpp)
   const std::atomic<bool>* stop = nullptr;  // set from elsewhere (a signal) to end early
   // The stylus only: when set, one row per tick is appended (reserved by run_servo_loop before the
   // first tick).
@@ -55,6 +59,9 @@ struct ServoResult {
   std::uint64_t contact_ticks = 0;  // ticks whose latest reply reported InContact (any frame)
   std::uint64_t clamped_replies = 0;
   std::uint64_t stale_replies = 0;  // replies flagged Stale by the server (no fresh snapshot)
+  // Ticks that rendered less than the wrenches held: the server had been silent past the
+  // watchdog's hold (or the fade was coming back up).
+  std::uint64_t faded_ticks = 0;
   std::vector<double> rtt_us;       // one per reply, in arrival order
   double force_max_n = 0.0;
   double force_rms_n = 0.0;
@@ -81,8 +88,9 @@ class ServoDevice {
   virtual ~ServoDevice() = default;
   // Before the first tick, with the number of ticks the run will have: reserve what it needs.
   virtual void begin(std::uint64_t ticks) {}
-  // One period of servo_period_s(rate) under the wrenches held.
-  virtual void advance() noexcept = 0;
+  // One period of servo_period_s(rate) under the wrenches held, times `scale` (the loop's
+  // client::ReplyWatchdog: 1 while the server answers).
+  virtual void advance(double scale) noexcept = 0;
   // Sets pose.poses to the poses of the device's frames now, in the Hello's frame order.
   virtual void write_pose(protocol::PoseSample& pose) noexcept = 0;
   // The newest reply: hold its wrenches until the next.

@@ -29,6 +29,7 @@ nlohmann::json to_json(const ServoResult& r) {
           {"contact_fraction", r.contact_fraction()},
           {"clamped_replies", r.clamped_replies},
           {"stale_replies", r.stale_replies},
+          {"faded_ticks", r.faded_ticks},
           {"client",
            {{"forces_stale_dropped", c.forces_stale},
             {"datagrams_rejected", c.datagrams_rejected},

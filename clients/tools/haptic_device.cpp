@@ -6,6 +6,7 @@
 
 #include <CLI/CLI.hpp>
 #include <atomic>
+#include <chrono>
 #include <cmath>
 #include <csignal>
 #include <cstdio>
@@ -206,6 +207,15 @@ int main(int argc, char** argv) {
   auto* device_damping_option = app.add_option("--device-damping", params.device_damping_n_s_per_m,
                                                "device linkage damping, N s/m (stylus default 0.2, glove 0)")
                                     ->check(CLI::Range(0.0, 1e4));
+  double watchdog_hold_ms = 20.0, watchdog_ramp_ms = 50.0;
+  app.add_option("--silence-hold-ms", watchdog_hold_ms,
+                 "no reply for this long and the held force fades out (a stalled or dead server), ms")
+      ->check(CLI::Range(1.0, 10000.0))
+      ->capture_default_str();
+  app.add_option("--silence-ramp-ms", watchdog_ramp_ms,
+                 "the fade to zero, and back when replies resume, ms (0: at once)")
+      ->check(CLI::Range(0.0, 10000.0))
+      ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
 
   const bool glove = device == "glove";
@@ -297,6 +307,8 @@ int main(int argc, char** argv) {
   config.device = params;
   config.frame_id = hello.frames[0].id;
   config.stop = &g_stop;
+  config.watchdog.hold = std::chrono::microseconds(std::llround(1e3 * watchdog_hold_ms));
+  config.watchdog.ramp = std::chrono::microseconds(std::llround(1e3 * watchdog_ramp_ms));
   std::vector<sim::TraceRow> rows;
   std::vector<sim::GloveTraceRow> glove_rows;
   std::optional<sim::GloveSimulation> glove_sim;

@@ -462,7 +462,7 @@ TEST(GloveSimulation, PerFingerFiguresSumTheFingersFramesAndCountContactPerFinge
     add(10, {0, 0, -4}, false);
     add(42, {100, 0, 0}, true);  // not a frame of this glove: ignored
     servo.apply(reply);
-    servo.advance();
+    servo.advance(1.0);
     servo.end_tick(true);
   }
   const GloveGroupFigures middle = sim.group_figures(2), ring = sim.group_figures(3), thumb = sim.group_figures(0);
@@ -501,7 +501,7 @@ TEST(GloveSimulation, TheServoDevicesTickAllocatesNothing) {
   }
   const long during = testing_util::allocations_in([&] {
     for (int n = 0; n < 500; ++n) {
-      servo.advance();
+      servo.advance(1.0);
       servo.write_pose(pose);
       servo.apply(reply);
       servo.end_tick(true);
