@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <random>
 #include <stdexcept>
 
@@ -11,11 +12,6 @@ namespace hapticd::haptic {
 using protocol::MessageType;
 
 namespace {
-
-// How far ahead of the tick (or, for a late model, behind it) a model's step end may lie for the
-// proxy's extrapolation to it, s: 100 ms (six visual steps at 60 Hz) bounds x + tau v and the late
-// anchor's drift when a model's time stamp is far off the haptic clock.
-constexpr double kMaxModelLookahead_s = 0.1;
 
 // A session's proxy counters, summed into the server's (when it closes, and at the end of a run).
 void add_proxy_counts(ServerStats& st, const ProxyHand& p) {
@@ -41,6 +37,7 @@ struct HapticCore::Session {
   ProxyHand proxy;
   protocol::SequenceWindow sequence;
   std::uint64_t last_seen_ns = 0, last_reply_ns = 0;
+  std::uint64_t last_client_ns = 0;  // the last sample's client_timestamp_ns
   double output_scale = 0;  // ramps 0 -> 1 when poses flow, -> 0 when the session goes silent
   bool resynced = false;    // the next reply carries the resynced flag
   // With a key: no authenticated datagram from the client yet. A pending session drives and
@@ -544,7 +541,15 @@ void HapticCore::on_pose(const protocol::PoseSample& pose, std::uint64_t now) {
                              Eigen::Quaterniond(f.orientation.w, f.orientation.x, f.orientation.y, f.orientation.z));
   }
   s->last_seen_ns = now;
-  if (s->proxy.commit_sample(1e-9 * static_cast<double>(now - start_ns_), options_.resync_gap_s)) {
+  // The device's own interval since its last sample, if its timestamps give one a device could
+  // have (later, at most the re-sync gap): its velocity is taken over that, not over how far
+  // apart the samples were read (ProxyHand::commit_sample).
+  double interval_s = std::numeric_limits<double>::quiet_NaN();
+  if (s->last_client_ns != 0 && pose.client_timestamp_ns > s->last_client_ns &&
+      pose.client_timestamp_ns - s->last_client_ns <= static_cast<std::uint64_t>(1e9 * options_.resync_gap_s))
+    interval_s = 1e-9 * static_cast<double>(pose.client_timestamp_ns - s->last_client_ns);
+  s->last_client_ns = pose.client_timestamp_ns;
+  if (s->proxy.commit_sample(1e-9 * static_cast<double>(now - start_ns_), options_.resync_gap_s, interval_s)) {
     s->resynced = true;
     ++st.resyncs;
     if (!s->follower) ++hand_resyncs_[links_[s->link].hand];

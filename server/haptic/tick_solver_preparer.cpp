@@ -4,10 +4,13 @@ namespace hapticd::haptic {
 
 bool TickSolverPreparer::prepare(int h, HapticModel& model) const {
   model.solver.prepared = false;
-  if (model.handles < kMinPreparedHandles) return false;
-  for (const DeviceLink& link : links_)
-    if (link.hand == h && link.handles == model.handles)
+  for (const DeviceLink& link : links_) {
+    if (link.hand != h || link.handles != model.handles) continue;
+    if (model.handles >= kMinPreparedHandles)
       return prepare_tick_solver(model, link.handles, link.mass_kg, link.inertia_B, link.gains, haptic_dt_s_);
+    prepare_contact_lookahead(model, link.mass_kg, link.inertia_B, link.gains, haptic_dt_s_);
+    return false;
+  }
   return false;
 }
 

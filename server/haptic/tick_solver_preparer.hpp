@@ -1,8 +1,8 @@
 #pragma once
 // What the haptic tick needs prepared from a model before it arrives: the factors of its tick solver
-// (prepare_tick_solver, for glove-sized models). The haptic side owns the device links and the
-// haptic period the factors depend on; the visual step calls it on each model it builds, off the
-// haptic thread.
+// (prepare_tick_solver, for glove-sized models) and the longest lookahead its contact rows hold at.
+// The haptic side owns the device links and the haptic period these depend on; the visual step
+// calls it on each model it builds, off the haptic thread.
 #include <vector>
 
 #include "server/haptic/device_link.hpp"
@@ -14,7 +14,8 @@ class TickSolverPreparer {
   TickSolverPreparer(std::vector<DeviceLink> links, double haptic_dt_s)
       : links_(std::move(links)), haptic_dt_s_(haptic_dt_s) {}
   // Prepares `model`'s tick solver for the first link that drives hand h with as many handles;
-  // false (model.solver.prepared cleared) when none does or the model is too small to need it.
+  // false (model.solver.prepared cleared) when none does or the model is too small to need it (its
+  // contact rows' lookahead bound is still set then: prepare_contact_lookahead).
   bool prepare(int h, HapticModel& model) const;
 
  private:

@@ -3,6 +3,7 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <random>
 
 #include "hand_models/contact_pgs.hpp"
@@ -92,6 +93,66 @@ void DeviceMap::to_device(int j, const HapticPose& handle_W, Eigen::Vector3d& p_
   q_D = (R_WD.conjugate() * q_frame_W).normalized();
 }
 
+namespace {
+
+// B = P - h D, P as ProxyHand::integrate builds it under a model: mass, coupling, and each
+// proxy's inertia at its handle's anchor orientation x0. The tick's matrix is A(tau) = B - h tau K.
+HapticMatrix proxy_matrix(const HapticModel& model, const double* mass_kg, const Eigen::Matrix3d* inertia_B,
+                          const CouplingGains& gains, double dt) {
+  HapticMatrix B = -dt * model.D;
+  for (int j = 0; j < model.handles; ++j) {
+    const Eigen::Matrix3d R = model.x0[j].q_W.toRotationMatrix();
+    Eigen::Matrix3d P_rot = R * inertia_B[j] * R.transpose();
+    P_rot.diagonal().array() += dt * gains.b_nms_rad + dt * dt * gains.k_nm_rad;
+    B.block<3, 3>(6 * j, 6 * j).diagonal().array() += mass_kg[j] + dt * gains.b_ns_m + dt * dt * gains.k_n_m;
+    B.block<3, 3>(6 * j + 3, 6 * j + 3) += P_rot;
+  }
+  return B;
+}
+
+// The rows' operator with the proxies' response at lookahead tau, W + (tau U_K + U_D) A(tau)^-1 h G,
+// into `out`; false if it is not finite.
+bool contact_operator(const HapticModel& model, const HapticMatrix& B, double dt, double tau, TickRowMatrix& out) {
+  const TickContacts& c = model.contacts;
+  const HapticMatrix A = B - (tau * dt) * model.K;
+  const TickDofByRow X = Eigen::PartialPivLU<HapticMatrix>(A).solve(dt * c.G);
+  out = c.W;
+  out.noalias() += (tau * c.U_K + c.U_D) * X;
+  return out.allFinite();
+}
+
+// Its symmetric part is positive semidefinite, to 1e-9 of its largest diagonal entry: the rows
+// take energy, never give it, whatever the impulses.
+bool monotone(const TickRowMatrix& op) {
+  TickRowMatrix S = 0.5 * (op + op.transpose());
+  const double scale = std::max(S.diagonal().cwiseAbs().maxCoeff(), 1e-300);
+  S.diagonal().array() += 1e-9 * scale;
+  return Eigen::LLT<TickRowMatrix>(S).info() == Eigen::Success;
+}
+
+// The longest lookahead from `tau` halved down to h (h at the least) at which the operator is
+// monotone, and the operator there.
+double monotone_lookahead(const HapticModel& model, const HapticMatrix& B, double dt, double tau, TickRowMatrix& op) {
+  tau = std::max(tau, dt);
+  while (contact_operator(model, B, dt, tau, op) && !monotone(op) && tau > dt) tau = std::max(0.5 * tau, dt);
+  return tau;
+}
+
+}  // namespace
+
+void prepare_contact_lookahead(HapticModel& model, const double* mass_kg, const Eigen::Matrix3d* inertia_B,
+                               const CouplingGains& gains, double dt) {
+  TickContacts& c = model.contacts;
+  c.max_lookahead_s = std::numeric_limits<double>::infinity();
+  const int n = 6 * model.handles;
+  if (c.count == 0 || !(dt > 0) || model.K.rows() != n || model.D.rows() != n) return;
+  const HapticMatrix B = proxy_matrix(model, mass_kg, inertia_B, gains, dt);
+  const double top = std::min(std::max(model.step_s, dt), kMaxModelLookahead_s);
+  TickRowMatrix op;
+  const double tau = monotone_lookahead(model, B, dt, top, op);
+  if (tau < top) c.max_lookahead_s = tau;
+}
+
 bool prepare_tick_solver(HapticModel& model, int handles, const double* mass_kg, const Eigen::Matrix3d* inertia_B,
                          const CouplingGains& gains, double dt) {
   TickSolver& s = model.solver;
@@ -100,15 +161,8 @@ bool prepare_tick_solver(HapticModel& model, int handles, const double* mass_kg,
   if (m < kMinPreparedHandles || m != handles || m > kMaxHapticHandles || !(dt > 0) || model.K.rows() != n ||
       model.K.cols() != n || model.D.rows() != n || model.D.cols() != n || !model.K.allFinite() || !model.D.allFinite())
     return false;
-  // B = P - h D, P as ProxyHand::integrate builds it under a model: mass, coupling, and each
-  // proxy's inertia at its handle's anchor orientation x0.
-  HapticMatrix B = -dt * model.D;
+  const HapticMatrix B = proxy_matrix(model, mass_kg, inertia_B, gains, dt);
   for (int j = 0; j < m; ++j) {
-    const Eigen::Matrix3d R = model.x0[j].q_W.toRotationMatrix();
-    Eigen::Matrix3d P_rot = R * inertia_B[j] * R.transpose();
-    P_rot.diagonal().array() += dt * gains.b_nms_rad + dt * dt * gains.k_nm_rad;
-    B.block<3, 3>(6 * j, 6 * j).diagonal().array() += mass_kg[j] + dt * gains.b_ns_m + dt * dt * gains.k_n_m;
-    B.block<3, 3>(6 * j + 3, 6 * j + 3) += P_rot;
     s.mass_kg[j] = mass_kg[j];
     s.inertia_B[j] = inertia_B[j];
   }
@@ -142,14 +196,15 @@ bool prepare_tick_solver(HapticModel& model, int handles, const double* mass_kg,
     return false;
   TickContacts& c = model.contacts;
   c.proxy_prepared = false;
+  c.max_lookahead_s = std::numeric_limits<double>::infinity();
   if (c.count > 0) {
-    // The contacts' Delassus operator with the proxies' response at the model's mid-step lookahead.
-    const double tau = std::max(0.5 * model.step_s, dt);
-    const HapticMatrix A = B - (tau * dt) * model.K;
-    const TickDofByRow X = Eigen::PartialPivLU<HapticMatrix>(A).solve(dt * c.G);
-    c.W_proxy = c.W;
-    c.W_proxy.noalias() += (tau * c.U_K + c.U_D) * X;
+    // The contacts' Delassus operator with the proxies' response at the model's mid-step
+    // lookahead, or shorter where it is not monotone there (the tick's lookahead is then bounded
+    // by the one it holds at).
+    const double mid = std::max(0.5 * model.step_s, dt);
+    const double tau = monotone_lookahead(model, B, dt, mid, c.W_proxy);
     if (!c.W_proxy.allFinite()) return false;
+    if (tau < mid) c.max_lookahead_s = tau;
     c.proxy_prepared = true;
   }
   s.dt_s = dt;
@@ -230,15 +285,22 @@ void ProxyHand::set_device_pose(int j, const Eigen::Vector3d& p_D, const Eigen::
   if (j >= 0 && j < handles_) pending_[j] = map_.to_world(j, p_D, q_D);
 }
 
-bool ProxyHand::commit_sample(double t_s, double resync_gap_s) {
+bool ProxyHand::commit_sample(double t_s, double resync_gap_s, double sample_interval_s) {
   const double dt = t_s - t_dev_;
   const bool resync_now = !have_device_ || !(dt <= resync_gap_s) || dt < 0;
+  // The device's velocity is its motion over its own interval between the two samples. When they
+  // are read is no measure of it: a server that was stalled reads the samples queued meanwhile
+  // microseconds apart (8 us after 50 ms stopped made a tip moving at 0.01 m/s look like up to
+  // 212 m/s, and the coupling's damper pushed the device at its force limit).
+  const double dt_v = std::isfinite(sample_interval_s) && sample_interval_s > 0
+                          ? std::max(sample_interval_s, kMinSampleInterval_s)
+                          : std::max(dt, kMinSampleInterval_s);
   for (int j = 0; j < handles_; ++j) {
     if (!resync_now && dt > 0) {
       const Eigen::Vector3d moved = pending_[j].p_W - device_[j].p_W;
       const Eigen::Vector3d turned = hand::rotation_difference(pending_[j].q_W, device_[j].q_W);
-      v_dev_[j] += kVelocityFilter * (moved / dt - v_dev_[j]);
-      w_dev_[j] += kVelocityFilter * (turned / dt - w_dev_[j]);
+      v_dev_[j] += kVelocityFilter * (moved / dt_v - v_dev_[j]);
+      w_dev_[j] += kVelocityFilter * (turned / dt_v - w_dev_[j]);
       if (motion_booked_[j]) moved_p_W_[j].setZero(), moved_theta_W_[j].setZero(), motion_booked_[j] = false;
       moved_p_W_[j] += moved;
       moved_theta_W_[j] += turned;
@@ -256,8 +318,8 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
   const double weight = std::clamp(model_weight, 0.0, 1.0);
   const bool contacts_on = model.handles == handles_ && model.contacts.count > 0;
   // seed 004 section 3: F* is taken at the pose extrapolated to the model's step end, x + tau v'
-  // (tau >= h).
-  const double tau = std::max(lookahead_s, dt);
+  // (tau >= h), no further than the model's contact rows stay monotone (TickContacts::max_lookahead_s).
+  const double tau = std::max(std::min(lookahead_s, contacts_on ? model.contacts.max_lookahead_s : lookahead_s), dt);
   // A model that arrives after its step's end (the visual step took longer than
   // the step it simulated) has its anchor carried along by the handle's
   // velocity for the time since: the flesh kept moving meanwhile.

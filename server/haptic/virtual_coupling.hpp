@@ -5,10 +5,12 @@
 // two-way viscoelastic virtual coupling to the device pose; the device gets the
 // coupling force reversed, mapped to device space, clamped and rate-limited
 // (DESIGN.md section 5). Fixed capacities: nothing here allocates.
+#include <Eigen/Cholesky>
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include <Eigen/LU>
 #include <cstdint>
+#include <limits>
 
 #include "hand_models/rigid_handle.hpp"
 
@@ -91,6 +93,13 @@ struct TickContacts {
   // in the cone (a contact never pulls), their gaps are off by the lookahead's share.
   TickRowMatrix W_proxy;
   bool proxy_prepared = false;
+  // The longest lookahead the tick may solve these rows with (prepare_tick_solver,
+  // prepare_contact_lookahead): the operator W + (tau U_K + U_D) A(tau)^-1 h G is not symmetric,
+  // and past some tau its symmetric part stops being positive semidefinite: the rows can then
+  // give energy, and the sweeps diverge or throw the proxy around (after a 92 ms step of a
+  // stalled server, at tau 0.085 s, its least eigenvalue was -46 against 228 at the top, and the
+  // stylus's proxy swung 5-22 mm at up to 15 m/s). Infinite: no bound found or none needed.
+  double max_lookahead_s = std::numeric_limits<double>::infinity();
 };
 
 // One hand's handle-space model as the visual loop publishes it.
@@ -130,6 +139,12 @@ constexpr int kMinPreparedHandles = 4;
 // when the model has fewer than kMinPreparedHandles handles, other than `handles`, or is not finite.
 bool prepare_tick_solver(HapticModel& model, int handles, const double* mass_kg, const Eigen::Matrix3d* inertia_B,
                          const CouplingGains& gains, double haptic_dt_s);
+// For a model on fewer handles (the tick forms its contact operator itself): sets
+// model.contacts.max_lookahead_s to the longest lookahead, the model's step halved until it holds,
+// at which that operator's symmetric part is positive semidefinite (to 1e-9 of its largest
+// diagonal entry) for these proxies; h at the least. O(c^3) on the visual thread.
+void prepare_contact_lookahead(HapticModel& model, const double* mass_kg, const Eigen::Matrix3d* inertia_B,
+                               const CouplingGains& gains, double haptic_dt_s);
 
 struct DeviceLimits {
   double max_force_n = 8.0, max_torque_nm = 0.5, max_force_rate_n_s = 1000.0;
@@ -189,6 +204,15 @@ constexpr double kPassivityRotationWeight_m2 = 4e-4;
 // proxy over to the device gradually rather than all in its last moments.
 constexpr double kSafeStiffness = 4.0;
 
+// The shortest interval the device's velocity is taken over, s (a 10 kHz device): samples read
+// closer together than that, with no interval of the device's own, still give a finite velocity.
+constexpr double kMinSampleInterval_s = 1e-4;
+
+// How far ahead of the tick (or, for a late model, behind it) a model's step end may lie for the
+// proxy's extrapolation to it, s: 100 ms (six visual steps at 60 Hz) bounds x + tau v and the late
+// anchor's drift when a model's time stamp is far off the haptic clock.
+constexpr double kMaxModelLookahead_s = 0.1;
+
 struct ReplyWrench {
   Eigen::Vector3d f_D = Eigen::Vector3d::Zero(), tau_D = Eigen::Vector3d::Zero();  // on the device, device frame
   bool clamped = false;
@@ -209,12 +233,15 @@ class ProxyHand {
   void set_fingers_grounded_on_palm(bool on) { fingers_on_palm_ = on; }
 
   // A pose sample: the device pose of every handle in device space (set_device_pose
-  // for each, then commit_sample with the sample's time). A first sample, or one
+  // for each, then commit_sample with the time the sample was read). A first sample, or one
   // after a gap longer than `resync_gap_s`, re-syncs: the proxies jump onto the
   // device so the coupling force starts from zero (no force jump); commit_sample
-  // returns true then.
+  // returns true then. `sample_interval_s`: the device's own time since its last sample (its
+  // timestamps), for the device velocity the coupling's damper acts on; without one (NaN) the
+  // time between reads, at least kMinSampleInterval_s.
   void set_device_pose(int j, const Eigen::Vector3d& p_D, const Eigen::Quaterniond& q_D);
-  bool commit_sample(double t_s, double resync_gap_s);
+  bool commit_sample(double t_s, double resync_gap_s,
+                     double sample_interval_s = std::numeric_limits<double>::quiet_NaN());
 
   // Advances the proxies by dt under `model` and the coupling (the 1 kHz tick).
   // `lookahead_s`: time left until the model's step ends. The model gives the

@@ -1,6 +1,7 @@
 #include "server/haptic/visual_step.hpp"
 
 #include <algorithm>
+#include <limits>
 
 #include "hand_models/rigid_handle.hpp"
 
@@ -59,6 +60,7 @@ static_assert(kMaxTickContacts == hand::kMaxLinearizedContacts, "the tick holds 
 bool set_tick_contacts(const hand::HandleContactModel& in, int handles, TickContacts& out) {
   out.count = 0;
   out.proxy_prepared = false;
+  out.max_lookahead_s = std::numeric_limits<double>::infinity();
   const int c = in.count(), n = 6 * handles, r = 3 * c;
   if (c == 0) return true;
   if (c > kMaxTickContacts || n > kMaxHapticDofs || in.G.rows() != n || in.G.cols() != r || in.W.rows() != r ||

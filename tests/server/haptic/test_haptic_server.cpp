@@ -53,6 +53,55 @@ TEST(HapticServer, AnswersEveryPoseWithTheEchoedSequenceAndTheWallForce) {
   EXPECT_GT(s.server.stats().ticks, 100u);
 }
 
+TEST(HapticServer, PosesReadInABurstMoveTheCouplingByTheDevicesOwnVelocity) {
+  // A stylus resting on the wall's surface (z = 0, where the wall pulls nothing), then 40 poses
+  // of a slide along x at 10 mm/s, stamped 1 ms apart but sent at once (what a stalled server
+  // finds queued), then held at the slide's end. The proxy trails the device by at most the
+  // slide, 0.4 mm: the coupling (1000 N/m) gives at most 0.4 N, plus its damper (0.75 N s/m) on
+  // 10 mm/s (0.405 N measured). Taken over how far apart the poses were read (microseconds), the
+  // velocity was 1-2 m/s, and that damper alone gave 0.75-1.5 N; without the device's stamps it
+  // is taken over kMinSampleInterval_s at least (0.475 N here).
+  RunningServer s;
+  TestClient c(s.server.port());
+  ASSERT_NE(c.hello(), 0u);
+  std::uint64_t seq = 0;
+  const std::uint64_t t0 = protocol::now_ns();
+  const auto pose_at_x = [&](double x) {
+    protocol::PoseSample p = c.pose_at(0.0, ++seq);
+    p.client_timestamp_ns = t0 + 1'000'000ull * seq;
+    p.poses[0].position_m.x = static_cast<float>(x);
+    return p;
+  };
+  const auto largest_force = [&](int replies) {
+    double f = 0;
+    for (int k = 0; k < replies; ++k) {
+      const Message m = c.receive();
+      if (m.type == MessageType::kForceSample) {
+        const protocol::Vec3& v = m.force_sample.wrenches[0].wrench.force_n;
+        f = std::max(f, std::sqrt(static_cast<double>(v.x * v.x + v.y * v.y + v.z * v.z)));
+      }
+    }
+    return f;
+  };
+  for (int k = 0; k < 200; ++k) {
+    c.send(pose_at_x(0.0));
+    largest_force(1);
+    std::this_thread::sleep_for(std::chrono::microseconds(500));
+  }
+  const double v = 0.01, slide = 40 * 1e-3 * v;
+  for (int k = 1; k <= 40; ++k) c.send(pose_at_x(k * 1e-3 * v));
+  double f_max = largest_force(40);
+  for (int k = 0; k < 100; ++k) {
+    c.send(pose_at_x(slide));
+    f_max = std::max(f_max, largest_force(1));
+    std::this_thread::sleep_for(std::chrono::microseconds(500));
+  }
+  EXPECT_LE(f_max, 1000.0 * slide + 0.75 * v + 0.05) << "the burst's velocity reached the damper";
+  EXPECT_GT(f_max, 0.5 * 1000.0 * slide) << "the slide was felt";
+  s.halt();
+  EXPECT_EQ(s.server.stats().resets, 0u);
+}
+
 // A float's bytes in a datagram, replaced (the codec refuses to encode a NaN).
 void patch_float(std::span<std::uint8_t> bytes, float from, float to) {
   for (std::size_t i = 0; i + 4 <= bytes.size(); ++i)

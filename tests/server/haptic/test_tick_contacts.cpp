@@ -6,6 +6,7 @@
 
 #include <Eigen/Dense>
 #include <cmath>
+#include <limits>
 #include <random>
 #include <vector>
 
@@ -295,6 +296,78 @@ TEST(TickContacts, TheTickWithContactsAllocatesNothingForAStylusOrAPreparedGlove
     EXPECT_EQ(p.solver_fallbacks(), 0) << handles << " handles";
     EXPECT_EQ(p.contact_impulses().size(), 3 * kMaxTickContacts);
   }
+}
+
+// One contact whose rows' velocity falls with the handle's displacement along them (U_K = -beta
+// G^T): with the proxy's response the operator is (w - tau h beta / a) I, a the proxy's
+// translational diagonal m + h b + h^2 k (K = D = 0), monotone only up to tau* = w a / (h beta).
+HapticModel falling_rows_model(double w, double beta, double step_s) {
+  HapticModel m;
+  m.handles = 1;
+  m.step_s = step_s;
+  m.t_end_ns = 1;
+  m.K = HapticMatrix::Zero(6, 6);
+  m.D = HapticMatrix::Zero(6, 6);
+  m.F0 = HapticVector::Zero(6);
+  m.v0[0].setZero();
+  m.w0[0].setZero();
+  TickContacts& k = m.contacts;
+  k.count = 1;
+  k.G = TickDofByRow::Zero(6, 3);
+  k.G.topRows<3>().setIdentity();
+  k.W = w * TickRowMatrix::Identity(3, 3);
+  k.U_K = -beta * k.G.transpose();
+  k.U_D = TickRowByDof::Zero(3, 6);
+  k.u0 = TickRowVector::Zero(3);
+  k.lambda0 = TickRowVector::Zero(3);
+  k.bias[0] = 0, k.mu[0] = 0;
+  return m;
+}
+
+TEST(TickContacts, TheLookaheadStopsWhereTheRowsOperatorStopsBeingMonotone) {
+  const double mass = kMass, w = 1.0, step = 0.1;
+  const Eigen::Matrix3d inertia = ball_inertia(kMass);
+  const CouplingGains gains = coupling_gains_for(1000.0, 1.0, kPeriod);
+  const double a = mass + kPeriod * gains.b_ns_m + kPeriod * kPeriod * gains.k_n_m;
+  // tau* = 0.03 s: the step (0.1) and its half (0.05) are past it, a quarter (0.025) is within.
+  const double beta = w * a / (kPeriod * 0.03);
+  HapticModel m = falling_rows_model(w, beta, step);
+  prepare_contact_lookahead(m, &mass, &inertia, gains, kPeriod);
+  EXPECT_DOUBLE_EQ(m.contacts.max_lookahead_s, 0.025);
+  // A tau* past the step: no bound.
+  HapticModel free = falling_rows_model(w, w * a / (kPeriod * 0.2), step);
+  prepare_contact_lookahead(free, &mass, &inertia, gains, kPeriod);
+  EXPECT_EQ(free.contacts.max_lookahead_s, std::numeric_limits<double>::infinity());
+  // Monotone at no lookahead at all: h at the least.
+  HapticModel stiff = falling_rows_model(w, w * a / (kPeriod * 1e-4), step);
+  prepare_contact_lookahead(stiff, &mass, &inertia, gains, kPeriod);
+  EXPECT_DOUBLE_EQ(stiff.contacts.max_lookahead_s, kPeriod);
+}
+
+TEST(TickContacts, ATickPastTheBoundSolvesAtIt) {
+  // The same tick with the model's step end 0.1 s ahead and a bound of 0.025 s, and with the step
+  // end 0.025 s ahead and no bound: the same proxies.
+  const double mass = kMass, w = 1.0;
+  const Eigen::Matrix3d inertia = ball_inertia(kMass);
+  const CouplingGains gains = coupling_gains_for(1000.0, 1.0, kPeriod);
+  const double a = mass + kPeriod * gains.b_ns_m + kPeriod * kPeriod * gains.k_n_m;
+  HapticModel bounded = falling_rows_model(w, w * a / (kPeriod * 0.03), 0.1);
+  bounded.contacts.u0 = TickRowVector::Constant(3, -0.01);  // closing: the rows push
+  prepare_contact_lookahead(bounded, &mass, &inertia, gains, kPeriod);
+  ASSERT_DOUBLE_EQ(bounded.contacts.max_lookahead_s, 0.025);
+  HapticModel unbounded = bounded;
+  unbounded.contacts.max_lookahead_s = std::numeric_limits<double>::infinity();
+  ProxyHand p = make_proxy(1), q = make_proxy(1);
+  double tp = 0, tq = 0;
+  rest_on_device(p, {Eigen::Vector3d::Zero()}, tp);
+  rest_on_device(q, {Eigen::Vector3d::Zero()}, tq);
+  for (int k = 0; k < 5; ++k) {
+    p.integrate(bounded, kPeriod, 0.1);
+    q.integrate(unbounded, kPeriod, 0.025);
+  }
+  EXPECT_GT(p.contact_impulses().head<1>().norm(), 0.0);
+  EXPECT_EQ(p.proxy(0).p_W, q.proxy(0).p_W);
+  EXPECT_EQ(p.proxy_velocity(0), q.proxy_velocity(0));
 }
 
 }  // namespace

@@ -57,6 +57,37 @@ ReplyWrench hold(ProxyHand& p, const HapticModel& model, const Eigen::Vector3d& 
   return r;
 }
 
+TEST(VirtualCoupling, SamplesReadInABurstGiveTheDevicesVelocityNotTheRateTheyWereReadAt) {
+  // A device moving along x at 10 mm/s, sampled every 1 ms, its proxy free and at rest on it. The
+  // same 50 samples read 1 ms apart (`paced`), and read 8 us apart as a server catching up after
+  // a stall reads its queue, with the device's intervals (`burst`): the damper sees the same
+  // velocity, so the reply is the same. Without the intervals (`untimed`) the velocity is taken over
+  // kMinSampleInterval_s at least: 10x the true one, where the reading rate made it 125x.
+  ProxyHand paced = make_proxy(), burst = make_proxy(), untimed = make_proxy();
+  for (ProxyHand* p : {&paced, &burst, &untimed}) {
+    p->set_device_pose(0, Eigen::Vector3d::Zero(), Eigen::Quaterniond::Identity());
+    p->commit_sample(0.0, 0.05);
+  }
+  const double v_dev = 0.01;
+  for (int k = 1; k <= 50; ++k) {
+    const Eigen::Vector3d x(v_dev * 1e-3 * k, 0, 0);
+    for (ProxyHand* p : {&paced, &burst, &untimed}) p->set_device_pose(0, x, Eigen::Quaterniond::Identity());
+    paced.commit_sample(1e-3 * k, 0.05);
+    burst.commit_sample(8e-6 * k, 0.05, 1e-3);
+    untimed.commit_sample(8e-6 * k, 0.05);
+  }
+  // No slew limit between these replies (a second since the last): the coupling's own force.
+  const ReplyWrench f_paced = paced.reply(0, 1.0, 1.0), f_burst = burst.reply(0, 1.0, 1.0),
+                    f_untimed = untimed.reply(0, 1.0, 1.0);
+  const CouplingGains& g = paced.gains();
+  // The proxy stayed at the origin, the device is 0.5 mm on, moving at 10 mm/s: the device feels
+  // the spring and the damper pulling it back.
+  EXPECT_NEAR(f_paced.f_D.x(), -(g.k_n_m * 5e-4 + g.b_ns_m * v_dev), 1e-6 * g.b_ns_m * v_dev);
+  EXPECT_NEAR(f_burst.f_D.x(), f_paced.f_D.x(), 1e-9 * std::abs(f_paced.f_D.x()));
+  EXPECT_NEAR(f_untimed.f_D.x(), -(g.k_n_m * 5e-4 + g.b_ns_m * v_dev * 1e-3 / kMinSampleInterval_s),
+              1e-6 * g.b_ns_m * v_dev);
+}
+
 TEST(VirtualCoupling, SteadyPressOnAWallGivesTheSeriesStiffnessTimesPenetration) {
   for (double scale : {1.0, 2.0}) {
     DeviceMap map;
