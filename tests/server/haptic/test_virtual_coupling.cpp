@@ -67,6 +67,7 @@ TEST(VirtualCoupling, SamplesReadInABurstGiveTheDevicesVelocityNotTheRateTheyWer
   for (ProxyHand* p : {&paced, &burst, &untimed}) {
     p->set_device_pose(0, Eigen::Vector3d::Zero(), Eigen::Quaterniond::Identity());
     p->commit_sample(0.0, 0.05);
+    p->integrate(HapticModel{}, kPeriod);  // at rest on the device
   }
   const double v_dev = 0.01;
   for (int k = 1; k <= 50; ++k) {
@@ -86,6 +87,42 @@ TEST(VirtualCoupling, SamplesReadInABurstGiveTheDevicesVelocityNotTheRateTheyWer
   EXPECT_NEAR(f_burst.f_D.x(), f_paced.f_D.x(), 1e-9 * std::abs(f_paced.f_D.x()));
   EXPECT_NEAR(f_untimed.f_D.x(), -(g.k_n_m * 5e-4 + g.b_ns_m * v_dev * 1e-3 / kMinSampleInterval_s),
               1e-6 * g.b_ns_m * v_dev);
+}
+
+TEST(VirtualCoupling, AResyncFollowsTheSamplesReadBeforeTheProxyNextMoves) {
+  // After a 200 ms gap the first sample re-syncs; the ten read with it, 8 us apart (a stalled
+  // server's queue, the device sliding 0.2 mm a sample), carry the proxy onto each in turn,
+  // uncounted; once the proxy has been integrated, a sample moves the device only, as does one read
+  // 1 ms after a re-sync.
+  ProxyHand p = make_proxy();
+  const HapticModel none;
+  double t = 0;
+  const auto sample = [&](double x, double at) {
+    p.set_device_pose(0, Eigen::Vector3d(x, 0, 0), Eigen::Quaterniond::Identity());
+    return p.commit_sample(at, 0.05, 1e-3);
+  };
+  EXPECT_TRUE(sample(0.0, t));
+  for (int k = 0; k < 5; ++k) {
+    p.integrate(none, kPeriod);
+    EXPECT_FALSE(sample(0.0, t += kPeriod));
+  }
+  t += 0.2;
+  EXPECT_TRUE(sample(0.001, t));
+  for (int k = 1; k <= 10; ++k) {
+    const double x = 0.001 + 2e-4 * k;
+    EXPECT_FALSE(sample(x, t + 8e-6 * k)) << k;
+    EXPECT_EQ(p.proxy(0).p_W.x(), x) << k;
+    EXPECT_EQ(p.proxy_velocity(0).norm(), 0.0) << k;
+  }
+  p.integrate(none, kPeriod);
+  const double proxy_x = p.proxy(0).p_W.x();
+  EXPECT_FALSE(sample(0.0032, t + 1e-3));
+  EXPECT_EQ(p.proxy(0).p_W.x(), proxy_x);
+  EXPECT_EQ(p.device(0).p_W.x(), 0.0032);
+  t += 0.2;
+  EXPECT_TRUE(sample(0.004, t));
+  EXPECT_FALSE(sample(0.005, t + 1e-3));
+  EXPECT_EQ(p.proxy(0).p_W.x(), 0.004);
 }
 
 TEST(VirtualCoupling, SteadyPressOnAWallGivesTheSeriesStiffnessTimesPenetration) {
