@@ -204,6 +204,7 @@ int main(int argc, char** argv) {
           {"solver_refinements", st.solver_refinements},
           {"lookahead_fallbacks", st.lookahead_fallbacks},
           {"contact_holds", st.contact_holds},
+          {"contact_unconverged", st.contact_unconverged},
           {"model_watchdog",
            {{"stale_after_s", options.model_stale_after_s},
             {"fade_s", options.model_fade_s},

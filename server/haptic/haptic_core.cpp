@@ -21,6 +21,7 @@ void add_proxy_counts(ServerStats& st, const ProxyHand& p) {
   st.solver_refinements += static_cast<std::uint64_t>(p.solver_refinements());
   st.lookahead_fallbacks += static_cast<std::uint64_t>(p.lookahead_fallbacks());
   st.contact_holds += static_cast<std::uint64_t>(p.contact_holds());
+  st.contact_unconverged += static_cast<std::uint64_t>(p.contact_unconverged());
 }
 
 }  // namespace
