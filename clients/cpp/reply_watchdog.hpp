@@ -55,10 +55,8 @@ class ReplyWatchdog {
     return scale_;
   }
 
-  [[nodiscard]] double last_scale() const noexcept { return scale_; }
   // Calls of scale() that gave less than the full wrench (a silence, or the way back from one).
   [[nodiscard]] std::uint64_t faded() const noexcept { return faded_scales_; }
-  [[nodiscard]] const ReplyWatchdogOptions& options() const noexcept { return options_; }
 
  private:
   ReplyWatchdogOptions options_;
