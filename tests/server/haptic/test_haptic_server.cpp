@@ -102,6 +102,52 @@ TEST(HapticServer, PosesReadInABurstMoveTheCouplingByTheDevicesOwnVelocity) {
   EXPECT_EQ(s.server.stats().resets, 0u);
 }
 
+TEST(HapticServer, AQueueReadAfterAGapResyncsOnceOntoItsNewestPose) {
+  // A stylus at rest on the wall's surface, then 200 ms of silence, then 30 poses of a 15 mm slide
+  // along x sent at once (a device's queue behind a stalled server). The first re-syncs (counted
+  // once); the rest carry the proxy with them, so the device feels nothing of the slide: without
+  // that, the proxy waited 14.5 mm behind and the coupling pulled the device back with up to 2.3 N.
+  RunningServer s;
+  TestClient c(s.server.port());
+  ASSERT_NE(c.hello(), 0u);
+  std::uint64_t seq = 0;
+  const std::uint64_t t0 = protocol::now_ns();
+  const auto pose_at_x = [&](double x) {
+    protocol::PoseSample p = c.pose_at(0.0, ++seq);
+    p.client_timestamp_ns = t0 + 1'000'000ull * seq;
+    p.poses[0].position_m.x = static_cast<float>(x);
+    return p;
+  };
+  const auto largest_force = [&](int replies) {
+    double f = 0;
+    for (int k = 0; k < replies; ++k) {
+      const Message m = c.receive();
+      if (m.type == MessageType::kForceSample) {
+        const protocol::Vec3& v = m.force_sample.wrenches[0].wrench.force_n;
+        f = std::max(f, std::sqrt(static_cast<double>(v.x * v.x + v.y * v.y + v.z * v.z)));
+      }
+    }
+    return f;
+  };
+  for (int k = 0; k < 100; ++k) {
+    c.send(pose_at_x(0.0));
+    largest_force(1);
+    std::this_thread::sleep_for(std::chrono::microseconds(500));
+  }
+  const std::uint64_t resyncs_before = s.server.stats().resyncs;
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  for (int k = 0; k < 30; ++k) c.send(pose_at_x(5e-4 * k));
+  double f_max = largest_force(30);
+  for (int k = 0; k < 50; ++k) {
+    c.send(pose_at_x(5e-4 * 29));
+    f_max = std::max(f_max, largest_force(1));
+    std::this_thread::sleep_for(std::chrono::microseconds(500));
+  }
+  s.halt();
+  EXPECT_EQ(s.server.stats().resyncs - resyncs_before, 1u);
+  EXPECT_LT(f_max, 0.5) << "the proxy stayed behind the queue's oldest pose";
+}
+
 // A float's bytes in a datagram, replaced (the codec refuses to encode a NaN).
 void patch_float(std::span<std::uint8_t> bytes, float from, float to) {
   for (std::size_t i = 0; i + 4 <= bytes.size(); ++i)
