@@ -274,7 +274,7 @@ void ProxyHand::reset() {
 }
 
 void ProxyHand::resync() {
-  resynced_unintegrated_ = true;
+  resync_following_ = true;
   for (int j = 0; j < handles_; ++j) {
     proxy_[j] = device_[j];
     v_[j].setZero(), w_[j].setZero(), v_dev_[j].setZero(), w_dev_[j].setZero();
@@ -310,17 +310,23 @@ bool ProxyHand::commit_sample(double t_s, double resync_gap_s, double sample_int
   }
   t_dev_ = t_s;
   have_device_ = true;
-  // A sample read right after a re-sync (the same burst) and before the proxies next moved
-  // re-syncs them onto it too: a server that was stalled re-syncs on the oldest pose of its queue
-  // and reads the rest at once, and the proxies are to start where the device is now (from 50 ms
-  // back they were 26 mm behind a stroking stylus, and rang on the coupling at up to 8 m/s).
-  if (resync_now || (resynced_unintegrated_ && dt < kMinSampleInterval_s)) resync();
+  // Samples read faster than the device took them (under half its interval, or kMinSampleInterval_s
+  // without one) come from a queue: after a re-sync they re-sync the proxies onto themselves too,
+  // until one comes at the device's pace. A server that was stalled re-syncs on the oldest pose of
+  // its queue and reads the rest at once, and the proxies are to start where the device is now
+  // (from 50 ms back they were 26 mm behind a stroking stylus, and rang on the coupling at up to
+  // 8 m/s).
+  const bool queued = std::isfinite(sample_interval_s) && sample_interval_s > 0 ? dt < 0.5 * sample_interval_s
+                                                                                : dt < kMinSampleInterval_s;
+  if (resync_now || (resync_following_ && queued))
+    resync();
+  else
+    resync_following_ = false;
   return resync_now;
 }
 
 void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_s, double model_weight) {
   if (handles_ == 0 || !have_device_) return;
-  resynced_unintegrated_ = false;
   const double weight = std::clamp(model_weight, 0.0, 1.0);
   const bool contacts_on = model.handles == handles_ && model.contacts.count > 0;
   // seed 004 section 3: F* is taken at the pose extrapolated to the model's step end, x + tau v'

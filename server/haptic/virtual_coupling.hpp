@@ -236,12 +236,11 @@ class ProxyHand {
   // for each, then commit_sample with the time the sample was read). A first sample, or one
   // after a gap longer than `resync_gap_s`, re-syncs: the proxies jump onto the
   // device so the coupling force starts from zero (no force jump); commit_sample
-  // returns true then; samples read within kMinSampleInterval_s of the last and before the next
-  // integrate() re-sync onto themselves too, uncounted (the rest of a stalled server's queue,
-  // read at once). `sample_interval_s`: the
-  // device's own time since its last sample (its timestamps), for the device velocity the
-  // coupling's damper acts on; without one (NaN) the time between reads, at least
-  // kMinSampleInterval_s.
+  // returns true then; the samples after it that were read faster than the device took them (the
+  // rest of a stalled server's queue) re-sync onto themselves too, uncounted.
+  // `sample_interval_s`: the device's own time since its last sample (its timestamps), for the
+  // device velocity the coupling's damper acts on; without one (NaN) the time between reads, at
+  // least kMinSampleInterval_s.
   void set_device_pose(int j, const Eigen::Vector3d& p_D, const Eigen::Quaterniond& q_D);
   bool commit_sample(double t_s, double resync_gap_s,
                      double sample_interval_s = std::numeric_limits<double>::quiet_NaN());
@@ -336,7 +335,7 @@ class ProxyHand {
   Eigen::Vector3d v_dev_[kMaxHapticHandles], w_dev_[kMaxHapticHandles];  // filtered device velocity
   double t_dev_ = 0;
   bool have_device_ = false;
-  bool resynced_unintegrated_ = false;  // re-synced, and not integrated since
+  bool resync_following_ = false;  // re-synced, and every sample since came from a queue
   Eigen::Vector3d last_f_D_[kMaxHapticHandles], last_tau_D_[kMaxHapticHandles];
   Eigen::Vector3d last_r_D_[kMaxHapticHandles];  // the last reply's lever from the frame's origin, device space
   // The device's motion since the last reply (world, m and rad): what the last reply, held by the

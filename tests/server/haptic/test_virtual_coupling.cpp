@@ -64,18 +64,19 @@ TEST(VirtualCoupling, SamplesReadInABurstGiveTheDevicesVelocityNotTheRateTheyWer
   // velocity, so the reply is the same. Without the intervals (`untimed`) the velocity is taken over
   // kMinSampleInterval_s at least: 10x the true one, where the reading rate made it 125x.
   ProxyHand paced = make_proxy(), burst = make_proxy(), untimed = make_proxy();
-  for (ProxyHand* p : {&paced, &burst, &untimed}) {
-    p->set_device_pose(0, Eigen::Vector3d::Zero(), Eigen::Quaterniond::Identity());
-    p->commit_sample(0.0, 0.05);
-    p->integrate(HapticModel{}, kPeriod);  // at rest on the device
-  }
+  for (ProxyHand* p : {&paced, &burst, &untimed})  // at rest on the device, two samples 1 ms apart
+    for (int k = 0; k < 2; ++k) {
+      p->set_device_pose(0, Eigen::Vector3d::Zero(), Eigen::Quaterniond::Identity());
+      p->commit_sample(1e-3 * k, 0.05);
+      p->integrate(HapticModel{}, kPeriod);
+    }
   const double v_dev = 0.01;
   for (int k = 1; k <= 50; ++k) {
     const Eigen::Vector3d x(v_dev * 1e-3 * k, 0, 0);
     for (ProxyHand* p : {&paced, &burst, &untimed}) p->set_device_pose(0, x, Eigen::Quaterniond::Identity());
-    paced.commit_sample(1e-3 * k, 0.05);
-    burst.commit_sample(8e-6 * k, 0.05, 1e-3);
-    untimed.commit_sample(8e-6 * k, 0.05);
+    paced.commit_sample(1e-3 + 1e-3 * k, 0.05);
+    burst.commit_sample(1e-3 + 8e-6 * k, 0.05, 1e-3);
+    untimed.commit_sample(1e-3 + 8e-6 * k, 0.05);
   }
   // No slew limit between these replies (a second since the last): the coupling's own force.
   const ReplyWrench f_paced = paced.reply(0, 1.0, 1.0), f_burst = burst.reply(0, 1.0, 1.0),
@@ -89,11 +90,11 @@ TEST(VirtualCoupling, SamplesReadInABurstGiveTheDevicesVelocityNotTheRateTheyWer
               1e-6 * g.b_ns_m * v_dev);
 }
 
-TEST(VirtualCoupling, AResyncFollowsTheSamplesReadBeforeTheProxyNextMoves) {
-  // After a 200 ms gap the first sample re-syncs; the ten read with it, 8 us apart (a stalled
-  // server's queue, the device sliding 0.2 mm a sample), carry the proxy onto each in turn,
-  // uncounted; once the proxy has been integrated, a sample moves the device only, as does one read
-  // 1 ms after a re-sync.
+TEST(VirtualCoupling, AResyncFollowsTheSamplesOfAQueue) {
+  // After a 200 ms gap the first sample re-syncs; the ten read with it, 8 us apart though taken
+  // 1 ms apart (a stalled server's queue, the device sliding 0.2 mm a sample), carry the proxy onto
+  // each in turn, uncounted, a tick in their midst or not; a sample read at the device's pace moves
+  // the device only, as does one read 1 ms after a re-sync.
   ProxyHand p = make_proxy();
   const HapticModel none;
   double t = 0;
@@ -110,6 +111,7 @@ TEST(VirtualCoupling, AResyncFollowsTheSamplesReadBeforeTheProxyNextMoves) {
   EXPECT_TRUE(sample(0.001, t));
   for (int k = 1; k <= 10; ++k) {
     const double x = 0.001 + 2e-4 * k;
+    if (k == 5) p.integrate(none, kPeriod);
     EXPECT_FALSE(sample(x, t + 8e-6 * k)) << k;
     EXPECT_EQ(p.proxy(0).p_W.x(), x) << k;
     EXPECT_EQ(p.proxy_velocity(0).norm(), 0.0) << k;
