@@ -53,8 +53,43 @@ TEST(HapticServer, AnswersEveryPoseWithTheEchoedSequenceAndTheWallForce) {
   EXPECT_GT(s.server.stats().ticks, 100u);
 }
 
+// A stylus on the wall's surface (z = 0, where the wall pulls nothing) sliding along x, each pose
+// stamped 1 ms after the last whenever it is sent (a device's own clock), as a queue would carry them.
+struct SlidingStylus {
+  TestClient& c;
+  std::uint64_t seq = 0;
+  std::uint64_t t0 = protocol::now_ns();
+  void send(double x) {
+    protocol::PoseSample p = c.pose_at(0.0, ++seq);
+    p.client_timestamp_ns = t0 + 1'000'000ull * seq;
+    p.poses[0].position_m.x = static_cast<float>(x);
+    c.send(p);
+  }
+  // The largest force of the next `replies` replies (0 for those that do not come).
+  double largest_force(int replies) {
+    double f = 0;
+    for (int k = 0; k < replies; ++k) {
+      const Message m = c.receive();
+      if (m.type != MessageType::kForceSample) continue;
+      const protocol::Vec3& v = m.force_sample.wrenches[0].wrench.force_n;
+      f = std::max(f, std::sqrt(static_cast<double>(v.x * v.x + v.y * v.y + v.z * v.z)));
+    }
+    return f;
+  }
+  // `n` poses at x, each answered before the next, 0.5 ms apart: the largest force.
+  double paced(double x, int n) {
+    double f = 0;
+    for (int k = 0; k < n; ++k) {
+      send(x);
+      f = std::max(f, largest_force(1));
+      std::this_thread::sleep_for(std::chrono::microseconds(500));
+    }
+    return f;
+  }
+};
+
 TEST(HapticServer, PosesReadInABurstMoveTheCouplingByTheDevicesOwnVelocity) {
-  // A stylus resting on the wall's surface (z = 0, where the wall pulls nothing), then 40 poses
+  // A stylus resting on the wall's surface, then 40 poses
   // of a slide along x at 10 mm/s, stamped 1 ms apart but sent at once (what a stalled server
   // finds queued), then held at the slide's end. The proxy trails the device by at most the
   // slide, 0.4 mm: the coupling (1000 N/m) gives at most 0.4 N, plus its damper (0.75 N s/m) on
@@ -64,38 +99,11 @@ TEST(HapticServer, PosesReadInABurstMoveTheCouplingByTheDevicesOwnVelocity) {
   RunningServer s;
   TestClient c(s.server.port());
   ASSERT_NE(c.hello(), 0u);
-  std::uint64_t seq = 0;
-  const std::uint64_t t0 = protocol::now_ns();
-  const auto pose_at_x = [&](double x) {
-    protocol::PoseSample p = c.pose_at(0.0, ++seq);
-    p.client_timestamp_ns = t0 + 1'000'000ull * seq;
-    p.poses[0].position_m.x = static_cast<float>(x);
-    return p;
-  };
-  const auto largest_force = [&](int replies) {
-    double f = 0;
-    for (int k = 0; k < replies; ++k) {
-      const Message m = c.receive();
-      if (m.type == MessageType::kForceSample) {
-        const protocol::Vec3& v = m.force_sample.wrenches[0].wrench.force_n;
-        f = std::max(f, std::sqrt(static_cast<double>(v.x * v.x + v.y * v.y + v.z * v.z)));
-      }
-    }
-    return f;
-  };
-  for (int k = 0; k < 200; ++k) {
-    c.send(pose_at_x(0.0));
-    largest_force(1);
-    std::this_thread::sleep_for(std::chrono::microseconds(500));
-  }
+  SlidingStylus stylus{c};
+  stylus.paced(0.0, 200);
   const double v = 0.01, slide = 40 * 1e-3 * v;
-  for (int k = 1; k <= 40; ++k) c.send(pose_at_x(k * 1e-3 * v));
-  double f_max = largest_force(40);
-  for (int k = 0; k < 100; ++k) {
-    c.send(pose_at_x(slide));
-    f_max = std::max(f_max, largest_force(1));
-    std::this_thread::sleep_for(std::chrono::microseconds(500));
-  }
+  for (int k = 1; k <= 40; ++k) stylus.send(k * 1e-3 * v);
+  const double f_max = std::max(stylus.largest_force(40), stylus.paced(slide, 100));
   EXPECT_LE(f_max, 1000.0 * slide + 0.75 * v + 0.05) << "the burst's velocity reached the damper";
   EXPECT_GT(f_max, 0.5 * 1000.0 * slide) << "the slide was felt";
   s.halt();
@@ -110,39 +118,12 @@ TEST(HapticServer, AQueueReadAfterAGapResyncsOnceOntoItsNewestPose) {
   RunningServer s;
   TestClient c(s.server.port());
   ASSERT_NE(c.hello(), 0u);
-  std::uint64_t seq = 0;
-  const std::uint64_t t0 = protocol::now_ns();
-  const auto pose_at_x = [&](double x) {
-    protocol::PoseSample p = c.pose_at(0.0, ++seq);
-    p.client_timestamp_ns = t0 + 1'000'000ull * seq;
-    p.poses[0].position_m.x = static_cast<float>(x);
-    return p;
-  };
-  const auto largest_force = [&](int replies) {
-    double f = 0;
-    for (int k = 0; k < replies; ++k) {
-      const Message m = c.receive();
-      if (m.type == MessageType::kForceSample) {
-        const protocol::Vec3& v = m.force_sample.wrenches[0].wrench.force_n;
-        f = std::max(f, std::sqrt(static_cast<double>(v.x * v.x + v.y * v.y + v.z * v.z)));
-      }
-    }
-    return f;
-  };
-  for (int k = 0; k < 100; ++k) {
-    c.send(pose_at_x(0.0));
-    largest_force(1);
-    std::this_thread::sleep_for(std::chrono::microseconds(500));
-  }
+  SlidingStylus stylus{c};
+  stylus.paced(0.0, 100);
   const std::uint64_t resyncs_before = s.server.stats().resyncs;
   std::this_thread::sleep_for(std::chrono::milliseconds(200));
-  for (int k = 0; k < 30; ++k) c.send(pose_at_x(5e-4 * k));
-  double f_max = largest_force(30);
-  for (int k = 0; k < 50; ++k) {
-    c.send(pose_at_x(5e-4 * 29));
-    f_max = std::max(f_max, largest_force(1));
-    std::this_thread::sleep_for(std::chrono::microseconds(500));
-  }
+  for (int k = 0; k < 30; ++k) stylus.send(5e-4 * k);
+  const double f_max = std::max(stylus.largest_force(30), stylus.paced(5e-4 * 29, 50));
   s.halt();
   EXPECT_EQ(s.server.stats().resyncs - resyncs_before, 1u);
   EXPECT_LT(f_max, 0.5) << "the proxy stayed behind the queue's oldest pose";
