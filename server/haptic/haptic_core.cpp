@@ -49,6 +49,16 @@ struct HapticCore::Session {
   std::uint64_t counter_out = 0;         // last server -> client trailer counter sent
 };
 
+// With a key, what a closed session leaves behind: enough to tell a late copy of one of its
+// datagrams (a network duplicate of its Bye, a retransmitted pose) from anything else naming a
+// session that is gone.
+struct HapticCore::ClosedSession {
+  std::uint64_t id = 0;
+  Endpoint peer;
+  protocol::SessionKeys keys;
+  protocol::SequenceWindow counters_in;
+};
+
 HapticCore::HapticCore(std::vector<DeviceLink> links, const ServerOptions& options,
                        TripleBuffer<HapticSnapshot>& snapshots, TripleBuffer<ProxyTargets>& targets,
                        Transport& transport, const VisualReport* visual)
@@ -59,6 +69,7 @@ HapticCore::HapticCore(std::vector<DeviceLink> links, const ServerOptions& optio
       transport_(transport),
       visual_(visual),
       sessions_(std::make_unique<Session[]>(kMaxSessions)),
+      closed_(std::make_unique<ClosedSession[]>(kClosedRemembered)),
       stats_(std::make_unique<ServerStats>()),
       message_(std::make_unique<protocol::Message>()),
       reply_(std::make_unique<protocol::Message>()) {
@@ -305,6 +316,19 @@ void HapticCore::handle_authenticated(std::span<const std::uint8_t> datagram, st
   }
   Session* s = find_session(trailer.session_id);
   if (!s) {
+    // An authentic datagram of a session closed lately whose counter was seen: a late copy, such as
+    // the network's duplicate of the Bye that closed it, counted as the replay it is.
+    for (int i = 0; i < kClosedRemembered; ++i) {
+      ClosedSession& c = closed_[i];
+      if (c.id != trailer.session_id || c.id == protocol::kNoSession || c.peer != *peer_ ||
+          !protocol::verify_mac(datagram, c.keys.client_to_server))
+        continue;
+      if (protocol::accept_counter(c.counters_in, trailer.counter) == RejectReason::kReplayed) {
+        reject(RejectReason::kReplayed);
+        return;
+      }
+      break;
+    }
     ++st.unknown_session;
     reject(RejectReason::kUnknownSession);
     return;
@@ -491,6 +515,13 @@ void HapticCore::confirm(Session& s) {
 
 void HapticCore::close(Session& s) {
   add_proxy_counts(*stats_, s.proxy);
+  if (auth_ && s.active) {
+    ClosedSession& c = closed_[closed_next_++ % kClosedRemembered];
+    c.id = s.id;
+    c.peer = s.peer;
+    c.keys = s.keys;
+    c.counters_in = s.counters_in;
+  }
   s = Session{};
 }
 

@@ -168,6 +168,8 @@ class HapticCore {
 
  private:
   struct Session;
+  struct ClosedSession;
+  static constexpr int kClosedRemembered = 16;
   void watch_models(std::uint64_t now_ns);
   double model_weight(int hand) const;
   void handle_plain(std::span<const std::uint8_t> datagram, std::uint64_t now_ns);
@@ -193,6 +195,8 @@ class HapticCore {
   const VisualReport* visual_;
   const Endpoint* peer_ = nullptr;  // the sender of the datagram being handled
   std::unique_ptr<Session[]> sessions_;
+  std::unique_ptr<ClosedSession[]> closed_;  // the last kClosedRemembered sessions closed (with a key)
+  unsigned closed_next_ = 0;
   std::unique_ptr<ServerStats> stats_;
   std::unique_ptr<protocol::Message> message_;
   std::unique_ptr<protocol::Message> reply_;

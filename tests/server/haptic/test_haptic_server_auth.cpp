@@ -265,6 +265,35 @@ TEST(HapticServerAuth, ForgedReplayedAndMisaddressedDatagramsAreDroppedCountedAn
               static_cast<unsigned long long>(expected_replayed), static_cast<unsigned long long>(expected_wrong_peer));
 }
 
+// A network that duplicates or delays datagrams delivers some after the Bye that closed their
+// session. Authentic copies of what the session already sent are replays (the relay's duplicate of
+// the Bye made CI's chaos run count one `unknown_session` in ~100 runs); anything else naming the
+// closed session, from its own address or another, stays `unknown_session`.
+TEST(HapticServerAuth, LateCopiesOfAClosedSessionsDatagramsAreCountedAsReplays) {
+  RunningServer s(keyed());
+  AuthClient c(s.server.port(), key_of(1));
+  AuthClient other(s.server.port(), key_of(1));
+  ASSERT_NE(c.hello(), 0u);
+  for (std::uint64_t k = 1; k <= 5; ++k) ASSERT_FALSE(std::isnan(c.press(-0.002, k)));
+  const std::vector<std::uint8_t> pose = c.last_sent;
+  c.send(protocol::Bye{c.plain.session});
+  const std::vector<std::uint8_t> bye = c.last_sent;
+  std::this_thread::sleep_for(milliseconds(20));
+  c.send_raw(bye);   // the network's copy of the Bye
+  c.send_raw(pose);  // a pose delayed past the Bye, then duplicated
+  c.send_raw(pose);
+  c.send(c.plain.pose_at(-0.002, 6));  // authentic and new, but its session is gone
+  other.send_raw(bye);                 // the Bye's copy from another address
+  EXPECT_EQ(c.receive(50).type, MessageType::kNone) << "nothing answers a closed session";
+  s.halt();
+  const ServerStats& st = s.server.stats();
+  EXPECT_EQ(st.sessions_closed, 1u);
+  EXPECT_EQ(rejected(s.server, RejectReason::kReplayed), 3u);
+  EXPECT_EQ(rejected(s.server, RejectReason::kUnknownSession), 2u);
+  EXPECT_EQ(st.unknown_session, 2u);
+  EXPECT_EQ(st.replies, 5u);
+}
+
 TEST(HapticServerAuth, ANewHelloReplacesItsPeersSessionOnlyOnceItsClientProvesTheSessionKey) {
   ServerOptions o = keyed();
   o.pending_timeout_s = 0.2;
