@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <mutex>
 #include <numbers>
 #include <stdexcept>
 
@@ -216,13 +215,6 @@ bool point_penetration(dGeomID geom, const Eigen::Vector3d& p, double& depth, Ei
 }
 
 }  // namespace detail
-
-void ensure_ode_for_this_thread() {
-  static std::once_flag once;
-  std::call_once(once, [] { dInitODE2(0); });
-  thread_local bool allocated = false;
-  if (!allocated) allocated = dAllocateODEDataForThread(dAllocateMaskAll) != 0;
-}
 
 RigidWorld::RigidWorld(const SceneDesc& scene) : dt_(scene.dt_s) {
   ensure_ode_for_this_thread();

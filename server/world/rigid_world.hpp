@@ -13,13 +13,13 @@
 #include <vector>
 
 #include "hand_models/hand_model.hpp"
+#include "hand_models/spring/spring_hand_rig.hpp"
 #include "server/world/mesh_sdf.hpp"
 #include "server/world/scene.hpp"
 
 namespace hapticd::world {
 
-// Calls dInitODE2 once per process and dAllocateODEDataForThread for the calling thread.
-void ensure_ode_for_this_thread();
+using hand::ensure_ode_for_this_thread;  // spring_hand_rig.hpp
 
 struct RigidBodyState {
   Eigen::Vector3d p_WO = Eigen::Vector3d::Zero();  // object frame origin (as in the scene), m

@@ -1,0 +1,315 @@
+#include "hand_models/spring/spring_hand_rig.hpp"
+
+#include <Eigen/Eigenvalues>
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <mutex>
+
+namespace hapticd::hand {
+
+void ensure_ode_for_this_thread() {
+  static std::once_flag once;
+  std::call_once(once, [] { dInitODE2(0); });
+  thread_local bool allocated = false;
+  if (!allocated) allocated = dAllocateODEDataForThread(dAllocateMaskAll) != 0;
+}
+
+}  // namespace hapticd::hand
+
+namespace hapticd::hand::spring {
+namespace {
+
+// Palm box (hand frame; seed 002 gives no sizes: the procedural hand's palm, procedural_hand.cpp,
+// with its trapezoid's mean width).
+constexpr double kPalmHalfWidth_m = 0.037, kPalmHalfLength_m = 0.045, kPalmHalfThickness_m = 0.0125;
+// The point mass joining a base joint's two hinges (section 4.6.1): this share of the proximal
+// phalanx's mass, in a sphere of half the base's flesh radius.
+constexpr double kBaseMassShare = 0.1;
+
+Eigen::Vector3d vec(const dReal* p) { return {p[0], p[1], p[2]}; }
+Eigen::Quaterniond quat(const dReal* q) { return {q[0], q[1], q[2], q[3]}; }  // ODE: w, x, y, z
+
+void set_pose(dBodyID b, const Eigen::Vector3d& p, const Eigen::Matrix3d& R) {
+  dBodySetPosition(b, p.x(), p.y(), p.z());
+  const Eigen::Quaterniond q(R);
+  const dQuaternion dq = {q.w(), q.x(), q.y(), q.z()};
+  dBodySetQuaternion(b, dq);
+}
+
+// The hinge of DoF `dof` in the hand frame: the axis of the rotation a small change of that angle
+// turns the child segment by (R(q + e) R(q - e)^T), so the skeleton's conventions (mirroring,
+// the thumb's roll) carry over as they are.
+Eigen::Vector3d hinge_axis_in_hand(const HandJointAngles& q, int dof, bool left) {
+  constexpr double e = 1e-6;
+  const int finger = dof / 4, k = dof % 4;
+  const int segment = 3 * finger + std::max(k - 1, 0);
+  Eigen::Matrix<double, kHandJointDofs, 1> plus = q.vector(), minus = q.vector();
+  plus[dof] += e;
+  minus[dof] -= e;
+  const Eigen::Matrix3d dR = skeleton_pose(HandJointAngles::from_vector(plus), left).R[segment] *
+                             skeleton_pose(HandJointAngles::from_vector(minus), left).R[segment].transpose();
+  const Eigen::AngleAxisd aa(dR);
+  return aa.axis();
+}
+
+// The longest explicit step of a spring-damper (k, b) on inertia I: h^2 k / I + 2 h b / I <= 1.
+double stable_step(double k, double b, double I) {
+  if (!(I > 0)) return 0;
+  const double w2 = k / I, c = b / I;
+  if (w2 <= 0) return c > 0 ? 0.5 / c : std::numeric_limits<double>::infinity();
+  return (-c + std::sqrt(c * c + w2)) / w2;
+}
+
+Eigen::Matrix3d inertia_W(dBodyID b) {
+  dMass m;
+  dBodyGetMass(b, &m);
+  Eigen::Matrix3d I;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) I(r, c) = m.I[4 * r + c];
+  const Eigen::Matrix3d R = quat(dBodyGetQuaternion(b)).toRotationMatrix();
+  return R * I * R.transpose();
+}
+
+// Moment of inertia of bodies about the axis through `anchor`.
+double inertia_about(std::initializer_list<dBodyID> bodies, const Eigen::Vector3d& anchor, const Eigen::Vector3d& a) {
+  double I = 0;
+  for (dBodyID b : bodies) {
+    dMass m;
+    dBodyGetMass(b, &m);
+    const Eigen::Vector3d r = vec(dBodyGetPosition(b)) - anchor;
+    I += a.dot(inertia_W(b) * a) + m.mass * r.cross(a).squaredNorm();
+  }
+  return I;
+}
+
+}  // namespace
+
+SpringHandRig::SpringHandRig(dWorldID world, dSpaceID space, const SpringHandParams& params, bool left,
+                             const TrackedHand& start)
+    : params_(params), left_(left), tracked_(start), tracked_before_(start) {
+  const SkeletonPose s = skeleton_pose(start.angles, left);
+  const Eigen::Matrix3d R_W = start.q_W.normalized().toRotationMatrix();
+  const auto to_W = [&](const Eigen::Vector3d& p_H) -> Eigen::Vector3d { return start.p_W + R_W * p_H; };
+  const auto set_category = [](dGeomID g) {
+    dGeomSetCategoryBits(g, kSpringHandCategory);
+    dGeomSetCollideBits(g, ~kSpringHandCategory);
+  };
+
+  palm_ = dBodyCreate(world);
+  {
+    dMass m;
+    const double lx = 2 * kPalmHalfWidth_m, ly = 2 * kPalmHalfLength_m, lz = 2 * kPalmHalfThickness_m;
+    dMassSetBoxTotal(&m, params.density_kg_m3 * lx * ly * lz + params.palm_extra_mass_kg, lx, ly, lz);
+    dBodySetMass(palm_, &m);
+    total_mass_kg_ += m.mass;
+    palm_geom_ = dCreateBox(space, lx, ly, lz);
+    dGeomSetBody(palm_geom_, palm_);
+    set_category(palm_geom_);
+  }
+  set_pose(palm_, start.p_W, R_W);
+
+  // A capsule is along its geom's z; the phalanx's body frame has the bone along y.
+  dMatrix3 capsule_offset;
+  dRFrom2Axes(capsule_offset, 1, 0, 0, 0, 0, -1);  // columns x = (1,0,0), y = (0,0,-1): z -> body y
+  for (int f = 0; f < kHandFingers; ++f) {
+    const FingerGeometry& g = finger_geometry()[f];
+    for (int k = 0; k < 3; ++k) {
+      const int i = 3 * f + k;
+      const double r = 0.5 * (g.radius[k] + g.radius[k + 1]);
+      const double length = k < 2 ? g.length[k] : g.length[k] - r;  // the distal's round end at the tip
+      const Eigen::Vector3d axis_H = (s.joints[f][k + 1] - s.joints[f][k]).normalized();
+      const Eigen::Vector3d centre_H = s.joints[f][k] + 0.5 * length * axis_H;
+      phalanx_[i] = dBodyCreate(world);
+      dMass m;
+      dMassSetCapsule(&m, params.density_kg_m3, 2, r, length);
+      dBodySetMass(phalanx_[i], &m);
+      total_mass_kg_ += m.mass;
+      set_pose(phalanx_[i], to_W(centre_H), R_W * s.R[i]);
+      phalanx_geom_[i] = dCreateCapsule(space, r, length);
+      dGeomSetBody(phalanx_geom_[i], phalanx_[i]);
+      dGeomSetOffsetRotation(phalanx_geom_[i], capsule_offset);
+      set_category(phalanx_geom_[i]);
+      if (k == 0) {
+        base_[f] = dBodyCreate(world);
+        dMass mb;
+        dMassSetSphereTotal(&mb, kBaseMassShare * m.mass, 0.5 * g.radius[0]);
+        dBodySetMass(base_[f], &mb);
+        total_mass_kg_ += mb.mass;
+        set_pose(base_[f], to_W(s.joints[f][0]), R_W);
+      }
+    }
+    const Eigen::Vector3d tip_W = to_W(s.joints[f][3]);
+    const Eigen::Isometry3d distal = phalanx_pose(3 * f + 2);
+    tip_in_distal_[f] = distal.inverse() * tip_W;
+    for (int k = 0; k < 4; ++k) {
+      const int dof = 4 * f + k;
+      dBodyID child = k == 0 ? base_[f] : phalanx_[3 * f + k - 1];
+      dBodyID parent = k == 0 ? palm_ : k == 1 ? base_[f] : phalanx_[3 * f + k - 2];
+      const Eigen::Vector3d anchor = to_W(s.joints[f][std::max(k - 1, 0)]);
+      const Eigen::Vector3d axis = R_W * hinge_axis_in_hand(start.angles, dof, left);
+      hinge_[dof] = dJointCreateHinge(world, nullptr);
+      dJointAttach(hinge_[dof], child, parent);  // the angle and its torque: the child's about the axis
+      dJointSetHingeAnchor(hinge_[dof], anchor.x(), anchor.y(), anchor.z());
+      dJointSetHingeAxis(hinge_[dof], axis.x(), axis.y(), axis.z());
+      angle_at_build_[dof] = start.angles.vector()[dof];
+    }
+  }
+  for (Eigen::Vector3d& f : f_ls_) f.setZero();
+
+  // Stability: each joint spring on what it turns with its parent held (the rest of the finger as
+  // one body), each fingertip spring on the distal phalanx alone, the palm's on the palm alone.
+  double h = std::numeric_limits<double>::infinity();
+  for (int f = 0; f < kHandFingers; ++f) {
+    const dBodyID p0 = phalanx_[3 * f], p1 = phalanx_[3 * f + 1], p2 = phalanx_[3 * f + 2];
+    for (int k = 0; k < 4; ++k) {
+      const int dof = 4 * f + k;
+      const Eigen::Vector3d a = joint_axis_W(dof), c = joint_anchor_W(dof);
+      const double I = k == 0   ? inertia_about({base_[f], p0, p1, p2}, c, a)
+                       : k == 1 ? inertia_about({p0, p1, p2}, c, a)
+                       : k == 2 ? inertia_about({p1, p2}, c, a)
+                                : inertia_about({p2}, c, a);
+      h = std::min(h, stable_step(params.joint.k, params.joint.b, I));
+    }
+    // The tip spring turns the distal phalanx about its joint with lever |d| (worst: d normal to it).
+    const Eigen::Vector3d c = joint_anchor_W(4 * f + 3);
+    const double d2 = (tip_W(f) - c).squaredNorm();
+    const double I_tip = inertia_about({p2}, c, joint_axis_W(4 * f + 3));
+    h = std::min(h, stable_step(params.tip.k * d2, params.tip.b * d2, I_tip));
+  }
+  dMass palm_mass;
+  dBodyGetMass(palm_, &palm_mass);
+  h = std::min(h, stable_step(params.palm_linear.k, params.palm_linear.b, palm_mass.mass));
+  const Eigen::Matrix3d I_palm =
+      Eigen::Map<const Eigen::Matrix<dReal, 3, 4, Eigen::RowMajor>>(palm_mass.I).leftCols<3>();
+  h = std::min(h, stable_step(params.palm_torsional.k, params.palm_torsional.b,
+                              Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(I_palm).eigenvalues().minCoeff()));
+  max_stable_step_s_ = h;
+}
+
+SpringHandRig::~SpringHandRig() {
+  for (dJointID j : hinge_)
+    if (j) dJointDestroy(j);
+  for (dGeomID g : phalanx_geom_)
+    if (g) dGeomDestroy(g);
+  if (palm_geom_) dGeomDestroy(palm_geom_);
+  for (dBodyID b : phalanx_)
+    if (b) dBodyDestroy(b);
+  for (dBodyID b : base_)
+    if (b) dBodyDestroy(b);
+  if (palm_) dBodyDestroy(palm_);
+}
+
+void SpringHandRig::set_tracked(const TrackedHand& reading) {
+  tracked_before_ = tracked_;
+  tracked_ = reading;
+  tracked_.q_W.normalize();
+  steps_between_readings_ = std::max(steps_since_reading_, 1);
+  steps_since_reading_ = 0;
+}
+
+Eigen::Vector3d SpringHandRig::tracked_tip_in_hand(const HandJointAngles& a, int finger) const {
+  return skeleton_pose(a, left_).joints[finger][3];
+}
+
+Eigen::Vector3d SpringHandRig::spring_tip_in_hand(int finger) const {
+  return palm_orientation().conjugate() * (tip_W(finger) - palm_position());
+}
+
+void SpringHandRig::apply_springs(double h) {
+  const double interval = steps_between_readings_ * h;  // between the last two tracker readings, s
+  const Eigen::Matrix<double, kHandJointDofs, 1> theta_t = tracked_.angles.vector(),
+                                                 omega_t = (theta_t - tracked_before_.angles.vector()) / interval;
+  const HandJointAngles theta_s = joint_angles();
+  const Eigen::Matrix<double, kHandJointDofs, 1> omega_s = joint_rates(), theta_s_v = theta_s.vector();
+  for (int dof = 0; dof < kHandJointDofs; ++dof) {
+    torque_[dof] = joint_spring_torque(params_.joint, theta_t[dof], theta_s_v[dof], omega_s[dof], omega_t[dof]);
+    dJointAddHingeTorque(hinge_[dof], torque_[dof]);
+  }
+
+  // The palm (section 4.3).
+  const Eigen::Vector3d p_s = palm_position(), v_s = vec(dBodyGetLinearVel(palm_)),
+                        w_s = vec(dBodyGetAngularVel(palm_));
+  const Eigen::Quaterniond q_s = palm_orientation();
+  palm_force_ =
+      linear_spring_force(params_.palm_linear, tracked_.p_W, p_s, v_s, (tracked_.p_W - tracked_before_.p_W) / interval);
+  // The spring palm's rotation over this step from its angular velocity (section 4.3's suggestion
+  // for a simulator that has one), the tracked palm's between its readings.
+  const Eigen::Quaterniond q_ws(
+      Eigen::AngleAxisd(w_s.norm() * h, w_s.norm() > 0 ? Eigen::Vector3d(w_s.normalized()) : Eigen::Vector3d::UnitX()));
+  palm_torque_ = palm_restoring_torque(params_.palm_torsional.k, q_s, tracked_.q_W) +
+                 palm_damping_torque(params_.palm_torsional.b, q_ws, tracked_.q_W * tracked_before_.q_W.conjugate(),
+                                     steps_between_readings_, h);
+  dBodyAddForce(palm_, palm_force_.x(), palm_force_.y(), palm_force_.z());
+  dBodyAddTorque(palm_, palm_torque_.x(), palm_torque_.y(), palm_torque_.z());
+
+  // The fingertips (section 4.4), and f_ls of section 4.5: the same spring in the palm's frame.
+  const Eigen::Matrix3d R_s = q_s.toRotationMatrix();
+  for (int f = 0; f < kHandFingers; ++f) {
+    const Eigen::Vector3d tip_t_H = tracked_tip_in_hand(tracked_.angles, f),
+                          tip_t0_H = tracked_tip_in_hand(tracked_before_.angles, f);
+    const Eigen::Vector3d tip_t = tracked_.p_W + tracked_.q_W * tip_t_H,
+                          tip_t0 = tracked_before_.p_W + tracked_before_.q_W * tip_t0_H;
+    const Eigen::Vector3d tip_s = tip_W(f);
+    dVector3 v;
+    dBodyGetPointVel(phalanx_[3 * f + 2], tip_s.x(), tip_s.y(), tip_s.z(), v);
+    const Eigen::Vector3d v_tip = vec(v);
+    const Eigen::Vector3d f_tip = linear_spring_force(params_.tip, tip_t, tip_s, v_tip, (tip_t - tip_t0) / interval);
+    dBodyAddForceAtPos(phalanx_[3 * f + 2], f_tip.x(), f_tip.y(), f_tip.z(), tip_s.x(), tip_s.y(), tip_s.z());
+    const Eigen::Vector3d v_rel_H = R_s.transpose() * (v_tip - v_s - w_s.cross(tip_s - p_s));
+    f_ls_[f] = R_s * linear_spring_force(params_.tip, tip_t_H, R_s.transpose() * (tip_s - p_s), v_rel_H,
+                                         (tip_t_H - tip_t0_H) / interval);
+  }
+  ++steps_since_reading_;
+}
+
+HandJointAngles SpringHandRig::joint_angles() const {
+  Eigen::Matrix<double, kHandJointDofs, 1> q;
+  for (int dof = 0; dof < kHandJointDofs; ++dof) q[dof] = angle_at_build_[dof] + dJointGetHingeAngle(hinge_[dof]);
+  return HandJointAngles::from_vector(q);
+}
+
+Eigen::Matrix<double, kHandJointDofs, 1> SpringHandRig::joint_rates() const {
+  Eigen::Matrix<double, kHandJointDofs, 1> w;
+  for (int dof = 0; dof < kHandJointDofs; ++dof) w[dof] = dJointGetHingeAngleRate(hinge_[dof]);
+  return w;
+}
+
+Eigen::Vector3d SpringHandRig::palm_position() const { return vec(dBodyGetPosition(palm_)); }
+Eigen::Quaterniond SpringHandRig::palm_orientation() const { return quat(dBodyGetQuaternion(palm_)); }
+
+Eigen::Isometry3d SpringHandRig::phalanx_pose(int phalanx) const {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = quat(dBodyGetQuaternion(phalanx_[phalanx])).toRotationMatrix();
+  T.translation() = vec(dBodyGetPosition(phalanx_[phalanx]));
+  return T;
+}
+
+Eigen::Vector3d SpringHandRig::tip_W(int finger) const { return phalanx_pose(3 * finger + 2) * tip_in_distal_[finger]; }
+
+Eigen::Vector3d SpringHandRig::joint_axis_W(int dof) const {
+  dVector3 a;
+  dJointGetHingeAxis(hinge_[dof], a);
+  return vec(a);
+}
+
+Eigen::Vector3d SpringHandRig::joint_anchor_W(int dof) const {
+  dVector3 a;
+  dJointGetHingeAnchor(hinge_[dof], a);
+  return vec(a);
+}
+
+double SpringHandRig::feedback(int finger, bool touching, const Eigen::Vector3d& n_W) const {
+  if (!touching) return 0.0;
+  const Eigen::Vector3d n = n_W.squaredNorm() > 0 ? Eigen::Vector3d(n_W.normalized())
+                                                  : Eigen::Vector3d(phalanx_pose(3 * finger + 2).linear().col(2));
+  const Eigen::Vector3d tip = tip_W(finger);
+  std::array<Eigen::Vector3d, 3> f_tau;
+  for (int k = 0; k < 3; ++k) {
+    const int dof = 4 * finger + 1 + k;
+    f_tau[k] = flexion_torque_force(joint_axis_W(dof), joint_anchor_W(dof), tip, torque_[dof]);
+  }
+  return glove_feedback(params_.feedback_a, f_tau, f_ls_[finger], n);
+}
+
+}  // namespace hapticd::hand::spring
