@@ -2,14 +2,15 @@
 // What the world and the haptic loop need from any hand model (DESIGN.md section 2): its handles
 // and the frames devices drive them by, one step toward its targets with the contacts the world
 // found, its skin points, the handle-space force model the haptic loop renders (seed 004 section
-// 3), and a reset. The deformable FEM hand of seed 004 (FemHand) implements it; the articulated
-// spring hand of seed 002, the contact-point hand of seed 001 and the soft-pad hand of seed 000 are
-// to implement it too, chosen by a scene's "model", without the haptic loop knowing which it renders.
+// 3), and a reset. The deformable FEM hand of seed 004 (FemHand) and the articulated spring hand of
+// seed 002 (spring::SpringHand) implement it; the contact-point hand of seed 001 and the soft-pad
+// hand of seed 000 are to implement it too, chosen by a scene's "model", without the haptic loop
+// knowing which it renders.
 //
 // Contacts: the world finds them against a hand's flesh (flesh.hpp), a tet mesh whose contacts are
 // points embedded in its tets, the FEM hand's and every deformable object's alike. A hand model
-// without such flesh (a rigid hand of seeds 001 and 002) returns none and will take its contacts at
-// its skin points on its links (issue 18); until then the world refuses to build it.
+// without such flesh (a rigid hand of seeds 001 and 002) returns none; made of ODE bodies
+// (spring/ode_hand.hpp), it touches the world through ODE's contacts instead.
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include <string>

@@ -107,7 +107,6 @@ SpringHandRig::SpringHandRig(dWorldID world, dSpaceID space, const SpringHandPar
     dGeomSetBody(palm_geom_, palm_);
     set_category(palm_geom_);
   }
-  set_pose(palm_, start.p_W, R_W);
 
   // A capsule is along its geom's z; the phalanx's body frame has the bone along y.
   dMatrix3 capsule_offset;
@@ -118,14 +117,12 @@ SpringHandRig::SpringHandRig(dWorldID world, dSpaceID space, const SpringHandPar
       const int i = 3 * f + k;
       const double r = 0.5 * (g.radius[k] + g.radius[k + 1]);
       const double length = k < 2 ? g.length[k] : g.length[k] - r;  // the distal's round end at the tip
-      const Eigen::Vector3d axis_H = (s.joints[f][k + 1] - s.joints[f][k]).normalized();
-      const Eigen::Vector3d centre_H = s.joints[f][k] + 0.5 * length * axis_H;
       phalanx_[i] = dBodyCreate(world);
       dMass m;
       dMassSetCapsule(&m, params.density_kg_m3, 2, r, length);
       dBodySetMass(phalanx_[i], &m);
       total_mass_kg_ += m.mass;
-      set_pose(phalanx_[i], to_W(centre_H), R_W * s.R[i]);
+      capsule_length_[i] = length;
       phalanx_geom_[i] = dCreateCapsule(space, r, length);
       dGeomSetBody(phalanx_geom_[i], phalanx_[i]);
       dGeomSetOffsetRotation(phalanx_geom_[i], capsule_offset);
@@ -136,9 +133,16 @@ SpringHandRig::SpringHandRig(dWorldID world, dSpaceID space, const SpringHandPar
         dMassSetSphereTotal(&mb, kBaseMassShare * m.mass, 0.5 * g.radius[0]);
         dBodySetMass(base_[f], &mb);
         total_mass_kg_ += mb.mass;
-        set_pose(base_[f], to_W(s.joints[f][0]), R_W);
       }
     }
+  }
+  set_body_poses(start);
+  if (!params.gravity) {
+    dBodySetGravityMode(palm_, 0);
+    for (dBodyID b : base_) dBodySetGravityMode(b, 0);
+    for (dBodyID b : phalanx_) dBodySetGravityMode(b, 0);
+  }
+  for (int f = 0; f < kHandFingers; ++f) {
     const Eigen::Vector3d tip_W = to_W(s.joints[f][3]);
     const Eigen::Isometry3d distal = phalanx_pose(3 * f + 2);
     tip_in_distal_[f] = distal.inverse() * tip_W;
@@ -187,6 +191,49 @@ SpringHandRig::SpringHandRig(dWorldID world, dSpaceID space, const SpringHandPar
   max_stable_step_s_ = h;
 }
 
+void SpringHandRig::set_body_poses(const TrackedHand& t) {
+  const SkeletonPose s = skeleton_pose(t.angles, left_);
+  const Eigen::Matrix3d R_W = t.q_W.normalized().toRotationMatrix();
+  set_pose(palm_, t.p_W, R_W);
+  for (int f = 0; f < kHandFingers; ++f) {
+    set_pose(base_[f], t.p_W + R_W * s.joints[f][0], R_W);
+    for (int k = 0; k < 3; ++k) {
+      const int i = 3 * f + k;
+      const Eigen::Vector3d axis_H = (s.joints[f][k + 1] - s.joints[f][k]).normalized();
+      set_pose(phalanx_[i], t.p_W + R_W * (s.joints[f][k] + 0.5 * capsule_length_[i] * axis_H), R_W * s.R[i]);
+    }
+  }
+}
+
+void SpringHandRig::place(const TrackedHand& t) {
+  set_body_poses(t);
+  const auto rest = [](dBodyID b) {
+    dBodySetLinearVel(b, 0, 0, 0);
+    dBodySetAngularVel(b, 0, 0, 0);
+  };
+  rest(palm_);
+  for (dBodyID b : base_) rest(b);
+  for (dBodyID b : phalanx_) rest(b);
+  tracked_ = tracked_before_ = t;
+  tracked_.q_W.normalize();
+  tracked_before_.q_W.normalize();
+  steps_since_reading_ = 0;
+  steps_between_readings_ = 1;
+}
+
+bool SpringHandRig::sane(double max_speed_m_s, double max_distance_m) const {
+  const auto ok = [&](dBodyID b) {
+    const Eigen::Vector3d p = vec(dBodyGetPosition(b)), v = vec(dBodyGetLinearVel(b)), w = vec(dBodyGetAngularVel(b));
+    const Eigen::Quaterniond q = quat(dBodyGetQuaternion(b));
+    return p.allFinite() && v.allFinite() && w.allFinite() && q.coeffs().allFinite() && v.norm() <= max_speed_m_s &&
+           (p - tracked_.p_W).norm() <= max_distance_m;
+  };
+  bool all = ok(palm_);
+  for (dBodyID b : base_) all = all && ok(b);
+  for (dBodyID b : phalanx_) all = all && ok(b);
+  return all;
+}
+
 SpringHandRig::~SpringHandRig() {
   for (dJointID j : hinge_)
     if (j) dJointDestroy(j);
@@ -201,7 +248,7 @@ SpringHandRig::~SpringHandRig() {
 }
 
 void SpringHandRig::set_tracked(const TrackedHand& reading) {
-  tracked_before_ = tracked_;
+  tracked_before_ = steps_since_reading_ > 0 ? tracked_ : reading;
   tracked_ = reading;
   tracked_.q_W.normalize();
   steps_between_readings_ = std::max(steps_since_reading_, 1);
@@ -231,15 +278,20 @@ void SpringHandRig::apply_springs(double h) {
   const Eigen::Vector3d p_s = palm_position(), v_s = vec(dBodyGetLinearVel(palm_)),
                         w_s = vec(dBodyGetAngularVel(palm_));
   const Eigen::Quaterniond q_s = palm_orientation();
-  palm_force_ =
-      linear_spring_force(params_.palm_linear, tracked_.p_W, p_s, v_s, (tracked_.p_W - tracked_before_.p_W) / interval);
+  const Eigen::Vector3d v_t = tracked_.has_velocity ? tracked_.v_W : (tracked_.p_W - tracked_before_.p_W) / interval;
+  palm_force_ = linear_spring_force(params_.palm_linear, tracked_.p_W, p_s, v_s, v_t);
   // The spring palm's rotation over this step from its angular velocity (section 4.3's suggestion
   // for a simulator that has one), the tracked palm's between its readings.
   const Eigen::Quaterniond q_ws(
       Eigen::AngleAxisd(w_s.norm() * h, w_s.norm() > 0 ? Eigen::Vector3d(w_s.normalized()) : Eigen::Vector3d::UnitX()));
-  palm_torque_ = palm_restoring_torque(params_.palm_torsional.k, q_s, tracked_.q_W) +
-                 palm_damping_torque(params_.palm_torsional.b, q_ws, tracked_.q_W * tracked_before_.q_W.conjugate(),
-                                     steps_between_readings_, h);
+  const double w_t = tracked_.w_W.norm();
+  const Eigen::Quaterniond q_wt =
+      tracked_.has_velocity ? Eigen::Quaterniond(Eigen::AngleAxisd(
+                                  w_t * h, w_t > 0 ? Eigen::Vector3d(tracked_.w_W / w_t) : Eigen::Vector3d::UnitX()))
+                            : Eigen::Quaterniond(tracked_.q_W * tracked_before_.q_W.conjugate());
+  palm_torque_ =
+      palm_restoring_torque(params_.palm_torsional.k, q_s, tracked_.q_W) +
+      palm_damping_torque(params_.palm_torsional.b, q_ws, q_wt, tracked_.has_velocity ? 1 : steps_between_readings_, h);
   dBodyAddForce(palm_, palm_force_.x(), palm_force_.y(), palm_force_.z());
   dBodyAddTorque(palm_, palm_torque_.x(), palm_torque_.y(), palm_torque_.z());
 
@@ -254,7 +306,12 @@ void SpringHandRig::apply_springs(double h) {
     dVector3 v;
     dBodyGetPointVel(phalanx_[3 * f + 2], tip_s.x(), tip_s.y(), tip_s.z(), v);
     const Eigen::Vector3d v_tip = vec(v);
-    const Eigen::Vector3d f_tip = linear_spring_force(params_.tip, tip_t, tip_s, v_tip, (tip_t - tip_t0) / interval);
+    // With a measured palm velocity, the tracked tip moves with the palm, plus its fingers' motion.
+    const Eigen::Vector3d v_tip_t = tracked_.has_velocity
+                                        ? Eigen::Vector3d(tracked_.v_W + tracked_.w_W.cross(tip_t - tracked_.p_W) +
+                                                          tracked_.q_W * ((tip_t_H - tip_t0_H) / interval))
+                                        : Eigen::Vector3d((tip_t - tip_t0) / interval);
+    const Eigen::Vector3d f_tip = linear_spring_force(params_.tip, tip_t, tip_s, v_tip, v_tip_t);
     dBodyAddForceAtPos(phalanx_[3 * f + 2], f_tip.x(), f_tip.y(), f_tip.z(), tip_s.x(), tip_s.y(), tip_s.z());
     const Eigen::Vector3d v_rel_H = R_s.transpose() * (v_tip - v_s - w_s.cross(tip_s - p_s));
     f_ls_[f] = R_s * linear_spring_force(params_.tip, tip_t_H, R_s.transpose() * (tip_s - p_s), v_rel_H,
@@ -286,6 +343,13 @@ Eigen::Isometry3d SpringHandRig::phalanx_pose(int phalanx) const {
 }
 
 Eigen::Vector3d SpringHandRig::tip_W(int finger) const { return phalanx_pose(3 * finger + 2) * tip_in_distal_[finger]; }
+
+Eigen::Vector3d SpringHandRig::tip_velocity_W(int finger) const {
+  const Eigen::Vector3d p = tip_W(finger);
+  dVector3 v;
+  dBodyGetPointVel(phalanx_[3 * finger + 2], p.x(), p.y(), p.z(), v);
+  return vec(v);
+}
 
 Eigen::Vector3d SpringHandRig::joint_axis_W(int dof) const {
   dVector3 a;

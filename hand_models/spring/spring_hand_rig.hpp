@@ -50,6 +50,7 @@ struct SpringHandParams {
   double density_kg_m3 = 1100.0;                         // phalanx masses proportional to their volume (4.6.2)
   double palm_extra_mass_kg = 0.3;                       // on top of the palm box's own (4.6.2)
   std::array<double, 4> feedback_a{1.0, 1.0, 1.0, 1.0};  // a1 .. a4 of the glove force (4.5)
+  bool gravity = true;                                   // false: the world's gravity leaves the hand alone
 };
 
 // A tracker reading: the palm's pose (the hand frame's) in the world and the 20 joint angles.
@@ -57,6 +58,10 @@ struct TrackedHand {
   Eigen::Vector3d p_W = Eigen::Vector3d::Zero();
   Eigen::Quaterniond q_W = Eigen::Quaterniond::Identity();
   HandJointAngles angles;
+  // The palm's velocity and angular velocity when the tracker measures them (a device's proxy does);
+  // without them, the difference of the last two readings (section 4.3).
+  bool has_velocity = false;
+  Eigen::Vector3d v_W = Eigen::Vector3d::Zero(), w_W = Eigen::Vector3d::Zero();
 };
 
 class SpringHandRig {
@@ -67,8 +72,15 @@ class SpringHandRig {
   SpringHandRig(const SpringHandRig&) = delete;
   SpringHandRig& operator=(const SpringHandRig&) = delete;
 
+  // Moves every body rigidly to the pose `t` gives them (its joint angles too), at rest; the tracked
+  // hand becomes `t` (a re-synced device, a reset).
+  void place(const TrackedHand& t);
+  // Every body's position, orientation and velocities finite, its speed below max_speed_m_s and its
+  // distance from the tracked palm below max_distance_m.
+  bool sane(double max_speed_m_s, double max_distance_m) const;
   // A new tracker reading. Tracked velocities are its difference from the previous reading over
-  // the simulation steps taken since (apply_springs calls; at least one), as in section 4.2.
+  // the simulation steps taken since (apply_springs calls), as in section 4.2; the first reading
+  // after the rig was built or placed, with no step since, has none (zero).
   void set_tracked(const TrackedHand& reading);
   // Adds every spring's force and torque to the bodies for one ODE step of length h.
   void apply_springs(double h);
@@ -83,6 +95,8 @@ class SpringHandRig {
   Eigen::Vector3d palm_position() const;
   Eigen::Quaterniond palm_orientation() const;
   Eigen::Vector3d tip_W(int finger) const;
+  Eigen::Vector3d tip_velocity_W(int finger) const;
+  const SpringHandParams& params() const { return params_; }
   // A phalanx's pose (the skeleton's segment frame: y along the bone, z dorsal), world.
   Eigen::Isometry3d phalanx_pose(int phalanx) const;
   // The hinge of finger DoF `dof` (4 per finger: abduction, flexion 1-3): axis and anchor, world.
@@ -108,6 +122,8 @@ class SpringHandRig {
   double total_mass_kg() const { return total_mass_kg_; }
 
  private:
+  // The bodies' poses for tracked hand `t` (the skeleton's forward kinematics).
+  void set_body_poses(const TrackedHand& t);
   Eigen::Vector3d tracked_tip_in_hand(const HandJointAngles& a, int finger) const;
   Eigen::Vector3d spring_tip_in_hand(int finger) const;
 
@@ -121,6 +137,7 @@ class SpringHandRig {
   std::array<dGeomID, kHandPhalanges> phalanx_geom_{};
   // Per finger DoF: the skeleton's angle where the hinge reads 0 (the angle at build).
   std::array<double, kHandJointDofs> angle_at_build_{};
+  std::array<double, kHandPhalanges> capsule_length_{};  // the cylinder's, between the round ends
   // Per finger: the fingertip in the distal phalanx's body frame.
   std::array<Eigen::Vector3d, kHandFingers> tip_in_distal_;
   TrackedHand tracked_, tracked_before_;

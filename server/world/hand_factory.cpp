@@ -5,6 +5,7 @@
 
 #include "hand_models/fem_hand.hpp"
 #include "hand_models/procedural_handles.hpp"
+#include "hand_models/spring/spring_hand.hpp"
 
 namespace hapticd::world {
 namespace {
@@ -62,6 +63,23 @@ std::unique_ptr<hand::Hand> make_fem_hand(const HandDesc& d, const HandBuild& bu
   return h;
 }
 
+// Seed 002's articulated spring hand, in the rigid world's ODE world.
+std::unique_ptr<hand::Hand> make_spring_hand(const HandDesc& d, const HandBuild& build) {
+  if (!build.ode_world || !build.ode_space)
+    throw std::runtime_error("hands." + d.name + ": the spring hand needs the world's ODE world");
+  hand::spring::SpringHandConfig config;
+  config.left = d.side == HandSide::left;
+  config.handles = handle_count(d.handles);
+  config.friction = d.material.friction;
+  config.friction_static = d.material.static_friction();
+  config.params.gravity = build.gravity_m_s2.squaredNorm() > 0;
+  try {
+    return std::make_unique<hand::spring::SpringHand>(build.ode_world, build.ode_space, config, d.pose.p_W, d.pose.q_W);
+  } catch (const std::invalid_argument& e) {
+    throw std::runtime_error("hands." + d.name + ": " + e.what());
+  }
+}
+
 }  // namespace
 
 std::unique_ptr<hand::Hand> make_hand(const HandDesc& desc, const HandBuild& build) {
@@ -69,12 +87,13 @@ std::unique_ptr<hand::Hand> make_hand(const HandDesc& desc, const HandBuild& bui
     case HandModelKind::fem:
       return make_fem_hand(desc, build);
     case HandModelKind::spring:
+      return make_spring_hand(desc, build);
     case HandModelKind::soft_pad:
     case HandModelKind::contact_point:
       break;
   }
   throw std::runtime_error("hands." + desc.name + ": model \"" + std::string(to_string(desc.model)) +
-                           "\" is not built yet (only \"fem\")");
+                           "\" is not built yet (only \"fem\" and \"spring\")");
 }
 
 }  // namespace hapticd::world

@@ -1,6 +1,8 @@
 #pragma once
 // A scene's hand built as the model its "model" names (DESIGN.md section 2): the world steps it
 // through the Hand interface without knowing which it is.
+#include <ode/ode.h>
+
 #include <Eigen/Core>
 #include <memory>
 
@@ -18,10 +20,13 @@ struct HandBuild {
   hand::DriveParams drive;  // how each handle is pulled toward its target
   // A palm-driven hand's density as a share of its material's (WorldOptions::palm_hand_mass_scale).
   double palm_mass_scale = 1.0;
+  // Where a hand made of ODE bodies (hand::OdeHand: "spring") is built: the rigid world's.
+  dWorldID ode_world = nullptr;
+  dSpaceID ode_space = nullptr;
 };
 
 // The hand `desc` describes, placed at its scene pose, at rest. Throws std::runtime_error naming
-// "hands.<name>" for a model that is not built yet.
+// "hands.<name>" for a model that is not built yet (or not for its handles).
 std::unique_ptr<hand::Hand> make_hand(const HandDesc& desc, const HandBuild& build);
 
 }  // namespace hapticd::world

@@ -216,12 +216,14 @@ bool point_penetration(dGeomID geom, const Eigen::Vector3d& p, double& depth, Ei
 
 }  // namespace detail
 
-RigidWorld::RigidWorld(const SceneDesc& scene) : dt_(scene.dt_s) {
+RigidWorld::RigidWorld(const SceneDesc& scene, bool dynamics_for_hands) : dt_(scene.dt_s) {
   ensure_ode_for_this_thread();
   space_ = dHashSpaceCreate(nullptr);
   contacts_ = dJointGroupCreate(0);
+  hand_joints_.reserve(kMaxHandContacts);
+  hand_feedback_.reserve(kMaxHandContacts);
   // Static geometry alone is collision-only: the dynamics world exists only for rigid bodies.
-  if (scene.needs_rigid_world()) {
+  if (scene.needs_rigid_world() || dynamics_for_hands) {
     world_ = dWorldCreate();
     dWorldSetGravity(world_, scene.gravity_m_s2.x(), scene.gravity_m_s2.y(), scene.gravity_m_s2.z());
     dWorldSetERP(world_, kContactErp);
@@ -589,15 +591,38 @@ void RigidWorld::supports_of(int i, std::vector<BodyContact>& out, double margin
 
 void RigidWorld::near_callback(void* data, dGeomID a, dGeomID b) { static_cast<RigidWorld*>(data)->collide(a, b); }
 
+void RigidWorld::add_hand(hand::OdeHand* hand, int id) {
+  const auto index = static_cast<std::intptr_t>(hands_.size());
+  for (int i = 0; i < hand->num_geoms(); ++i) dGeomSetData(hand->geom(i), reinterpret_cast<void*>(-1 - index));
+  hands_.push_back(hand);
+  hand_ids_.push_back(id);
+}
+
+void RigidWorld::hand_contacts(std::vector<HandContact>& out) const {
+  out.clear();
+  for (size_t k = 0; k < hand_joints_.size(); ++k) {
+    HandContact c = hand_joints_[k].contact;
+    if (k < hand_feedback_.size()) {
+      const dJointFeedback& f = hand_feedback_[k];
+      c.f_W = hand_joints_[k].hand_first ? from_ode(f.f1) : from_ode(f.f2);
+    }
+    out.push_back(c);
+  }
+}
+
 void RigidWorld::collide(dGeomID a, dGeomID b) {
   dBodyID ba = dGeomGetBody(a), bb = dGeomGetBody(b);
   if (ba == nullptr && bb == nullptr) return;
   if (ba && bb && dAreConnectedExcluding(ba, bb, dJointTypeContact)) return;
+  const auto ia = reinterpret_cast<std::intptr_t>(dGeomGetData(a)),
+             ib = reinterpret_cast<std::intptr_t>(dGeomGetData(b));
+  if (ia < 0 && ib < 0) return;  // two hands' geoms: hand-hand contact is not built for rigid hands
+  if (ia < 0 || ib < 0) return collide_hand(ia < 0 ? a : b, ia < 0 ? b : a, ia < 0);
   dContactGeom contacts[kMaxContactsPerPair];
   const int n = dCollide(a, b, kMaxContactsPerPair, contacts, sizeof(dContactGeom));
   if (n <= 0) return;
-  const Object& oa = objects_[reinterpret_cast<std::intptr_t>(dGeomGetData(a))];
-  const Object& ob = objects_[reinterpret_cast<std::intptr_t>(dGeomGetData(b))];
+  const Object& oa = objects_[ia];
+  const Object& ob = objects_[ib];
   for (int k = 0; k < n; ++k) {
     dContact c{};
     c.geom = contacts[k];
@@ -633,6 +658,58 @@ void RigidWorld::collide(dGeomID a, dGeomID b) {
   }
 }
 
+void RigidWorld::collide_hand(dGeomID hand_geom, dGeomID object_geom, bool hand_first) {
+  dContactGeom contacts[kMaxContactsPerPair];
+  dGeomID first = hand_first ? hand_geom : object_geom, second = hand_first ? object_geom : hand_geom;
+  const int n = dCollide(first, second, kMaxContactsPerPair, contacts, sizeof(dContactGeom));
+  if (n <= 0) return;
+  const int h = static_cast<int>(-1 - reinterpret_cast<std::intptr_t>(dGeomGetData(hand_geom)));
+  const int g = static_cast<int>(reinterpret_cast<std::intptr_t>(dGeomGetData(object_geom)));
+  const hand::OdeHand& hand = *hands_[h];
+  const Object& o = objects_[g];
+  int geom = 0;
+  while (geom < hand.num_geoms() && hand.geom(geom) != hand_geom) ++geom;
+  dBodyID b_first = dGeomGetBody(first), b_second = dGeomGetBody(second);
+  for (int k = 0; k < n; ++k) {
+    dContact c{};
+    c.geom = contacts[k];
+    const Eigen::Vector3d p = from_ode(c.geom.pos), normal = from_ode(c.geom.normal);
+    Eigen::Vector3d v_rel = Eigen::Vector3d::Zero();
+    dVector3 v;
+    if (b_first) dBodyGetPointVel(b_first, p.x(), p.y(), p.z(), v), v_rel += from_ode(v);
+    if (b_second) dBodyGetPointVel(b_second, p.x(), p.y(), p.z(), v), v_rel -= from_ode(v);
+    const Eigen::Vector3d v_t = v_rel - v_rel.dot(normal) * normal;
+    const bool sliding = v_t.norm() > kStickSpeed_m_s;
+    const double mu =
+        sliding ? std::sqrt(hand.friction() * o.friction) : std::sqrt(hand.friction_static() * o.friction_static);
+    c.surface.mode = dContactApprox1 | dContactSoftERP | dContactSoftCFM | dContactMu2;
+    c.surface.mu = c.surface.mu2 = mu;
+    c.surface.soft_erp = kContactErp;
+    c.surface.soft_cfm = kContactCfm;
+    if (sliding) {
+      c.surface.mode |= dContactFDir1;
+      const Eigen::Vector3d dir = v_t.normalized();
+      c.fdir1[0] = dir.x(), c.fdir1[1] = dir.y(), c.fdir1[2] = dir.z();
+    }
+    dJointID j = dJointCreateContact(world_, contacts_, &c);
+    dJointAttach(j, b_first, b_second);
+    ++contacts_last_step_;
+    if (static_cast<int>(hand_joints_.size()) >= kMaxHandContacts) continue;
+    HandJoint hj;
+    hj.hand_first = hand_first;
+    hj.contact.hand = hand_ids_[h];
+    hj.contact.handle = geom < hand.num_geoms() ? hand.geom_handle(geom) : -1;
+    hj.contact.object = g;
+    hj.contact.p_W = p;
+    // ODE's normal points from the second geom into the first: out of the object toward the hand.
+    hj.contact.n_W = hand_first ? normal : Eigen::Vector3d(-normal);
+    hj.contact.depth_m = c.geom.depth;
+    hand_joints_.push_back(hj);
+    hand_feedback_.emplace_back();
+    dJointSetFeedback(j, &hand_feedback_.back());
+  }
+}
+
 bool RigidWorld::within_bounds(const RigidBodyState& s) const {
   const bool finite = s.p_WO.allFinite() && s.q_WO.coeffs().allFinite() && s.v_WO.allFinite() && s.w_W.allFinite();
   return finite && s.p_WO.norm() <= bounds_.max_distance_m && s.v_WO.norm() <= bounds_.max_speed_m_s &&
@@ -662,23 +739,31 @@ void RigidWorld::step(double dt) {
   check_bodies();  // states set from outside since the last step
   int bodies = 0;
   for (const Object& o : objects_) bodies += o.body != nullptr;
-  const int n = substeps(dt);
+  int n = substeps(dt);
+  for (const hand::OdeHand* hand : hands_) {
+    const double h_max = hand->max_ode_step_s();
+    if (h_max > 0 && std::isfinite(h_max)) n = std::max(n, static_cast<int>(std::ceil(dt / h_max - 1e-9)));
+  }
   for (int k = 0; k < n; ++k) {
     if (k == 1)
       for (const Object& o : objects_)
         if (o.gravity_held) dBodySetGravityMode(o.body, 0);
     contacts_last_step_ = 0;  // the last substep's
+    hand_joints_.clear();
+    hand_feedback_.clear();
+    for (hand::OdeHand* hand : hands_) hand->before_ode_step(dt / n);
     dSpaceCollide(space_, this, &RigidWorld::near_callback);
     if (bodies <= kExactStepMaxBodies) {
       dWorldStep(world_, dt / n);
     } else {
       dWorldQuickStep(world_, dt / n);
     }
-    dJointGroupEmpty(contacts_);
+    dJointGroupEmpty(contacts_);  // the hands' contact forces stay in hand_feedback_
   }
   for (Object& o : objects_)
     if (o.gravity_held) dBodySetGravityMode(o.body, 1), o.gravity_held = false;
   check_bodies();  // divergence in the step
+  for (hand::OdeHand* hand : hands_) hand->after_ode_steps();
 }
 
 }  // namespace hapticd::world

@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "hand_models/hand_model.hpp"
+#include "hand_models/spring/ode_hand.hpp"
 #include "hand_models/spring/spring_hand_rig.hpp"
 #include "server/world/mesh_sdf.hpp"
 #include "server/world/scene.hpp"
@@ -44,7 +45,9 @@ class RigidWorld {
 
   // Builds every static and rigid object and every joint of `scene`. Throws
   // std::runtime_error naming the object when a shape cannot be built.
-  explicit RigidWorld(const SceneDesc& scene);
+  // With `dynamics_for_hands`, the dynamics world exists even without a rigid body (a scene whose
+  // hand is made of ODE bodies).
+  explicit RigidWorld(const SceneDesc& scene, bool dynamics_for_hands = false);
   ~RigidWorld();
   RigidWorld(const RigidWorld&) = delete;
   RigidWorld& operator=(const RigidWorld&) = delete;
@@ -134,6 +137,23 @@ class RigidWorld {
   // A box's corners or a mesh's vertices, world frame; false (and none) for other shapes.
   bool support_points(int i, std::vector<Eigen::Vector3d>& points_W) const;
 
+  // --- Hands made of ODE bodies (hand::OdeHand), stepped with the objects: each ODE step of step()
+  // is at most as long as every such hand's max_ode_step_s(), and the hands' before_ode_step() and
+  // after_ode_steps() run around them. Their geoms touch objects through ODE's contacts (friction:
+  // the pair's as for objects; no bounce, seed 002 section 4.6.2), not each other. The hand must be
+  // built in ode_world() and space() and outlive nothing of this world.
+  dWorldID ode_world() const { return world_; }
+  // `id`: what the hand's contacts name it by (HandContact::hand).
+  void add_hand(hand::OdeHand* hand, int id);
+  // A hand's contacts in the last ODE step: the force on the hand (N) and the normal out of the
+  // object, toward the hand.
+  struct HandContact {
+    int hand = -1, handle = -1, object = -1;
+    Eigen::Vector3d p_W = Eigen::Vector3d::Zero(), n_W = Eigen::Vector3d::UnitZ(), f_W = Eigen::Vector3d::Zero();
+    double depth_m = 0;
+  };
+  void hand_contacts(std::vector<HandContact>& out) const;
+
   dSpaceID space() const { return space_; }
   dGeomID geom(int i) const { return objects_[i].geom; }
   // Object index of an ODE geom of this world, -1 for a foreign geom.
@@ -155,12 +175,24 @@ class RigidWorld {
   };
   static void near_callback(void* data, dGeomID a, dGeomID b);
   void collide(dGeomID a, dGeomID b);
+  void collide_hand(dGeomID hand_geom, dGeomID object_geom, bool hand_first);
   bool within_bounds(const RigidBodyState& s) const;
   // Resets every body beyond its bounds to its last good pose, at rest; then remembers every pose as good.
   void check_bodies();
 
   dWorldID world_ = nullptr;
   dSpaceID space_ = nullptr;
+  // OdeHands (add_hand), their geoms' data -1 - index; the last ODE step's contacts of theirs, with
+  // the feedback ODE filled (reserved: the vector never moves while the joints point into it).
+  std::vector<hand::OdeHand*> hands_;
+  std::vector<int> hand_ids_;
+  struct HandJoint {
+    HandContact contact;
+    bool hand_first = true;  // the hand's body is the joint's first
+  };
+  static constexpr int kMaxHandContacts = 1024;
+  std::vector<HandJoint> hand_joints_;
+  std::vector<dJointFeedback> hand_feedback_;
   dJointGroupID contacts_ = nullptr;
   std::vector<Object> objects_;
   std::vector<dJointID> joints_;

@@ -23,10 +23,11 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
       gravity_m_s2_(scene.gravity_m_s2),
       constraint_contact_(options.contact.value_or(scene.contact) == ContactModel::constraint),
       options_(options) {
-  bool has_geometry = false;
+  bool has_geometry = false, ode_hands = false;
   for (const ObjectDesc& o : scene.objects) has_geometry = has_geometry || o.kind != BodyKind::deformable;
-  if (has_geometry) {
-    rigid_ = std::make_unique<RigidWorld>(scene);
+  for (const HandDesc& d : scene.hands) ode_hands = ode_hands || d.model == HandModelKind::spring;
+  if (has_geometry || ode_hands) {
+    rigid_ = std::make_unique<RigidWorld>(scene, ode_hands);
     rigid_->set_bounds(options.body_bounds);
   }
   HandBuild hand_build;
@@ -35,13 +36,21 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
   hand_build.solver = options.solver;
   hand_build.drive = options.drive;
   hand_build.palm_mass_scale = options.palm_hand_mass_scale;
+  if (rigid_) hand_build.ode_world = rigid_->ode_world(), hand_build.ode_space = rigid_->space();
   for (const HandDesc& d : scene.hands) {
     HandSlot slot;
     slot.name = d.name;
     slot.model = make_hand(d, hand_build);
-    if (!slot.model->flesh())
-      throw std::runtime_error("hands." + d.name + ": the world's collision needs a hand with flesh (model \"" +
-                               std::string(slot.model->model_name()) + "\" has none)");
+    if (auto* ode_hand = dynamic_cast<hand::OdeHand*>(slot.model.get())) {
+      rigid_->add_hand(ode_hand, static_cast<int>(hands_.size()));
+      if (!options.hand_contacts)
+        for (int i = 0; i < ode_hand->num_geoms(); ++i) dGeomSetCollideBits(ode_hand->geom(i), 0);
+    } else if (!slot.model->flesh()) {
+      throw std::runtime_error("hands." + d.name +
+                               ": the world's collision needs a hand with flesh or ODE bodies "
+                               "(model \"" +
+                               std::string(slot.model->model_name()) + "\" has neither)");
+    }
     hands_.push_back(std::move(slot));
   }
   // Deformable objects only when the scene names them; their hand-contact query only when a hand can touch them.
@@ -64,7 +73,12 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
     b.last.resize(flesh.point_tet->size());
     soft_.push_back(std::move(b));
   };
-  for (int h = 0; h < num_hands(); ++h) add_soft(*hands_[h].model->flesh(), h, -1);
+  for (int h = 0; h < num_hands(); ++h) {
+    hand::Flesh* flesh = hands_[h].model->flesh();
+    hand_soft_.push_back(flesh ? static_cast<int>(soft_.size()) : -1);
+    if (flesh) add_soft(*flesh, h, -1);
+  }
+  flesh_hands_ = static_cast<int>(soft_.size());
   for (int d = 0; d < num_deformables(); ++d) add_soft(detail::flesh_of(*deformables_[d]), -1, d);
   // Hand-hand contact only when the scene has two hands or more: each hand's
   // flesh as a point-location query on its deformed tets, depths from the
@@ -72,13 +86,15 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
   // objects; exact within 1.8 cm of the skin, deeper than half the palm is thick).
   // The same query finds the vertices of rigid meshes and the surface points of deformable objects
   // in a hand's flesh.
-  hand_hand_ = num_hands() >= 2 && options.hand_contacts && options.hand_hand_contacts;
+  // Between hands with flesh only (then hand h's body is soft_[h]).
+  hand_hand_ = num_hands() >= 2 && flesh_hands_ == num_hands() && options.hand_contacts && options.hand_hand_contacts;
   bool meshes = false;
   for (int g = 0; rigid_ && g < rigid_->num_objects(); ++g) meshes = meshes || rigid_->is_mesh(g);
   if (hand_hand_ || ((meshes || !deformables_.empty()) && options.hand_contacts)) {
     for (int i = 0; i < num_hands(); ++i) {
+      if (hand_soft_[i] < 0) continue;
       HandSlot& h = hands_[i];
-      const hand::Flesh& f = soft_[i].flesh;
+      const hand::Flesh& f = soft_[hand_soft_[i]].flesh;
       const hand::SurfaceMesh skin{*f.rest_surface_vertices, *f.surface_triangles};
       Eigen::AlignedBox3d box;
       for (const Eigen::Vector3d& v : skin.vertices) box.extend(v);
@@ -114,6 +130,11 @@ void World::step(double dt_s) {
   snapshot_.linear_model_valid.assign(hands_.size(), false);
   for (int h = 0; h < num_hands(); ++h) {
     hand::Hand& hand = *hands_[h].model;
+    if (hand_soft_[h] < 0) {  // ODE bodies: the rigid world steps them; finish_ode_hands() models them
+      hand.set_step_length(step_dt_);
+      hand.step(nullptr);
+      continue;
+    }
     if (hand_hand_ && constraint_contact_) {
       take_hand_reactions(h);  // in index order: the impulses of the hands that stepped before this one
     } else if (hand_hand_) {
@@ -121,10 +142,11 @@ void World::step(double dt_s) {
     }
     hand.step(options_.linearize ? &snapshot_.linear_models[h] : nullptr);
     snapshot_.linear_model_valid[h] = snapshot_.linear_models[h].K.size() > 0;
-    timings.linearize_ms += soft_[h].flesh.state->timings.linearize_ms;
-    timings.contact_ms += soft_[h].flesh.state->timings.contact_ms;
+    SoftBody& body = soft_[hand_soft_[h]];
+    timings.linearize_ms += body.flesh.state->timings.linearize_ms;
+    timings.contact_ms += body.flesh.state->timings.contact_ms;
     if (hand_hand_) sum_hand_forces(h);
-    remember_impulses(soft_[h]);
+    remember_impulses(body);
   }
   timings.hands_ms = ms_since(t0) - timings.linearize_ms - timings.contact_ms;
   const auto t_deformable = Clock::now();
@@ -135,6 +157,7 @@ void World::step(double dt_s) {
     apply_reactions();
     rigid_->step(step_dt_);
     place_solved_bodies();
+    finish_ode_hands();
   }
   timings.rigid_ms = ms_since(t1);
   record_contacts();
@@ -146,6 +169,16 @@ void World::step(double dt_s) {
   t_s_ += step_dt_;
   publish();
   snapshot_.timings = timings;
+}
+
+void World::finish_ode_hands() {
+  if (flesh_hands_ == num_hands()) return;
+  rigid_->hand_contacts(ode_hand_contacts_);
+  for (int h = 0; h < num_hands(); ++h) {
+    if (hand_soft_[h] >= 0 || !options_.linearize) continue;
+    snapshot_.linear_model_valid[h] =
+        hands_[h].model->linearize_next_step(snapshot_.linear_models[h], hand::ContactLinearization::unilateral);
+  }
 }
 
 }  // namespace hapticd::world

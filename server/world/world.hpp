@@ -251,10 +251,18 @@ class World {
   bool hand_hand_ = false;  // hand-hand contact built (HandSlot::query)
   long steps_ = 0;
   WorldOptions options_;
+  // Before the hands: a hand of ODE bodies (hand::OdeHand) lives in the rigid world's ODE world and
+  // must be destroyed first.
+  std::unique_ptr<RigidWorld> rigid_;
   std::vector<HandSlot> hands_;
   std::vector<std::unique_ptr<DeformableObject>> deformables_;
-  std::unique_ptr<RigidWorld> rigid_;
-  std::vector<SoftBody> soft_;                // the hands, then the deformable objects
+  std::vector<SoftBody> soft_;  // the hands with flesh (hand order), then the deformable objects
+  std::vector<int> hand_soft_;  // per hand, its body in soft_; -1: a hand of ODE bodies (no flesh)
+  int flesh_hands_ = 0;
+  SoftBody& deformable_soft(int d) { return soft_[flesh_hands_ + d]; }
+  // The hands made of ODE bodies, stepped by the rigid world: their contacts and models after its step.
+  void finish_ode_hands();
+  std::vector<RigidWorld::HandContact> ode_hand_contacts_;
   std::vector<hand::PointContact> mirrored_;  // workspace: hand contacts seen from a deformable object
   // A hand's skin vertex in another hand's flesh, at the last collision.
   struct HandHit {

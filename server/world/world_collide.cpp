@@ -92,10 +92,11 @@ void World::collide_all() {
     o.surface_bounds.setEmpty();
     for (int v = 0; v < static_cast<int>(o.body.surface_tet.size()); ++v)
       o.surface_bounds.extend(detail::surface_point(o, v));
-    collide(soft_[num_hands() + d]);
+    collide(deformable_soft(d));
   }
   find_hand_hits();
-  for (int h = 0; h < num_hands(); ++h) collide(soft_[h]);
+  for (int h = 0; h < num_hands(); ++h)
+    if (hand_soft_[h] >= 0) collide(soft_[hand_soft_[h]]);
   // The coming step's external forces as far as known now, for the model of the coming step.
   if (!constraint_contact_)
     for (int h = 0; h < num_hands(); ++h)
@@ -426,7 +427,7 @@ void World::find_hand_hits() {
   for (int h = 0; h < num_hands(); ++h) {
     HandSlot& hand = hands_[h];
     if (!hand.query) continue;
-    const hand::Flesh& flesh = soft_[h].flesh;
+    const hand::Flesh& flesh = soft_[hand_soft_[h]].flesh;
     hand.skin_bounds.setEmpty();
     for (int v = 0; v < flesh.num_points(); ++v) hand.skin_bounds.extend(flesh.point(v, flesh.state->x));
     // Rebuilt (a few ms for a glove's flesh) only when it is asked: another hand, or a mesh or a
@@ -563,7 +564,7 @@ int World::add_rigid_proxy(hand::HandState& s, int d) {
   const int index = static_cast<int>(s.bodies.size());
   s.bodies.push_back(detail::rigid_proxy(*deformables_[d]));
   s.bodies.back().gravity_W = gravity_m_s2_;
-  const SoftBody& own = soft_[num_hands() + d];
+  const SoftBody& own = deformable_soft(d);
   for (size_t k = 0; k < own.flesh.state->contacts.size(); ++k) {
     const hand::PointContact& c = own.flesh.state->contacts[k];
     hand::BodySupport support;

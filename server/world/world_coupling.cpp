@@ -74,7 +74,7 @@ void World::step_deformables() {
       for (int a = 0; a < 4; ++a) o.f_hands_W.segment<3>(3 * t[a]) += s.contacts[k].bary[a] * s.contacts[k].f_W;
     }
     s.contacts.resize(own);
-    remember_impulses(soft_[num_hands() + d]);
+    remember_impulses(deformable_soft(d));
   }
 }
 

@@ -60,6 +60,19 @@ void World::record_contacts() {
       snapshot_.max_penetration_m = std::max(snapshot_.max_penetration_m, r.depth_m);
     }
   }
+  // Hands of ODE bodies: ODE's contacts of the last substep, at skin point 0 (their handle's).
+  for (const RigidWorld::HandContact& c : ode_hand_contacts_) {
+    ContactRecord r;
+    r.hand = c.hand;
+    r.object = c.object;
+    r.point = 0;
+    r.p_W = c.p_W;
+    r.n_W = c.n_W;
+    r.f_W = c.f_W;
+    r.depth_m = c.depth_m;
+    snapshot_.contacts.push_back(r);
+    snapshot_.max_penetration_m = std::max(snapshot_.max_penetration_m, r.depth_m);
+  }
 }
 
 void World::publish() {
@@ -69,6 +82,8 @@ void World::publish() {
   snapshot_.resets = 0;
   for (int h = 0; h < num_hands(); ++h) snapshot_.handles[h] = hands_[h].model->handles();
   for (const SoftBody& b : soft_) snapshot_.resets += b.flesh.state->resets;
+  for (int h = 0; h < num_hands(); ++h)
+    if (hand_soft_[h] < 0) snapshot_.resets += hands_[h].model->resets();
   snapshot_.body_resets = rigid_ ? rigid_->resets() : 0;
   snapshot_.deformables.resize(deformables_.size());
   for (int d = 0; d < num_deformables(); ++d) {

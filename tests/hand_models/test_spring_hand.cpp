@@ -157,6 +157,26 @@ TEST(SpringHandRig, IsBuiltOnTheSkeletonWithItsJointAnglesReadBack) {
   }
 }
 
+TEST(SpringHandRig, PlacedOnAPoseItHasThatPosesJointAnglesAtRest) {
+  OdeWorld w;
+  TrackedHand start;
+  start.angles = rest_joint_angles();
+  SpringHandRig rig(w.world, w.space, SpringHandParams{}, false, start);
+  dBodySetLinearVel(rig.phalanx_body(4), 1, 2, 3);
+  const TrackedHand t = posed_hand(false);
+  rig.place(t);
+  EXPECT_LT((rig.joint_angles().vector() - t.angles.vector()).norm(), 1e-9);
+  EXPECT_LT(rig.joint_rates().norm(), 1e-12);
+  const SkeletonPose s = skeleton_pose(t.angles);
+  for (int f = 0; f < kHandFingers; ++f) EXPECT_LT((rig.tip_W(f) - (t.p_W + t.q_W * s.joints[f][3])).norm(), 1e-9);
+  // Held there by its springs: the first step moves nothing.
+  rig.set_tracked(t);
+  rig.apply_springs(rig.max_stable_step());
+  dWorldStep(w.world, rig.max_stable_step());
+  EXPECT_LT((rig.joint_angles().vector() - t.angles.vector()).norm(), 1e-9);
+  EXPECT_LT((rig.palm_position() - t.p_W).norm(), 1e-12);
+}
+
 struct FollowResult {
   double joint_error = 0, palm_error_m = 0, palm_angle = 0, tip_error_m = 0, largest_joint_error = 0;
   bool diverged = false;

@@ -45,7 +45,19 @@ TEST(World, TheScenesModelPicksTheHandAndTheModelsNotBuiltYetAreRefusedByName) {
   EXPECT_EQ(world.hand(0).model_name(), "fem");
   EXPECT_EQ(world.hand_name(0), "right");
   EXPECT_NO_THROW((void)hand::as_fem(world.hand(0)));
-  for (const HandModelKind kind : {HandModelKind::spring, HandModelKind::soft_pad, HandModelKind::contact_point}) {
+  scene.hands[0].model = HandModelKind::spring;
+  EXPECT_EQ(World(scene).hand(0).model_name(), "spring");
+  // Its glove layouts are not built yet: refused by name.
+  scene.hands[0].handles = HandleSet::phalanges;
+  try {
+    const World refused(scene);
+    ADD_FAILURE() << "a glove's spring hand was built";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("hands.right: the spring hand is driven by its palm only"), std::string::npos)
+        << e.what();
+  }
+  scene.hands[0].handles = HandleSet::palm;
+  for (const HandModelKind kind : {HandModelKind::soft_pad, HandModelKind::contact_point}) {
     scene.hands[0].model = kind;
     try {
       const World refused(scene);

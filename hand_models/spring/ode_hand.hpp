@@ -1,0 +1,30 @@
+#pragma once
+// A hand made of ODE bodies (the rigid hands of seeds 001 and 002): the world's RigidWorld steps its
+// bodies with the objects, in one ODE world, so they touch through ODE's contacts. It has no flesh
+// (Hand::flesh() is null); the world calls these around its ODE steps instead.
+#include <ode/ode.h>
+
+#include "hand_models/hand.hpp"
+
+namespace hapticd::hand {
+
+class OdeHand : public Hand {
+ public:
+  // Before each ODE step of length h: the forces that drive the hand toward its targets.
+  virtual void before_ode_step(double h) = 0;
+  // The longest ODE step its bodies take stably (the world's rigid step is cut to it).
+  virtual double max_ode_step_s() const = 0;
+  // After the world's ODE steps: a hand whose bodies went non-finite, too fast or too far from their
+  // targets is placed back on them, at rest, and the reset counted.
+  virtual void after_ode_steps() = 0;
+  // Coulomb coefficients of its surface: sliding and sticking.
+  virtual double friction() const = 0;
+  virtual double friction_static() const = 0;
+  // The geoms its bodies collide with (the world marks them as the hand's).
+  virtual int num_geoms() const = 0;
+  virtual dGeomID geom(int i) const = 0;
+  // The handle whose part of the hand geom i is (a device frame's contact flag).
+  virtual int geom_handle(int i) const = 0;
+};
+
+}  // namespace hapticd::hand

@@ -1,0 +1,89 @@
+#pragma once
+// The articulated spring hand of seed 002 behind the Hand interface (scene "model": "spring"): a
+// SpringHandRig in the world's ODE world, its palm spring-damper pulled by handle 0, the device's
+// frame (the tracked palm), its fingers by their joint springs toward the tracked joint angles.
+//
+// The handle is the tracked palm itself: it has no body of its own, and what it feels is the
+// reaction on the tracked hand of every spring-damper that ties the spring hand to it: the palm's
+// (section 4.3), F = -k_T (x - p_s) - b_T (v - v_s), T = -k_R rot(q_s -> q) - b_R (w - w_s), and the
+// fingertips' (4.4), whose tracked ends move with the handle (their moments about it included). The
+// handle-space model the haptic loop renders is that reaction linearized in the handle's pose and
+// velocity with the spring hand's state held at the step's end. The contacts act on the spring
+// hand; the device feels them through the springs, as in the paper.
+//
+// Driven by a stylus (one handle, the palm; the fingers held at the skeleton's rest angles). A
+// glove's 16 or 6 frames (their joint angles, the finger forces of section 4.5) are not built yet:
+// the constructor refuses them.
+#include <memory>
+#include <vector>
+
+#include "hand_models/spring/ode_hand.hpp"
+#include "hand_models/spring/spring_hand_rig.hpp"
+
+namespace hapticd::hand::spring {
+
+struct SpringHandConfig {
+  SpringHandParams params;
+  bool left = false;
+  int handles = 1;
+  double friction = 0.5, friction_static = 0.5;
+  // The haptic proxy of the tracked palm (the handle has no body: a light proxy keeps the device
+  // light in free space).
+  double handle_mass_kg = 0.001;
+  // A body faster than this, or farther than this from the tracked palm, has diverged (a reset).
+  double max_speed_m_s = 50.0, max_distance_m = 0.5;
+};
+
+class SpringHand : public OdeHand {
+ public:
+  // Builds the hand's bodies in `world` and `space` with its palm at (p_W, q_W), at rest. Throws
+  // std::invalid_argument for a handle count other than 1.
+  SpringHand(dWorldID world, dSpaceID space, const SpringHandConfig& config, const Eigen::Vector3d& p_W,
+             const Eigen::Quaterniond& q_W);
+
+  std::string_view model_name() const override { return "spring"; }
+  bool left() const override { return config_.left; }
+  int num_handles() const override { return 1; }
+  HandleInfo handle_info(int j, int tracked_frames) const override;
+  const std::vector<HandleState>& handles() const override { return handles_; }
+  bool set_target(int j, const HandleTarget& target) override;
+  void place(const Eigen::Vector3d& p_W, const Eigen::Quaterniond& q_W) override;
+  void set_step_length(double dt_s) override { dt_s_ = dt_s; }
+  // The tracker reading of this step (the targets): the ODE bodies move in the world's rigid step.
+  void step(HandleLinearization* model) override;
+  void recover(const Eigen::Vector3d& fallback_p_W, const Eigen::Quaterniond& fallback_q_W) override;
+  long resets() const override { return resets_; }
+  bool linearize_next_step(HandleLinearization& out, ContactLinearization contacts) override;
+  Eigen::VectorXd coupling_wrench() const override;
+  // Skin points: the palm's centre, each phalanx's centre and each fingertip.
+  int num_skin_points() const override { return 1 + kHandPhalanges + kHandFingers; }
+  Eigen::Vector3d skin_point(int i) const override;
+  int skin_handle(int i) const override { return i >= 0 && i < num_skin_points() ? 0 : -1; }
+
+  void before_ode_step(double h) override { rig_->apply_springs(h); }
+  double max_ode_step_s() const override { return rig_->max_stable_step(); }
+  void after_ode_steps() override;
+  double friction() const override { return config_.friction; }
+  double friction_static() const override { return config_.friction_static; }
+  int num_geoms() const override { return 1 + kHandPhalanges; }
+  dGeomID geom(int i) const override { return i == 0 ? rig_->palm_geom() : rig_->phalanx_geom(i - 1); }
+  int geom_handle(int) const override { return 0; }
+
+  const SpringHandRig& rig() const { return *rig_; }
+
+ private:
+  TrackedHand tracked() const;
+  // The springs' reaction on a handle at `h` (force, torque about its origin), the spring hand as it
+  // is now.
+  Vector6d reaction(const HandleState& h) const;
+
+  SpringHandConfig config_;
+  std::unique_ptr<SpringHandRig> rig_;
+  std::vector<HandleState> handles_;
+  HandJointAngles angles_ = rest_joint_angles();
+  std::array<Eigen::Vector3d, kHandFingers> tips_H_;  // the tracked fingertips in the hand frame (angles_)
+  double dt_s_ = 1.0 / 60.0;
+  long resets_ = 0;
+};
+
+}  // namespace hapticd::hand::spring

@@ -1,0 +1,151 @@
+// The spring hand of seed 002 in the world (scene "model": "spring"): its ODE bodies stepped with
+// the objects, its contacts recorded, the palm spring's reaction as the handle's force and model,
+// and the hard cases (teleports, a fast impact, NaN and absurd targets).
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "hand_models/spring/spring_hand.hpp"
+#include "server/world/scene_loader.hpp"
+#include "server/world/world.hpp"
+
+namespace hapticd::world {
+namespace {
+
+// A floor plane at z = 0 and a right spring hand driven by its palm, palm centre 5 cm up.
+SceneDesc floor_scene() {
+  SceneDesc scene;
+  scene.dt_s = 1.0 / 60.0;
+  scene.gravity_m_s2 = {0, 0, -9.81};
+  ObjectDesc floor;
+  floor.name = "floor";
+  floor.kind = BodyKind::static_body;
+  floor.shape.type = ShapeType::plane;
+  floor.shape.normal = {0, 0, 1};
+  scene.objects.push_back(floor);
+  HandDesc hand;
+  hand.name = "spring";
+  hand.model = HandModelKind::spring;
+  hand.pose.p_W = {0, 0, 0.05};
+  scene.hands.push_back(hand);
+  return scene;
+}
+
+hand::HandleTarget palm_at(const Eigen::Vector3d& p, const Eigen::Vector3d& v = Eigen::Vector3d::Zero()) {
+  hand::HandleTarget t;
+  t.p_W = p;
+  t.v_W = v;
+  return t;
+}
+
+const hand::spring::SpringHand& spring_of(const World& w) {
+  return dynamic_cast<const hand::spring::SpringHand&>(w.hand(0));
+}
+
+TEST(WorldSpringHand, APalmPressedIntoTheFloorRestsOnItAndTheHandleFeelsTheContactsThroughItsSpring) {
+  World w(floor_scene());
+  EXPECT_EQ(w.hand(0).model_name(), "spring");
+  EXPECT_EQ(w.hand(0).flesh(), nullptr);
+  const double rest_z = 0.0125;           // the palm box's half thickness: its centre resting on the floor
+  const double target_z = rest_z - 0.02;  // the tracked palm 2 cm below that
+  for (int k = 0; k < 90; ++k) {          // down over 0.5 s, then held 1 s
+    const double t = (k + 1) * w.dt();
+    w.hand(0).set_target(0, palm_at({0, 0, 0.05 + std::min(t / 0.5, 1.0) * (target_z - 0.05)}));
+    w.step();
+  }
+  const WorldSnapshot& s = w.snapshot();
+  EXPECT_EQ(s.resets, 0);
+  EXPECT_LT(s.max_penetration_m, 0.002);
+  const hand::spring::SpringHand& hand = spring_of(w);
+  EXPECT_NEAR(hand.rig().palm_position().z(), rest_z, 0.002);
+  // The springs' reaction on the handle (the palm's, 2 cm stretched: ~40 N, and the fingertips')
+  // balances, at rest, what ODE's contacts hold up less the hand's weight.
+  const Eigen::VectorXd F = w.hand(0).coupling_wrench();
+  EXPECT_GT(F.z(), 2000.0 * 0.018);
+  double contact_z = 0;
+  int records = 0;
+  for (const ContactRecord& c : s.contacts) {
+    if (c.hand != 0) continue;
+    ++records;
+    contact_z += c.f_W.z();
+    EXPECT_GT(c.n_W.z(), 0.99) << "the floor's normal, toward the hand";
+  }
+  EXPECT_GT(records, 0);
+  const double weight = 9.81 * hand.rig().total_mass_kg();
+  EXPECT_NEAR(F.z(), contact_z - weight, 0.02 * F.z()) << "contacts " << contact_z << " N, weight " << weight << " N";
+  std::printf("handle force %.2f N, contacts %.2f N (%d), hand weight %.2f N\n", F.z(), contact_z, records, weight);
+}
+
+TEST(WorldSpringHand, ItsModelIsTheSpringsReactionLinearizedInTheHandle) {
+  World w(floor_scene());
+  for (int k = 0; k < 10; ++k) w.step();
+  hand::HandleLinearization model;
+  ASSERT_TRUE(w.hand(0).linearize_next_step(model, hand::ContactLinearization::unilateral));
+  ASSERT_EQ(model.F0.size(), 6);
+  EXPECT_LT((model.F0 - w.hand(0).coupling_wrench()).norm(), 1e-12);
+  const hand::HandleState x0 = w.hand(0).handles()[0];
+  // Moved and moving: the springs are linear in the handle's position and velocity, so is the model.
+  hand::HandleTarget t;
+  t.p_W = x0.p_WH + Eigen::Vector3d(0.004, -0.006, 0.008);
+  t.q_W = x0.q_WH;
+  t.v_W = {0.2, 0, -0.1};
+  t.w_W = {0, 0.5, 0.2};
+  ASSERT_TRUE(w.hand(0).set_target(0, t));
+  EXPECT_LT((w.hand(0).coupling_wrench() - model.evaluate(w.hand(0).handles())).norm(), 1e-6);
+  // Turned: the fingertips' tracked ends swing with the handle, so the model is exact to first
+  // order only: half the turn, a quarter of the error.
+  auto turned_error = [&](double angle) {
+    t.p_W = x0.p_WH;
+    t.q_W = Eigen::Quaterniond(Eigen::AngleAxisd(angle, Eigen::Vector3d(1, 2, 3).normalized())) * x0.q_WH;
+    t.v_W.setZero();
+    t.w_W.setZero();
+    EXPECT_TRUE(w.hand(0).set_target(0, t));
+    return (w.hand(0).coupling_wrench() - model.evaluate(w.hand(0).handles())).norm();
+  };
+  const double e1 = turned_error(0.02), e2 = turned_error(0.01);
+  EXPECT_NEAR(e1 / e2, 4.0, 0.2) << e1 << " " << e2;
+  EXPECT_GT((w.hand(0).coupling_wrench() - model.F0).norm(), 100 * e2) << "the turn changes the reaction";
+}
+
+TEST(WorldSpringHand, HardCasesEndWithoutNaNAndWithACountedResetWhereOneIsNeeded) {
+  World w(floor_scene());
+  const hand::spring::SpringHand& hand = spring_of(w);
+  // A NaN target is refused and the last one kept.
+  EXPECT_FALSE(w.hand(0).set_target(0, palm_at({NAN, 0, 0.05})));
+  EXPECT_TRUE(w.hand(0).handles()[0].p_WH.allFinite());
+  // A 10 cm teleport: followed, no reset.
+  w.hand(0).set_target(0, palm_at({0.1, 0, 0.05}));
+  for (int k = 0; k < 60; ++k) w.step();
+  EXPECT_EQ(w.snapshot().resets, 0);
+  EXPECT_NEAR((hand.rig().palm_position() - Eigen::Vector3d(0.1, 0, 0.05)).norm(), 0.0, 0.005);
+  // A 3 m/s impact on the floor: the palm stays on it (no tunnelling).
+  double lowest = 1;
+  for (int k = 0; k < 60; ++k) {
+    const double z = std::max(0.05 - 3.0 * (k + 1) * w.dt(), -0.05);
+    w.hand(0).set_target(0, palm_at({0.1, 0, z}, {0, 0, z > -0.05 ? -3.0 : 0.0}));
+    w.step();
+    lowest = std::min(lowest, hand.rig().palm_position().z());
+  }
+  EXPECT_GT(lowest, 0.0125 - 0.005);
+  EXPECT_EQ(w.snapshot().resets, 0);
+  // A 100 m teleport: the palm spring flings the hand past any sane speed; it is placed on the
+  // target at rest, and the reset counted.
+  w.hand(0).set_target(0, palm_at({100, 0, 0.05}));
+  w.step();
+  EXPECT_EQ(w.snapshot().resets, 1);
+  EXPECT_LT((hand.rig().palm_position() - Eigen::Vector3d(100, 0, 0.05)).norm(), 1e-9);
+  for (int k = 0; k < 10; ++k) w.step();
+  EXPECT_EQ(w.snapshot().resets, 1);
+  EXPECT_TRUE(w.hand(0).coupling_wrench().allFinite());
+}
+
+TEST(WorldSpringHand, TheSceneFileLoadsAndStepsWithTheBunny) {
+  World w(load_scene(std::string(HAPTICD_SCENES_DIR) + "/spring_bunny.json"));
+  for (int k = 0; k < 30; ++k) w.step();
+  EXPECT_EQ(w.snapshot().resets, 0);
+  EXPECT_EQ(w.snapshot().body_resets, 0);
+  EXPECT_TRUE(w.hand(0).coupling_wrench().allFinite());
+}
+
+}  // namespace
+}  // namespace hapticd::world
