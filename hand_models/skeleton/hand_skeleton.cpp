@@ -95,6 +95,32 @@ SkeletonPose skeleton_pose(const HandJointAngles& angles, bool left) {
   return s;
 }
 
+HandJointAngles joint_angles_from_segments(const std::array<Eigen::Matrix3d, kHandPhalanges>& R_in, bool left) {
+  // skeleton_pose: a segment's frame is R = [side x dorsal-roll..]: its side axis, rolled by the
+  // finger's roll about the bone, is side0 = (cos yaw, -sin yaw, 0) whatever the pitch, and its bone
+  // axis is (sin yaw cos pitch, cos yaw cos pitch, sin pitch), pitch = -(flexions so far).
+  const Eigen::Matrix3d M = Eigen::Vector3d(-1.0, 1.0, 1.0).asDiagonal();
+  HandJointAngles a;
+  for (int f = 0; f < kHandFingers; ++f) {
+    const double roll = finger_geometry()[f].roll;
+    double yaw = 0.0, pitch_before = 0.0;
+    for (int k = 0; k < 3; ++k) {
+      const Eigen::Matrix3d R = left ? Eigen::Matrix3d(M * R_in[3 * f + k] * M) : R_in[3 * f + k];
+      if (k == 0) {
+        const Eigen::Vector3d side0 = std::cos(roll) * R.col(0) - std::sin(roll) * R.col(2);
+        yaw = std::atan2(-side0.y(), side0.x());
+        a.finger[f][0] = yaw;
+      }
+      const Eigen::Vector3d axis = R.col(1);
+      const double pitch = std::atan2(axis.z(), std::sin(yaw) * axis.x() + std::cos(yaw) * axis.y());
+      // Each joint's turn, within (-pi, pi]: the bones' pitches wrap once a finger curls past a half turn.
+      a.finger[f][k + 1] = std::remainder(pitch_before - pitch, 2.0 * std::numbers::pi);
+      pitch_before = pitch;
+    }
+  }
+  return a;
+}
+
 const char* finger_name(int finger) {
   static constexpr const char* kNames[] = {"thumb", "index", "middle", "ring", "little"};
   return finger >= 0 && finger < kHandFingers ? kNames[finger] : "?";

@@ -53,6 +53,12 @@ HandJointAngles rest_joint_angles();
 // Forward kinematics in the hand frame (mirrored for a left hand).
 SkeletonPose skeleton_pose(const HandJointAngles& angles, bool left = false);
 
+// The joint angles whose segment frames (SkeletonPose::R, in the hand frame) these are: the inverse
+// of skeleton_pose for the orientations (a glove's tracked phalanx frames relative to its palm).
+// The abduction is read from each proximal segment's side axis, so it holds at any flexion; frames
+// that no angles produce (noise, another skeleton) give the angles of their bones' directions.
+HandJointAngles joint_angles_from_segments(const std::array<Eigen::Matrix3d, kHandPhalanges>& R, bool left = false);
+
 const char* finger_name(int finger);    // "thumb" ... "little"
 const char* phalanx_name(int phalanx);  // "proximal", "middle", "distal"
 

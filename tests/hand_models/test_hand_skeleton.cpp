@@ -74,6 +74,25 @@ TEST(HandSkeleton, FlexingTheIndexBaseJointBy90DegreesPointsItPalmar) {
 
 // A glove's tracked frames, carried through frame_to_handle, land on the handles
 // of a hand placed anywhere: the rest relation frame -> handle is kept.
+TEST(HandSkeleton, TheJointAnglesComeBackFromTheSegmentFramesAtAnyFlexion) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> abduction(-1.0, 0.5),
+      flexion(-0.3, 1.9);  // up to 109 degrees: curls past a half turn
+  for (int trial = 0; trial < 200; ++trial) {
+    const bool left = trial % 2 == 1;
+    HandJointAngles a;
+    for (int f = 0; f < kHandFingers; ++f) a.finger[f] = {abduction(rng), flexion(rng), flexion(rng), flexion(rng)};
+    const HandJointAngles back = joint_angles_from_segments(skeleton_pose(a, left).R, left);
+    EXPECT_LT((back.vector() - a.vector()).cwiseAbs().maxCoeff(), 1e-9) << trial;
+  }
+  // A fist: every flexion 90 degrees, the proximal bones pointing straight palmar; the abduction
+  // still comes back (read from the side axis, not the bone).
+  HandJointAngles fist = rest_joint_angles();
+  for (int f = 0; f < kHandFingers; ++f)
+    fist.finger[f][1] = fist.finger[f][2] = fist.finger[f][3] = std::numbers::pi / 2;
+  EXPECT_LT((joint_angles_from_segments(skeleton_pose(fist).R).vector() - fist.vector()).cwiseAbs().maxCoeff(), 1e-9);
+}
+
 TEST(HandSkeleton, TrackedFramesMapOntoTheHandlesOfAPlacedHand) {
   ProceduralHandOptions o;
   o.target_tets = 350;
