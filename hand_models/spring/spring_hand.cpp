@@ -7,22 +7,41 @@ namespace hapticd::hand::spring {
 
 SpringHand::SpringHand(dWorldID world, dSpaceID space, const SpringHandConfig& config, const Eigen::Vector3d& p_W,
                        const Eigen::Quaterniond& q_W)
-    : config_(config), handles_(1) {
-  if (config.handles != 1)
-    throw std::invalid_argument("the spring hand is driven by its palm only (1 handle), not " +
-                                std::to_string(config.handles) + ": a glove's frames are not built yet");
-  handles_[0].p_WH = p_W;
-  handles_[0].q_WH = q_W.normalized();
-  const SkeletonPose pose = skeleton_pose(angles_, config.left);
-  for (int f = 0; f < kHandFingers; ++f) tips_H_[f] = pose.joints[f][3];
+    : config_(config), handles_(static_cast<std::size_t>(std::max(config.handles, 1))) {
+  if (config.handles != 1 && config.handles != 1 + kHandPhalanges)
+    throw std::invalid_argument(
+        "the spring hand is driven by its palm (1 handle, a stylus) or by a glove's palm "
+        "and 15 phalanges (16), not " +
+        std::to_string(config.handles) + " handles");
+  place_handles(p_W, q_W.normalized());
   rig_ = std::make_unique<SpringHandRig>(world, space, config.params, config.left, tracked());
+}
+
+void SpringHand::place_handles(const Eigen::Vector3d& p_W, const Eigen::Quaterniond& q_W) {
+  for (HandleState& h : handles_) h = HandleState{};
+  handles_[0].p_WH = p_W;
+  handles_[0].q_WH = q_W;
+  const SkeletonPose pose = skeleton_pose(angles_, config_.left);
+  for (int f = 0; f < kHandFingers; ++f) tips_H_[f] = pose.joints[f][3];
+  for (int i = 0; i + 1 < num_handles(); ++i) {
+    handles_[i + 1].p_WH = p_W + q_W * pose.centre[i];
+    handles_[i + 1].q_WH = q_W * Eigen::Quaterniond(pose.R[i]);
+  }
+}
+
+HandJointAngles SpringHand::tracked_angles(const std::vector<HandleState>& h) const {
+  if (h.size() == 1) return angles_;
+  std::array<Eigen::Matrix3d, kHandPhalanges> R;
+  const Eigen::Matrix3d palm_T = h[0].q_WH.toRotationMatrix().transpose();
+  for (int i = 0; i < kHandPhalanges; ++i) R[i] = palm_T * h[i + 1].q_WH.toRotationMatrix();
+  return joint_angles_from_segments(R, config_.left);
 }
 
 TrackedHand SpringHand::tracked() const {
   TrackedHand t;
   t.p_W = handles_[0].p_WH;
   t.q_W = handles_[0].q_WH;
-  t.angles = angles_;
+  t.angles = tracked_angles(handles_);
   t.has_velocity = true;
   t.v_W = handles_[0].v_WH;
   t.w_W = handles_[0].w_WH;
@@ -38,10 +57,10 @@ HandleInfo SpringHand::handle_info(int, int) const {
 }
 
 bool SpringHand::set_target(int j, const HandleTarget& target) {
-  if (j != 0 || !target.p_W.allFinite() || !target.q_W.coeffs().allFinite() || !target.v_W.allFinite() ||
-      !target.w_W.allFinite() || !(target.q_W.norm() > 0))
+  if (j < 0 || j >= num_handles() || !target.p_W.allFinite() || !target.q_W.coeffs().allFinite() ||
+      !target.v_W.allFinite() || !target.w_W.allFinite() || !(target.q_W.norm() > 0))
     return false;
-  HandleState& h = handles_[0];
+  HandleState& h = handles_[static_cast<std::size_t>(j)];
   h.p_WH = target.p_W;
   h.q_WH = target.q_W.normalized();
   h.v_WH = target.v_W;
@@ -50,14 +69,14 @@ bool SpringHand::set_target(int j, const HandleTarget& target) {
 }
 
 void SpringHand::place(const Eigen::Vector3d& p_W, const Eigen::Quaterniond& q_W) {
-  HandleState& h = handles_[0];
-  h = HandleState{};
-  h.p_WH = p_W;
-  h.q_WH = q_W.normalized();
+  place_handles(p_W, q_W.normalized());
   rig_->place(tracked());
 }
 
-void SpringHand::step(HandleLinearization*) { rig_->set_tracked(tracked()); }
+void SpringHand::step(HandleLinearization*) {
+  angles_ = tracked_angles(handles_);
+  rig_->set_tracked(tracked());
+}
 
 void SpringHand::after_ode_steps() {
   if (rig_->sane(config_.max_speed_m_s, config_.max_distance_m)) return;
@@ -67,8 +86,9 @@ void SpringHand::after_ode_steps() {
 
 void SpringHand::recover(const Eigen::Vector3d& fallback_p_W, const Eigen::Quaterniond& fallback_q_W) {
   ++resets_;
-  const HandleState& h = handles_[0];
-  if (h.p_WH.allFinite() && h.q_WH.coeffs().allFinite()) {
+  bool whole = true;
+  for (const HandleState& h : handles_) whole = whole && h.p_WH.allFinite() && h.q_WH.coeffs().allFinite();
+  if (whole) {
     rig_->place(tracked());
   } else if (fallback_p_W.allFinite() && fallback_q_W.coeffs().allFinite()) {
     place(fallback_p_W, fallback_q_W);
@@ -77,23 +97,45 @@ void SpringHand::recover(const Eigen::Vector3d& fallback_p_W, const Eigen::Quate
   }
 }
 
-Vector6d SpringHand::reaction(const HandleState& h) const {
+Eigen::VectorXd SpringHand::reaction(const std::vector<HandleState>& h) const {
   const SpringHandParams& p = config_.params;
+  const int n = static_cast<int>(h.size());
+  Eigen::VectorXd out = Eigen::VectorXd::Zero(6 * n);
   const dBodyID palm = rig_->palm_body();
   const Eigen::Vector3d p_s = rig_->palm_position();
   const dReal* v = dBodyGetLinearVel(palm);
   const dReal* w = dBodyGetAngularVel(palm);
   const Eigen::Vector3d v_s(v[0], v[1], v[2]), w_s(w[0], w[1], w[2]);
-  Vector6d out;
-  out.head<3>() = -p.palm_linear.k * (h.p_WH - p_s) - p.palm_linear.b * (h.v_WH - v_s);
-  out.tail<3>() = -palm_restoring_torque(p.palm_torsional.k, rig_->palm_orientation(), h.q_WH) -
-                  p.palm_torsional.b * (h.w_WH - w_s);
+  // The palm's springs, on the palm's handle (section 4.3).
+  out.segment<3>(0) = -p.palm_linear.k * (h[0].p_WH - p_s) - p.palm_linear.b * (h[0].v_WH - v_s);
+  out.segment<3>(3) = -palm_restoring_torque(p.palm_torsional.k, rig_->palm_orientation(), h[0].q_WH) -
+                      p.palm_torsional.b * (h[0].w_WH - w_s);
+  // The fingertips' springs (4.4), on the handle their tracked tip moves with: the palm's, or the
+  // distal phalanx's of a glove, about that handle's origin.
+  const HandJointAngles angles = tracked_angles(h);
+  const SkeletonPose pose = skeleton_pose(angles, config_.left);
   for (int f = 0; f < kHandFingers; ++f) {
-    const Eigen::Vector3d r = h.q_WH * tips_H_[f];
+    const int j = n == 1 ? 0 : 1 + 3 * f + 2;
+    const Eigen::Vector3d tip = h[0].p_WH + h[0].q_WH * pose.joints[f][3];
+    const Eigen::Vector3d r = tip - h[j].p_WH;
     const Eigen::Vector3d f_tip =
-        linear_spring_force(p.tip, h.p_WH + r, rig_->tip_W(f), rig_->tip_velocity_W(f), h.v_WH + h.w_WH.cross(r));
-    out.head<3>() -= f_tip;
-    out.tail<3>() -= r.cross(f_tip);
+        linear_spring_force(p.tip, tip, rig_->tip_W(f), rig_->tip_velocity_W(f), h[j].v_WH + h[j].w_WH.cross(r));
+    out.segment<3>(6 * j) -= f_tip;
+    out.segment<3>(6 * j + 3) -= r.cross(f_tip);
+  }
+  if (n == 1) return out;  // a stylus's tracked hand is rigid: the joint springs' reactions cancel on it
+  // The joint springs (4.2): the tracked child segment feels -tau about the spring joint's axis, its
+  // parent (the palm, for a base joint) +tau; the tracked angular rate is the frames' relative one.
+  const Eigen::Matrix<double, kHandJointDofs, 1> theta_t = angles.vector(), theta_s = rig_->joint_angles().vector(),
+                                                 omega_s = rig_->joint_rates();
+  for (int dof = 0; dof < kHandJointDofs; ++dof) {
+    const int f = dof / 4, k = dof % 4;
+    const int child = 1 + 3 * f + std::max(k - 1, 0), parent = k <= 1 ? 0 : 1 + 3 * f + k - 2;
+    const Eigen::Vector3d a = rig_->joint_axis_W(dof);
+    const double omega_t = a.dot(h[child].w_WH - h[parent].w_WH);
+    const double tau = joint_spring_torque(p.joint, theta_t[dof], theta_s[dof], omega_s[dof], omega_t);
+    out.segment<3>(6 * child + 3) -= tau * a;
+    out.segment<3>(6 * parent + 3) += tau * a;
   }
   return out;
 }
@@ -101,37 +143,49 @@ Vector6d SpringHand::reaction(const HandleState& h) const {
 bool SpringHand::linearize_next_step(HandleLinearization& out, ContactLinearization) {
   out = HandleLinearization{};
   out.x0 = handles_;
-  const HandleState& x0 = handles_[0];
-  out.F0 = reaction(x0);
-  out.K = Matrix6d::Zero();
-  out.D = Matrix6d::Zero();
-  // Central differences: the reaction is linear in the velocities and in the position, and smooth
-  // in the rotation (the model's rotation coordinate: a world rotation vector applied to q0).
+  out.F0 = reaction(handles_);
+  const int m = 6 * num_handles();
+  out.K = Eigen::MatrixXd::Zero(m, m);
+  out.D = Eigen::MatrixXd::Zero(m, m);
+  // Central differences: the reaction is linear in the velocities and in the positions, and smooth
+  // in the rotations (the model's rotation coordinate: a world rotation vector applied to q0).
   constexpr double e = 1e-6;
-  for (int i = 0; i < 3; ++i) {
-    HandleState a = x0, b = x0;
-    a.p_WH[i] += e, b.p_WH[i] -= e;
-    out.K.col(i) = (reaction(a) - reaction(b)) / (2 * e);
-    a = x0, b = x0;
-    a.q_WH = Eigen::Quaterniond(Eigen::AngleAxisd(e, Eigen::Vector3d::Unit(i))) * x0.q_WH;
-    b.q_WH = Eigen::Quaterniond(Eigen::AngleAxisd(-e, Eigen::Vector3d::Unit(i))) * x0.q_WH;
-    out.K.col(3 + i) = (reaction(a) - reaction(b)) / (2 * e);
-    a = x0, b = x0;
-    a.v_WH[i] += e, b.v_WH[i] -= e;
-    out.D.col(i) = (reaction(a) - reaction(b)) / (2 * e);
-    a = x0, b = x0;
-    a.w_WH[i] += e, b.w_WH[i] -= e;
-    out.D.col(3 + i) = (reaction(a) - reaction(b)) / (2 * e);
+  std::vector<HandleState> a = handles_, b = handles_;
+  for (int j = 0; j < num_handles(); ++j) {
+    const HandleState& x0 = handles_[static_cast<std::size_t>(j)];
+    HandleState& ha = a[static_cast<std::size_t>(j)];
+    HandleState& hb = b[static_cast<std::size_t>(j)];
+    for (int i = 0; i < 3; ++i) {
+      ha.p_WH[i] += e, hb.p_WH[i] -= e;
+      out.K.col(6 * j + i) = (reaction(a) - reaction(b)) / (2 * e);
+      ha = hb = x0;
+      ha.q_WH = Eigen::Quaterniond(Eigen::AngleAxisd(e, Eigen::Vector3d::Unit(i))) * x0.q_WH;
+      hb.q_WH = Eigen::Quaterniond(Eigen::AngleAxisd(-e, Eigen::Vector3d::Unit(i))) * x0.q_WH;
+      out.K.col(6 * j + 3 + i) = (reaction(a) - reaction(b)) / (2 * e);
+      ha = hb = x0;
+      ha.v_WH[i] += e, hb.v_WH[i] -= e;
+      out.D.col(6 * j + i) = (reaction(a) - reaction(b)) / (2 * e);
+      ha = hb = x0;
+      ha.w_WH[i] += e, hb.w_WH[i] -= e;
+      out.D.col(6 * j + 3 + i) = (reaction(a) - reaction(b)) / (2 * e);
+      ha = hb = x0;
+    }
   }
   return out.F0.allFinite() && out.K.allFinite() && out.D.allFinite();
 }
 
-Eigen::VectorXd SpringHand::coupling_wrench() const { return reaction(handles_[0]); }
+Eigen::VectorXd SpringHand::coupling_wrench() const { return reaction(handles_); }
 
 Eigen::Vector3d SpringHand::skin_point(int i) const {
   if (i <= 0) return rig_->palm_position();
   if (i <= kHandPhalanges) return rig_->phalanx_pose(i - 1).translation();
   return rig_->tip_W(i - 1 - kHandPhalanges);
+}
+
+int SpringHand::skin_handle(int i) const {
+  if (i < 0 || i >= num_skin_points()) return -1;
+  if (num_handles() == 1 || i <= kHandPhalanges) return num_handles() == 1 ? 0 : i;
+  return 1 + 3 * (i - 1 - kHandPhalanges) + 2;  // a fingertip: its distal phalanx
 }
 
 }  // namespace hapticd::hand::spring

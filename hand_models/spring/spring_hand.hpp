@@ -11,9 +11,12 @@
 // velocity with the spring hand's state held at the step's end. The contacts act on the spring
 // hand; the device feels them through the springs, as in the paper.
 //
-// Driven by a stylus (one handle, the palm; the fingers held at the skeleton's rest angles). A
-// glove's 16 or 6 frames (their joint angles, the finger forces of section 4.5) are not built yet:
-// the constructor refuses them.
+// Driven by a stylus (one handle, the palm; the fingers held at the skeleton's rest angles) or by a
+// glove's palm and 15 phalanx frames (16 handles, each the tracked segment's frame): its joint angles
+// come from the frames (joint_angles_from_segments), and each frame feels the joint springs'
+// reactions about the spring joints' axes (its child's -tau, its parent's +tau) and, a distal one,
+// its fingertip spring's. The 6-frame glove layout (no joint angles in it) is not built yet, nor is
+// the section-4.5 finger force through the server (the rig computes it).
 #include <memory>
 #include <vector>
 
@@ -37,13 +40,13 @@ struct SpringHandConfig {
 class SpringHand : public OdeHand {
  public:
   // Builds the hand's bodies in `world` and `space` with its palm at (p_W, q_W), at rest. Throws
-  // std::invalid_argument for a handle count other than 1.
+  // std::invalid_argument for a handle count other than 1 or 16.
   SpringHand(dWorldID world, dSpaceID space, const SpringHandConfig& config, const Eigen::Vector3d& p_W,
              const Eigen::Quaterniond& q_W);
 
   std::string_view model_name() const override { return "spring"; }
   bool left() const override { return config_.left; }
-  int num_handles() const override { return 1; }
+  int num_handles() const override { return static_cast<int>(handles_.size()); }
   HandleInfo handle_info(int j, int tracked_frames) const override;
   const std::vector<HandleState>& handles() const override { return handles_; }
   bool set_target(int j, const HandleTarget& target) override;
@@ -58,7 +61,7 @@ class SpringHand : public OdeHand {
   // Skin points: the palm's centre, each phalanx's centre and each fingertip.
   int num_skin_points() const override { return 1 + kHandPhalanges + kHandFingers; }
   Eigen::Vector3d skin_point(int i) const override;
-  int skin_handle(int i) const override { return i >= 0 && i < num_skin_points() ? 0 : -1; }
+  int skin_handle(int i) const override;
 
   void before_ode_step(double h) override { rig_->apply_springs(h); }
   double max_ode_step_s() const override { return rig_->max_stable_step(); }
@@ -67,15 +70,19 @@ class SpringHand : public OdeHand {
   double friction_static() const override { return config_.friction_static; }
   int num_geoms() const override { return 1 + kHandPhalanges; }
   dGeomID geom(int i) const override { return i == 0 ? rig_->palm_geom() : rig_->phalanx_geom(i - 1); }
-  int geom_handle(int) const override { return 0; }
+  // The palm's geom is handle 0's; phalanx i's, handle 1 + i's for a glove (skin point 1 + i).
+  int geom_handle(int i) const override { return num_handles() == 1 ? 0 : i; }
 
   const SpringHandRig& rig() const { return *rig_; }
 
  private:
   TrackedHand tracked() const;
-  // The springs' reaction on a handle at `h` (force, torque about its origin), the spring hand as it
-  // is now.
-  Vector6d reaction(const HandleState& h) const;
+  // The handles of the hand placed at (p_W, q_W) with the joint angles angles_, at rest.
+  void place_handles(const Eigen::Vector3d& p_W, const Eigen::Quaterniond& q_W);
+  HandJointAngles tracked_angles(const std::vector<HandleState>& handles) const;
+  // The springs' reaction on handles at `h` (per handle force, torque about its origin), the spring
+  // hand as it is now.
+  Eigen::VectorXd reaction(const std::vector<HandleState>& h) const;
 
   SpringHandConfig config_;
   std::unique_ptr<SpringHandRig> rig_;

@@ -60,12 +60,13 @@ void World::record_contacts() {
       snapshot_.max_penetration_m = std::max(snapshot_.max_penetration_m, r.depth_m);
     }
   }
-  // Hands of ODE bodies: ODE's contacts of the last substep, at skin point 0 (their handle's).
+  // Hands of ODE bodies: ODE's contacts of the last substep, at the skin point of the touching
+  // geom's handle (OdeHand: skin point j is on handle j).
   for (const RigidWorld::HandContact& c : ode_hand_contacts_) {
     ContactRecord r;
     r.hand = c.hand;
     r.object = c.object;
-    r.point = 0;
+    r.point = std::max(c.handle, 0);
     r.p_W = c.p_W;
     r.n_W = c.n_W;
     r.f_W = c.f_W;

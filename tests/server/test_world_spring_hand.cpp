@@ -139,6 +139,60 @@ TEST(WorldSpringHand, HardCasesEndWithoutNaNAndWithACountedResetWhereOneIsNeeded
   EXPECT_TRUE(w.hand(0).coupling_wrench().allFinite());
 }
 
+// A glove's 16 frames: the palm and each phalanx's segment frame on it (skeleton_pose).
+std::vector<hand::HandleTarget> glove_frames(const hand::HandJointAngles& a, const Eigen::Vector3d& palm) {
+  const hand::SkeletonPose pose = hand::skeleton_pose(a);
+  std::vector<hand::HandleTarget> t(16);
+  t[0].p_W = palm;
+  for (int i = 0; i < hand::kHandPhalanges; ++i) {
+    t[i + 1].p_W = palm + pose.centre[i];
+    t[i + 1].q_W = Eigen::Quaterniond(pose.R[i]);
+  }
+  return t;
+}
+
+TEST(WorldSpringHand, AGlovesFramesBendItsFingersAndEachFrameFeelsItsSprings) {
+  SceneDesc scene = floor_scene();
+  scene.hands[0].handles = HandleSet::phalanges;
+  scene.hands[0].pose.p_W = {0, 0, 0.15};  // in free space
+  WorldOptions options;
+  options.hand_gravity = false;
+  World w(scene, options);
+  ASSERT_EQ(w.hand(0).num_handles(), 16);
+  for (int j = 0; j < 16; ++j) EXPECT_EQ(w.hand(0).handle_info(j, 16).in_frame.p_F.norm(), 0.0) << "the frame itself";
+  hand::HandJointAngles fist = hand::rest_joint_angles();
+  for (int f = 1; f < hand::kHandFingers; ++f) fist.finger[f][1] = fist.finger[f][2] = fist.finger[f][3] = 1.2;
+  const std::vector<hand::HandleTarget> frames = glove_frames(fist, {0, 0, 0.15});
+  for (int k = 0; k < 90; ++k) {
+    for (int j = 0; j < 16; ++j) ASSERT_TRUE(w.hand(0).set_target(j, frames[j]));
+    w.step();
+  }
+  const hand::spring::SpringHand& hand = spring_of(w);
+  EXPECT_LT((hand.rig().joint_angles().vector() - fist.vector()).cwiseAbs().maxCoeff(), 2e-3);
+  EXPECT_EQ(w.snapshot().resets, 0);
+  // Settled in free space: nothing left to feel.
+  EXPECT_LT(w.hand(0).coupling_wrench().cwiseAbs().maxCoeff(), 0.01);
+  // The index's tracked middle phalanx turned 0.1 rad further about its hinge: the tracked PIP
+  // flexes 0.1 more and the DIP 0.1 less. The PIP spring pulls the middle frame back (-k 0.1) and the
+  // proximal one on (+k 0.1); the DIP spring pulls the middle frame back too (-k 0.1) and the distal
+  // one on (+k 0.1). The model says so to first order.
+  hand::HandleLinearization model;
+  ASSERT_TRUE(w.hand(0).linearize_next_step(model, hand::ContactLinearization::unilateral));
+  std::vector<hand::HandleTarget> bent = frames;
+  const int middle = 1 + 3 * 1 + 1;
+  const Eigen::Vector3d axis = hand.rig().joint_axis_W(4 * 1 + 2);
+  bent[middle].q_W = Eigen::Quaterniond(Eigen::AngleAxisd(0.1, axis)) * frames[middle].q_W;
+  bent[middle].p_W += Eigen::Vector3d(0.001, 0, 0);
+  for (int j = 0; j < 16; ++j) ASSERT_TRUE(w.hand(0).set_target(j, bent[j]));
+  const Eigen::VectorXd F = w.hand(0).coupling_wrench();
+  const double k = hand.rig().params().joint.k;
+  EXPECT_NEAR(F.segment<3>(6 * middle + 3).dot(axis), -2 * k * 0.1, 0.02 * k * 0.1);
+  EXPECT_NEAR(F.segment<3>(6 * (middle - 1) + 3).dot(axis), k * 0.1, 0.02 * k * 0.1);
+  EXPECT_NEAR(F.segment<3>(6 * (middle + 1) + 3).dot(axis), k * 0.1, 0.02 * k * 0.1);
+  const Eigen::VectorXd predicted = model.evaluate(w.hand(0).handles());
+  EXPECT_LT((predicted - F).norm(), 0.05 * F.norm());
+}
+
 TEST(WorldSpringHand, TheSceneFileLoadsAndStepsWithTheBunny) {
   World w(load_scene(std::string(HAPTICD_SCENES_DIR) + "/spring_bunny.json"));
   for (int k = 0; k < 30; ++k) w.step();
