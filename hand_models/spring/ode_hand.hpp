@@ -4,12 +4,27 @@
 // (Hand::flesh() is null); the world calls these around its ODE steps instead.
 #include <ode/ode.h>
 
+#include <vector>
+
 #include "hand_models/hand.hpp"
 
 namespace hapticd::hand {
 
+// A contact of an OdeHand's geom with an object, as ODE found it in the last ODE step.
+struct OdeHandContact {
+  int handle = 0;  // the handle of the touching geom's part (geom_handle)
+  Eigen::Vector3d p_W = Eigen::Vector3d::Zero();
+  Eigen::Vector3d n_W = Eigen::Vector3d::UnitZ();  // out of the object, toward the hand
+  double depth_m = 0;
+  double mu = 0.5;  // the pair's Coulomb coefficient in that step
+  double force_n = 0;
+};
+
 class OdeHand : public Hand {
  public:
+  // After the world's ODE steps: this hand's contacts in the last of them (the rows its model
+  // carries into the haptic tick).
+  virtual void set_contacts(const std::vector<OdeHandContact>& contacts) = 0;
   // Before each ODE step of length h: the forces that drive the hand toward its targets.
   virtual void before_ode_step(double h) = 0;
   // The longest ODE step its bodies take stably (the world's rigid step is cut to it).

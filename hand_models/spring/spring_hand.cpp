@@ -1,7 +1,13 @@
 #include "hand_models/spring/spring_hand.hpp"
 
+#include <Eigen/Cholesky>
+#include <algorithm>
+#include <cmath>
 #include <stdexcept>
 #include <string>
+
+#include "hand_models/contact_pgs.hpp"
+#include "hand_models/hand_model.hpp"
 
 namespace hapticd::hand::spring {
 
@@ -140,6 +146,90 @@ Eigen::VectorXd SpringHand::reaction(const std::vector<HandleState>& h) const {
   return out;
 }
 
+void SpringHand::set_contacts(const std::vector<OdeHandContact>& contacts) {
+  contacts_ = contacts;
+  if (static_cast<int>(contacts_.size()) > kMaxLinearizedContacts) {
+    std::partial_sort(contacts_.begin(), contacts_.begin() + kMaxLinearizedContacts, contacts_.end(),
+                      [](const OdeHandContact& a, const OdeHandContact& b) { return a.depth_m > b.depth_m; });
+    contacts_.resize(kMaxLinearizedContacts);
+  }
+}
+
+bool SpringHand::linearize_rigid_body(HandleLinearization& out) const {
+  const double h = dt_s_;
+  // The world steps the hand in ODE steps no longer than the rig's stable step (RigidWorld::step):
+  // the model takes the same substeps, ODE's semi-implicit Euler, on the hand as one body.
+  const int substeps = std::max(1, static_cast<int>(std::ceil(h / rig_->max_stable_step() - 1e-9)));
+  const double hs = h / substeps;
+  const Eigen::MatrixXd K = out.K, D = out.D;
+  Eigen::Vector3d c;
+  const Eigen::Matrix<double, 6, 6> M = rig_->composite_inertia(c);
+  const Eigen::LLT<Eigen::Matrix<double, 6, 6>> M_llt(M);
+  if (M_llt.info() != Eigen::Success) return false;
+  Eigen::Matrix<double, 6, 1> v_s;
+  const dReal* v = dBodyGetLinearVel(rig_->palm_body());
+  const dReal* w = dBodyGetAngularVel(rig_->palm_body());
+  v_s << v[0], v[1], v[2], w[0], w[1], w[2];
+  Eigen::Matrix<double, 6, 1> f_g;
+  f_g << M(0, 0) * config_.gravity_m_s2, M(0, 0) * c.cross(config_.gravity_m_s2);
+  // Rows in contact frames (n, t1, t2) at each point, on the body's velocity (v of the palm's centre, w).
+  const int n = static_cast<int>(contacts_.size());
+  Eigen::MatrixXd J(3 * n, 6);
+  const Eigen::Vector3d o = rig_->palm_position();
+  HandleContactModel& m = out.contacts;
+  m = HandleContactModel{};
+  m.bias.resize(n);
+  m.mu.resize(n);
+  for (int i = 0; i < n; ++i) {
+    const OdeHandContact& k = contacts_[i];
+    const Eigen::Vector3d t1 = k.n_W.unitOrthogonal(), t2 = k.n_W.cross(t1), r = k.p_W - o;
+    const Eigen::Vector3d dirs[3] = {k.n_W, t1, t2};
+    for (int a = 0; a < 3; ++a) J.row(3 * i + a) << dirs[a].transpose(), r.cross(dirs[a]).transpose();
+    // A penetrating point is pushed out by a share of its depth per step, as the hands' constraint
+    // contacts are (kContactDepthRecovery); ODE reports only touching points, none with a gap.
+    m.bias[i] = kContactDepthRecovery * std::max(k.depth_m, 0.0) / h;
+    m.mu[i] = k.mu;
+  }
+  // The body's displacement dp and velocity change dv_s over the step, linear in the inputs
+  // u = (handle displacement dx, handle velocity change dv, row impulses lambda, 1): columns of S.
+  // Each substep: the reaction on the handle is F0 + K (dx - dp) + D (dv - dv_s), the body takes its
+  // opposite, its weight and the impulses spread over the step.
+  const int cols = 12 + 3 * n + 1, one = cols - 1;
+  Eigen::MatrixXd E = Eigen::MatrixXd::Zero(6, cols);  // the body's force, less its state's part
+  E.leftCols(6) = -K;
+  E.middleCols(6, 6) = -D;
+  if (n > 0) E.middleCols(12, 3 * n) = J.transpose() / h;
+  E.col(one) = f_g - out.F0;
+  // The reaction on the handle after each substep, F0 + K (dx - dp) + D (dv - dv_s), averaged over
+  // the step: the impulse the hand exchanges with a handle held at (x, v), over h.
+  Eigen::MatrixXd S_p = Eigen::MatrixXd::Zero(6, cols), S_v = Eigen::MatrixXd::Zero(6, cols);
+  Eigen::MatrixXd F_u = Eigen::MatrixXd::Zero(6, cols);
+  for (int k = 0; k < substeps; ++k) {
+    S_v += hs * M_llt.solve(K * S_p + D * S_v + E);
+    S_p += hs * S_v;
+    S_p.col(one) += hs * v_s;
+    F_u -= (K * S_p + D * S_v) / substeps;
+  }
+  F_u.leftCols(6) += K;
+  F_u.middleCols(6, 6) += D;
+  out.F0 += F_u.col(one);
+  out.K = F_u.leftCols(6);
+  out.D = F_u.middleCols(6, 6);
+  if (n == 0) return out.F0.allFinite() && out.K.allFinite() && out.D.allFinite();
+  m.G = F_u.middleCols(12, 3 * n);
+  const Eigen::MatrixXd JS = J * S_v;
+  m.W = JS.middleCols(12, 3 * n);
+  m.W = 0.5 * (m.W + m.W.transpose());
+  m.u0 = J * v_s + JS.col(one);
+  m.U_K = JS.leftCols(6);
+  m.U_D = JS.middleCols(6, 6);
+  ContactProblem problem{m.W, m.u0, m.bias, m.mu};
+  const PgsResult solved = solve_contacts_pgs(problem);
+  if (!solved.lambda.allFinite()) return false;
+  m.lambda0 = solved.lambda;
+  return true;
+}
+
 bool SpringHand::linearize_next_step(HandleLinearization& out, ContactLinearization) {
   out = HandleLinearization{};
   out.x0 = handles_;
@@ -171,6 +261,7 @@ bool SpringHand::linearize_next_step(HandleLinearization& out, ContactLinearizat
       ha = hb = x0;
     }
   }
+  if (config_.body_step_model && num_handles() == 1 && !linearize_rigid_body(out)) return false;
   return out.F0.allFinite() && out.K.allFinite() && out.D.allFinite();
 }
 

@@ -207,6 +207,7 @@ void SpringHandRig::set_body_poses(const TrackedHand& t) {
 
 void SpringHandRig::place(const TrackedHand& t) {
   set_body_poses(t);
+  reaction_sum_.setZero();
   const auto rest = [](dBodyID b) {
     dBodySetLinearVel(b, 0, 0, 0);
     dBodySetAngularVel(b, 0, 0, 0);
@@ -253,6 +254,7 @@ void SpringHandRig::set_tracked(const TrackedHand& reading) {
   tracked_.q_W.normalize();
   steps_between_readings_ = std::max(steps_since_reading_, 1);
   steps_since_reading_ = 0;
+  reaction_sum_.setZero();
 }
 
 Eigen::Vector3d SpringHandRig::tracked_tip_in_hand(const HandJointAngles& a, int finger) const {
@@ -292,6 +294,8 @@ void SpringHandRig::apply_springs(double h) {
   palm_torque_ =
       palm_restoring_torque(params_.palm_torsional.k, q_s, tracked_.q_W) +
       palm_damping_torque(params_.palm_torsional.b, q_ws, q_wt, tracked_.has_velocity ? 1 : steps_between_readings_, h);
+  reaction_sum_.head<3>() -= palm_force_;
+  reaction_sum_.tail<3>() -= palm_torque_;
   dBodyAddForce(palm_, palm_force_.x(), palm_force_.y(), palm_force_.z());
   dBodyAddTorque(palm_, palm_torque_.x(), palm_torque_.y(), palm_torque_.z());
 
@@ -313,6 +317,8 @@ void SpringHandRig::apply_springs(double h) {
                                         : Eigen::Vector3d((tip_t - tip_t0) / interval);
     const Eigen::Vector3d f_tip = linear_spring_force(params_.tip, tip_t, tip_s, v_tip, v_tip_t);
     dBodyAddForceAtPos(phalanx_[3 * f + 2], f_tip.x(), f_tip.y(), f_tip.z(), tip_s.x(), tip_s.y(), tip_s.z());
+    reaction_sum_.head<3>() -= f_tip;
+    reaction_sum_.tail<3>() -= (tip_t - tracked_.p_W).cross(f_tip);
     const Eigen::Vector3d v_rel_H = R_s.transpose() * (v_tip - v_s - w_s.cross(tip_s - p_s));
     f_ls_[f] = R_s * linear_spring_force(params_.tip, tip_t_H, R_s.transpose() * (tip_s - p_s), v_rel_H,
                                          (tip_t_H - tip_t0_H) / interval);
@@ -343,6 +349,31 @@ Eigen::Isometry3d SpringHandRig::phalanx_pose(int phalanx) const {
 }
 
 Eigen::Vector3d SpringHandRig::tip_W(int finger) const { return phalanx_pose(3 * finger + 2) * tip_in_distal_[finger]; }
+
+Eigen::Matrix<double, 6, 6> SpringHandRig::composite_inertia(Eigen::Vector3d& com_offset_W) const {
+  const Eigen::Vector3d o = palm_position();
+  double m_total = 0;
+  Eigen::Vector3d first_moment = Eigen::Vector3d::Zero();
+  Eigen::Matrix3d I_o = Eigen::Matrix3d::Zero();
+  const auto add = [&](dBodyID b) {
+    dMass m;
+    dBodyGetMass(b, &m);
+    const Eigen::Vector3d r = vec(dBodyGetPosition(b)) - o;
+    m_total += m.mass;
+    first_moment += m.mass * r;
+    I_o += inertia_W(b) + m.mass * (r.squaredNorm() * Eigen::Matrix3d::Identity() - r * r.transpose());
+  };
+  add(palm_);
+  for (dBodyID b : base_) add(b);
+  for (dBodyID b : phalanx_) add(b);
+  com_offset_W = first_moment / m_total;
+  Eigen::Matrix3d cx;
+  cx << 0, -first_moment.z(), first_moment.y(), first_moment.z(), 0, -first_moment.x(), -first_moment.y(),
+      first_moment.x(), 0;
+  Eigen::Matrix<double, 6, 6> M;
+  M << m_total * Eigen::Matrix3d::Identity(), -cx, cx, I_o;
+  return M;
+}
 
 Eigen::Vector3d SpringHandRig::tip_velocity_W(int finger) const {
   const Eigen::Vector3d p = tip_W(finger);

@@ -110,6 +110,13 @@ class SpringHandRig {
   const Eigen::Vector3d& palm_force() const { return palm_force_; }
   const Eigen::Vector3d& palm_torque() const { return palm_torque_; }
   const Eigen::Vector3d& tip_force_without_palm(int finger) const { return f_ls_[finger]; }
+  // The palm's and fingertips' springs' reaction on the tracked hand (force, torque about the tracked
+  // palm), averaged over the apply_springs() calls since the last reading: what a device holding the
+  // tracked palm felt over that time.
+  Eigen::Matrix<double, 6, 1> mean_reaction_since_reading() const {
+    return steps_since_reading_ > 0 ? Eigen::Matrix<double, 6, 1>(reaction_sum_ / steps_since_reading_)
+                                    : Eigen::Matrix<double, 6, 1>::Zero();
+  }
   // Section 4.5: the glove actuator's scalar force for `finger` along its unit line of action n_W
   // (the distal phalanx's dorsal axis when n_W is zero), from the last apply_springs(); zero for a
   // finger that touches nothing (section 4.6.2).
@@ -120,6 +127,10 @@ class SpringHandRig {
   dGeomID palm_geom() const { return palm_geom_; }
   dGeomID phalanx_geom(int phalanx) const { return phalanx_geom_[phalanx]; }
   double total_mass_kg() const { return total_mass_kg_; }
+  // The whole hand as one rigid body moving with the palm (its joints locked): its 6x6 spatial
+  // inertia about the palm's centre, for velocities (v of the palm's centre, w), and the offset of
+  // its centre of mass from the palm's centre, world frame.
+  Eigen::Matrix<double, 6, 6> composite_inertia(Eigen::Vector3d& com_offset_W) const;
 
  private:
   // The bodies' poses for tracked hand `t` (the skeleton's forward kinematics).
@@ -145,6 +156,7 @@ class SpringHandRig {
   std::array<double, kHandJointDofs> torque_{};
   Eigen::Vector3d palm_force_ = Eigen::Vector3d::Zero(), palm_torque_ = Eigen::Vector3d::Zero();
   std::array<Eigen::Vector3d, kHandFingers> f_ls_;
+  Eigen::Matrix<double, 6, 1> reaction_sum_ = Eigen::Matrix<double, 6, 1>::Zero();
   double max_stable_step_s_ = 0;
   double total_mass_kg_ = 0;
 };

@@ -64,6 +64,14 @@ double PressSchedule::z(double t) const {
 }
 
 world::SceneDesc press_scene(const std::string& object) {
+  // The spring hand of seed 002 in the same places: its scene is the stylus scene with that hand.
+  if (object.rfind("spring_", 0) == 0) {
+    if (object.substr(7) == "deformable_bunny")
+      throw std::invalid_argument("press_scene: the spring hand does not touch deformable objects yet");
+    world::SceneDesc s = press_scene(object.substr(7));
+    for (world::HandDesc& h : s.hands) h.model = world::HandModelKind::spring;
+    return s;
+  }
   if (object == "movable_bunny") return scene_file("stylus_bunny");
   if (object == "fixed_bunny") {
     world::SceneDesc s = scene_file("stylus_bunny");
@@ -88,7 +96,8 @@ world::SceneDesc press_scene(const std::string& object) {
     return s;
   }
   throw std::invalid_argument("press_scene: no object '" + object +
-                              "' (movable_bunny, fixed_bunny, deformable_bunny, table_edge, free_space)");
+                              "' (movable_bunny, fixed_bunny, deformable_bunny, table_edge, free_space; spring_ before "
+                              "one of them but the deformable bunny for the spring hand)");
 }
 
 TouchRun run_press_hold_lift(const world::SceneDesc& scene, const PressSchedule& schedule,

@@ -38,7 +38,8 @@ struct PressSchedule {
 
 // stylus_bunny.json with the hand over `object`: movable_bunny (the scene itself), fixed_bunny (the
 // bunny static), deformable_bunny (deformable_bunny.json, the hand placed as in stylus_bunny),
-// table_edge (half the palm over the table's +x edge) or free_space (40 cm above everything).
+// table_edge (half the palm over the table's +x edge) or free_space (40 cm above everything); with
+// "spring_" before the name (not the deformable bunny's), the same with seed 002's spring hand.
 // Throws std::invalid_argument for another name.
 world::SceneDesc press_scene(const std::string& object);
 

@@ -72,7 +72,9 @@ std::unique_ptr<hand::Hand> make_spring_hand(const HandDesc& d, const HandBuild&
   config.handles = handle_count(d.handles);
   config.friction = d.material.friction;
   config.friction_static = d.material.static_friction();
+  config.gravity_m_s2 = build.gravity_m_s2;
   config.params.gravity = build.gravity_m_s2.squaredNorm() > 0;
+  config.body_step_model = build.spring_body_step_model;
   try {
     return std::make_unique<hand::spring::SpringHand>(build.ode_world, build.ode_space, config, d.pose.p_W, d.pose.q_W);
   } catch (const std::invalid_argument& e) {

@@ -23,6 +23,7 @@ struct HandBuild {
   // Where a hand made of ODE bodies (hand::OdeHand: "spring") is built: the rigid world's.
   dWorldID ode_world = nullptr;
   dSpaceID ode_space = nullptr;
+  bool spring_body_step_model = false;  // WorldOptions::spring_body_step_model
 };
 
 // The hand `desc` describes, placed at its scene pose, at rest. Throws std::runtime_error naming

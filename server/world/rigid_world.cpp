@@ -610,6 +610,32 @@ void RigidWorld::hand_contacts(std::vector<HandContact>& out) const {
   }
 }
 
+dContact RigidWorld::friction_contact(const dContactGeom& geom, dBodyID b1, dBodyID b2, double mu_sliding,
+                                      double mu_sticking) {
+  dContact c{};
+  c.geom = geom;
+  const Eigen::Vector3d p = from_ode(c.geom.pos), normal = from_ode(c.geom.normal);
+  // Relative sliding velocity at the contact decides static vs kinetic friction
+  // and aligns the first friction direction with it (ODE's friction pyramid is
+  // then exact along the slide).
+  Eigen::Vector3d v_rel = Eigen::Vector3d::Zero();
+  dVector3 v;
+  if (b1) dBodyGetPointVel(b1, p.x(), p.y(), p.z(), v), v_rel += from_ode(v);
+  if (b2) dBodyGetPointVel(b2, p.x(), p.y(), p.z(), v), v_rel -= from_ode(v);
+  const Eigen::Vector3d v_t = v_rel - v_rel.dot(normal) * normal;
+  const bool sliding = v_t.norm() > kStickSpeed_m_s;
+  c.surface.mode = dContactApprox1 | dContactSoftERP | dContactSoftCFM | dContactMu2;
+  c.surface.mu = c.surface.mu2 = sliding ? mu_sliding : mu_sticking;
+  c.surface.soft_erp = kContactErp;
+  c.surface.soft_cfm = kContactCfm;
+  if (sliding) {
+    c.surface.mode |= dContactFDir1;
+    const Eigen::Vector3d dir = v_t.normalized();
+    c.fdir1[0] = dir.x(), c.fdir1[1] = dir.y(), c.fdir1[2] = dir.z();
+  }
+  return c;
+}
+
 void RigidWorld::collide(dGeomID a, dGeomID b) {
   dBodyID ba = dGeomGetBody(a), bb = dGeomGetBody(b);
   if (ba == nullptr && bb == nullptr) return;
@@ -624,29 +650,8 @@ void RigidWorld::collide(dGeomID a, dGeomID b) {
   const Object& oa = objects_[ia];
   const Object& ob = objects_[ib];
   for (int k = 0; k < n; ++k) {
-    dContact c{};
-    c.geom = contacts[k];
-    const Eigen::Vector3d p = from_ode(c.geom.pos), normal = from_ode(c.geom.normal);
-    // Relative sliding velocity at the contact decides static vs kinetic friction
-    // and aligns the first friction direction with it (ODE's friction pyramid is
-    // then exact along the slide).
-    Eigen::Vector3d v_rel = Eigen::Vector3d::Zero();
-    dVector3 v;
-    if (ba) dBodyGetPointVel(ba, p.x(), p.y(), p.z(), v), v_rel += from_ode(v);
-    if (bb) dBodyGetPointVel(bb, p.x(), p.y(), p.z(), v), v_rel -= from_ode(v);
-    const Eigen::Vector3d v_t = v_rel - v_rel.dot(normal) * normal;
-    const bool sliding = v_t.norm() > kStickSpeed_m_s;
-    const double mu =
-        sliding ? std::sqrt(oa.friction * ob.friction) : std::sqrt(oa.friction_static * ob.friction_static);
-    c.surface.mode = dContactApprox1 | dContactSoftERP | dContactSoftCFM | dContactMu2;
-    c.surface.mu = c.surface.mu2 = mu;
-    c.surface.soft_erp = kContactErp;
-    c.surface.soft_cfm = kContactCfm;
-    if (sliding) {
-      c.surface.mode |= dContactFDir1;
-      const Eigen::Vector3d dir = v_t.normalized();
-      c.fdir1[0] = dir.x(), c.fdir1[1] = dir.y(), c.fdir1[2] = dir.z();
-    }
+    dContact c = friction_contact(contacts[k], ba, bb, std::sqrt(oa.friction * ob.friction),
+                                  std::sqrt(oa.friction_static * ob.friction_static));
     const double e = std::max(oa.restitution, ob.restitution);
     if (e > 0) {
       c.surface.mode |= dContactBounce;
@@ -671,26 +676,10 @@ void RigidWorld::collide_hand(dGeomID hand_geom, dGeomID object_geom, bool hand_
   while (geom < hand.num_geoms() && hand.geom(geom) != hand_geom) ++geom;
   dBodyID b_first = dGeomGetBody(first), b_second = dGeomGetBody(second);
   for (int k = 0; k < n; ++k) {
-    dContact c{};
-    c.geom = contacts[k];
+    // No bounce off a hand (seed 002 section 4.6.2).
+    const dContact c = friction_contact(contacts[k], b_first, b_second, std::sqrt(hand.friction() * o.friction),
+                                        std::sqrt(hand.friction_static() * o.friction_static));
     const Eigen::Vector3d p = from_ode(c.geom.pos), normal = from_ode(c.geom.normal);
-    Eigen::Vector3d v_rel = Eigen::Vector3d::Zero();
-    dVector3 v;
-    if (b_first) dBodyGetPointVel(b_first, p.x(), p.y(), p.z(), v), v_rel += from_ode(v);
-    if (b_second) dBodyGetPointVel(b_second, p.x(), p.y(), p.z(), v), v_rel -= from_ode(v);
-    const Eigen::Vector3d v_t = v_rel - v_rel.dot(normal) * normal;
-    const bool sliding = v_t.norm() > kStickSpeed_m_s;
-    const double mu =
-        sliding ? std::sqrt(hand.friction() * o.friction) : std::sqrt(hand.friction_static() * o.friction_static);
-    c.surface.mode = dContactApprox1 | dContactSoftERP | dContactSoftCFM | dContactMu2;
-    c.surface.mu = c.surface.mu2 = mu;
-    c.surface.soft_erp = kContactErp;
-    c.surface.soft_cfm = kContactCfm;
-    if (sliding) {
-      c.surface.mode |= dContactFDir1;
-      const Eigen::Vector3d dir = v_t.normalized();
-      c.fdir1[0] = dir.x(), c.fdir1[1] = dir.y(), c.fdir1[2] = dir.z();
-    }
     dJointID j = dJointCreateContact(world_, contacts_, &c);
     dJointAttach(j, b_first, b_second);
     ++contacts_last_step_;
@@ -704,6 +693,7 @@ void RigidWorld::collide_hand(dGeomID hand_geom, dGeomID object_geom, bool hand_
     // ODE's normal points from the second geom into the first: out of the object toward the hand.
     hj.contact.n_W = hand_first ? normal : Eigen::Vector3d(-normal);
     hj.contact.depth_m = c.geom.depth;
+    hj.contact.mu = c.surface.mu;
     hand_joints_.push_back(hj);
     hand_feedback_.emplace_back();
     dJointSetFeedback(j, &hand_feedback_.back());

@@ -150,7 +150,7 @@ class RigidWorld {
   struct HandContact {
     int hand = -1, handle = -1, object = -1;
     Eigen::Vector3d p_W = Eigen::Vector3d::Zero(), n_W = Eigen::Vector3d::UnitZ(), f_W = Eigen::Vector3d::Zero();
-    double depth_m = 0;
+    double depth_m = 0, mu = 0;
   };
   void hand_contacts(std::vector<HandContact>& out) const;
 
@@ -176,6 +176,10 @@ class RigidWorld {
   static void near_callback(void* data, dGeomID a, dGeomID b);
   void collide(dGeomID a, dGeomID b);
   void collide_hand(dGeomID hand_geom, dGeomID object_geom, bool hand_first);
+  // ODE's contact with friction between two bodies (either may be null): the sliding or sticking
+  // coefficient by their relative speed there, the first friction direction along the slide.
+  static dContact friction_contact(const dContactGeom& geom, dBodyID b1, dBodyID b2, double mu_sliding,
+                                   double mu_sticking);
   bool within_bounds(const RigidBodyState& s) const;
   // Resets every body beyond its bounds to its last good pose, at rest; then remembers every pose as good.
   void check_bodies();

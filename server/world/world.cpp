@@ -37,6 +37,7 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
   hand_build.drive = options.drive;
   hand_build.palm_mass_scale = options.palm_hand_mass_scale;
   if (rigid_) hand_build.ode_world = rigid_->ode_world(), hand_build.ode_space = rigid_->space();
+  hand_build.spring_body_step_model = options.spring_body_step_model;
   for (const HandDesc& d : scene.hands) {
     HandSlot slot;
     slot.name = d.name;
@@ -174,8 +175,14 @@ void World::step(double dt_s) {
 void World::finish_ode_hands() {
   if (flesh_hands_ == num_hands()) return;
   rigid_->hand_contacts(ode_hand_contacts_);
+  std::vector<hand::OdeHandContact> mine;
   for (int h = 0; h < num_hands(); ++h) {
-    if (hand_soft_[h] >= 0 || !options_.linearize) continue;
+    if (hand_soft_[h] >= 0) continue;
+    mine.clear();
+    for (const RigidWorld::HandContact& c : ode_hand_contacts_)
+      if (c.hand == h) mine.push_back({c.handle, c.p_W, c.n_W, c.depth_m, c.mu, c.f_W.norm()});
+    static_cast<hand::OdeHand&>(*hands_[h].model).set_contacts(mine);
+    if (!options_.linearize) continue;
     snapshot_.linear_model_valid[h] =
         hands_[h].model->linearize_next_step(snapshot_.linear_models[h], hand::ContactLinearization::unilateral);
   }

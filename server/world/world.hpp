@@ -50,6 +50,9 @@ struct WorldOptions {
   // False: no handle-space model in the snapshot (a caller that builds the model
   // of the coming step itself, as the server's visual loop does, skips the cost).
   bool linearize = true;
+  // A stylus-driven spring hand's model takes the hand's step as one body (SpringHandConfig::
+  // body_step_model); off: the springs' reaction, the hand held (the default).
+  bool spring_body_step_model = false;
   // Hand contact model; unset: the scene's (constraint unless the scene says "penalty"). Constraint
   // contacts (PGS on the step's Delassus operator, speculative contacts within 2 mm, clustered rows
   // with reserves, the rows the haptic tick makes and breaks) penetrate far less; penalty stays as the

@@ -76,6 +76,25 @@ TEST(WorldSpringHand, APalmPressedIntoTheFloorRestsOnItAndTheHandleFeelsTheConta
   std::printf("handle force %.2f N, contacts %.2f N (%d), hand weight %.2f N\n", F.z(), contact_z, records, weight);
 }
 
+// The model of the coming step (what the haptic loop renders until the next) against the world
+// stepped with the handle held where the model is asked: the springs' reaction on it averaged over
+// the world's ODE steps (the impulse it took, over the step). The baseline is the reaction with the
+// spring hand held where it was (the model before it took the hand's motion over the step).
+struct Prediction {
+  double model_error_n = 0, held_error_n = 0, actual_z_n = 0;
+};
+
+Prediction predict_step(World& w, const Eigen::Vector3d& dx) {
+  hand::HandleLinearization model;
+  EXPECT_TRUE(w.hand(0).linearize_next_step(model, hand::ContactLinearization::unilateral));
+  const hand::HandleState x0 = w.hand(0).handles()[0];
+  EXPECT_TRUE(w.hand(0).set_target(0, palm_at(x0.p_WH + dx, dx / w.dt())));
+  const Eigen::VectorXd held = w.hand(0).coupling_wrench(), predicted = model.evaluate(w.hand(0).handles());
+  w.step();
+  const Eigen::VectorXd actual = spring_of(w).rig().mean_reaction_since_reading();
+  return {(predicted - actual).head<3>().norm(), (held - actual).head<3>().norm(), actual.z()};
+}
+
 TEST(WorldSpringHand, ItsModelIsTheSpringsReactionLinearizedInTheHandle) {
   World w(floor_scene());
   for (int k = 0; k < 10; ++k) w.step();
@@ -105,6 +124,31 @@ TEST(WorldSpringHand, ItsModelIsTheSpringsReactionLinearizedInTheHandle) {
   const double e1 = turned_error(0.02), e2 = turned_error(0.01);
   EXPECT_NEAR(e1 / e2, 4.0, 0.2) << e1 << " " << e2;
   EXPECT_GT((w.hand(0).coupling_wrench() - model.F0).norm(), 100 * e2) << "the turn changes the reaction";
+}
+
+TEST(WorldSpringHand, ItsBodyStepModelPredictsTheStepsForceInFreeSpacePressingAndLifting) {
+  WorldOptions options;
+  options.spring_body_step_model = true;
+  World w(floor_scene(), options);
+  // Free space: a 1 cm jump of the handle. The spring palm follows within the step.
+  for (int k = 0; k < 30; ++k) w.step();
+  const Prediction jump = predict_step(w, {0.01, 0, 0});
+  std::printf("free jump: model error %.3f N, held hand %.3f N\n", jump.model_error_n, jump.held_error_n);
+  EXPECT_LT(jump.model_error_n, 0.05 * jump.held_error_n);  // measured 0.87 against 33.2 N
+  // Pressing: the palm 2 cm into the floor (its contacts are the model's rows), then 2 mm deeper.
+  for (int k = 0; k < 60; ++k) {
+    w.hand(0).set_target(0, palm_at({0.01, 0, 0.05 + std::min((k + 1) / 30.0, 1.0) * (-0.0075 - 0.05)}));
+    w.step();
+  }
+  const Prediction deeper = predict_step(w, {0, 0, -0.002});
+  std::printf("press 2 mm deeper: model error %.3f N, held hand %.3f N (force %.2f N)\n", deeper.model_error_n,
+              deeper.held_error_n, deeper.actual_z_n);
+  EXPECT_LT(deeper.model_error_n, 0.1);  // measured 0.02 N of 57 N
+  // Lifting 3 cm in one step: the rows release, nothing pulls toward the floor.
+  const Prediction lift = predict_step(w, {0, 0, 0.03});
+  std::printf("lift 3 cm: model error %.3f N, held hand %.3f N (force %.2f N)\n", lift.model_error_n, lift.held_error_n,
+              lift.actual_z_n);
+  EXPECT_LT(lift.model_error_n, 0.05 * lift.held_error_n);  // measured 0.84 against 69.9 N
 }
 
 TEST(WorldSpringHand, HardCasesEndWithoutNaNAndWithACountedResetWhereOneIsNeeded) {

@@ -95,7 +95,8 @@ LiftPulls lift_pulls(const Case& c) {
   const PressSchedule schedule(c.press);
   const long ticks = std::lround(schedule.end / kPeriod);
   const TouchRun run = press_hold_lift(c, c.object, schedule);
-  const TouchRun free = press_hold_lift(c, "free_space", schedule);
+  const std::string spring = c.object.rfind("spring_", 0) == 0 ? "spring_" : "";
+  const TouchRun free = press_hold_lift(c, spring + "free_space", schedule);
   LiftPulls out;
   EXPECT_EQ(static_cast<long>(run.trace.replies.size()), ticks);
   EXPECT_EQ(static_cast<long>(free.trace.replies.size()), ticks);
@@ -141,8 +142,27 @@ std::vector<Case> cases() {
   return out;
 }
 
+// Seed 002's spring hand (issue 18) on the rigid objects: the same bounds. A known fault, run by
+// ctest as Issue18KnownFault.SpringHandPressHoldLift (expected to fail; 11 of 36 pass). Measured
+// when it was added: energy -0.037 to -0.116 J (passive) wherever a touch was flagged, but at 15 Hz
+// none is; at 30 and 60 Hz the lift pulls 2.5-4.6 N and a second later the device still rings at
+// 0.36-1.85 N, the same motion in free space as much (3.0-5.5 N, 0.45-1.9 N): the device carries
+// the served spring hand's 0.65 kg through its 2000 N/m palm spring, and the largest force in the
+// press (2.5-4.8 N) is no more than that. The world alone presses the same hand onto the bunny
+// with 76 N at 6 cm; a light served hand (as the FEM stylus hand's 3 %) needs its fingers' springs
+// scaled too, or 20x the ODE steps, and then the fingers give way under the press.
+std::vector<Case> spring_cases() {
+  std::vector<Case> out;
+  for (const char* object : {"spring_movable_bunny", "spring_fixed_bunny", "spring_table_edge"})
+    for (int every : {67, 33, 17})
+      for (const Press& p : {kGentle, kDeepFast}) out.push_back({object, every, p});
+  return out;
+}
+
 INSTANTIATE_TEST_SUITE_P(Touch, PressHoldLift, ::testing::ValuesIn(cases()), case_name);
 INSTANTIATE_TEST_SUITE_P(Touch, PressHoldLiftForces, ::testing::ValuesIn(cases()), case_name);
+INSTANTIATE_TEST_SUITE_P(SpringTouch, PressHoldLift, ::testing::ValuesIn(spring_cases()), case_name);
+INSTANTIATE_TEST_SUITE_P(SpringTouch, PressHoldLiftForces, ::testing::ValuesIn(spring_cases()), case_name);
 
 }  // namespace
 }  // namespace hapticd::offline
