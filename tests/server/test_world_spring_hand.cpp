@@ -195,6 +195,41 @@ std::vector<hand::HandleTarget> glove_frames(const hand::HandJointAngles& a, con
   return t;
 }
 
+// A 1:1000 mass ratio either way: the 0.65 kg hand presses a 0.65 g box and a 650 kg box on the
+// floor (2 cm of the tracked palm into each), and holds 1 s: no reset, nothing non-finite, the box
+// under the palm and on the floor.
+TEST(WorldSpringHand, ItPressesBoxesAThousandTimesLighterAndHeavierThanItself) {
+  for (const double mass : {0.65e-3, 650.0}) {
+    SceneDesc scene = floor_scene();
+    ObjectDesc box;
+    box.name = "box";
+    box.shape.type = ShapeType::box;
+    box.shape.size = {0.06, 0.06, 0.02};
+    box.mass_kg = mass;
+    box.pose.p_W = {0, 0, 0.01};
+    scene.objects.push_back(box);
+    World w(scene);
+    const int b = w.rigid()->find("box");
+    const double target_z = 0.02 + 0.0125 - 0.02;  // the palm's centre 2 cm below resting on the box
+    double highest = 0, lowest = 1;
+    for (int k = 0; k < 90; ++k) {
+      const double t = (k + 1) * w.dt();
+      w.hand(0).set_target(0, palm_at({0, 0, 0.05 + std::min(t / 0.5, 1.0) * (target_z - 0.05)}));
+      w.step();
+      const double z = w.snapshot().bodies[b].p_WO.z();
+      highest = std::max(highest, z), lowest = std::min(lowest, z);
+      ASSERT_TRUE(w.hand(0).coupling_wrench().allFinite()) << mass << " kg, step " << k;
+    }
+    EXPECT_EQ(w.snapshot().resets, 0) << mass;
+    EXPECT_EQ(w.snapshot().body_resets, 0) << mass;
+    EXPECT_NEAR(lowest, 0.01, 0.002) << mass << " kg: the box stays on the floor";
+    EXPECT_NEAR(highest, 0.01, 0.002) << mass << " kg";
+    EXPECT_GT(w.hand(0).coupling_wrench().z(), 30.0) << mass << " kg: the handle feels the press";
+    std::printf("%.4g kg box: palm at z %.4f, handle force %.2f N\n", mass, spring_of(w).rig().palm_position().z(),
+                w.hand(0).coupling_wrench().z());
+  }
+}
+
 TEST(WorldSpringHand, AGlovesFramesBendItsFingersAndEachFrameFeelsItsSprings) {
   SceneDesc scene = floor_scene();
   scene.hands[0].handles = HandleSet::phalanges;
