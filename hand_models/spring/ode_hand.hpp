@@ -17,7 +17,6 @@ struct OdeHandContact {
   Eigen::Vector3d n_W = Eigen::Vector3d::UnitZ();  // out of the object, toward the hand
   double depth_m = 0;
   double mu = 0.5;  // the pair's Coulomb coefficient in that step
-  double force_n = 0;
 };
 
 class OdeHand : public Hand {

@@ -275,8 +275,9 @@ Eigen::Vector3d SpringHand::skin_point(int i) const {
 
 int SpringHand::skin_handle(int i) const {
   if (i < 0 || i >= num_skin_points()) return -1;
-  if (num_handles() == 1 || i <= kHandPhalanges) return num_handles() == 1 ? 0 : i;
-  return 1 + 3 * (i - 1 - kHandPhalanges) + 2;  // a fingertip: its distal phalanx
+  if (num_handles() == 1) return 0;
+  if (i <= kHandPhalanges) return i;            // the palm, a phalanx: its own handle
+  return 1 + 3 * (i - 1 - kHandPhalanges) + 2;  // a fingertip: its distal phalanx's
 }
 
 }  // namespace hapticd::hand::spring

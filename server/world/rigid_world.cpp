@@ -600,12 +600,9 @@ void RigidWorld::add_hand(hand::OdeHand* hand, int id) {
 
 void RigidWorld::hand_contacts(std::vector<HandContact>& out) const {
   out.clear();
-  for (size_t k = 0; k < hand_joints_.size(); ++k) {
+  for (size_t k = 0; k < hand_joints_.size(); ++k) {  // hand_feedback_[k] is joint k's
     HandContact c = hand_joints_[k].contact;
-    if (k < hand_feedback_.size()) {
-      const dJointFeedback& f = hand_feedback_[k];
-      c.f_W = hand_joints_[k].hand_first ? from_ode(f.f1) : from_ode(f.f2);
-    }
+    c.f_W = hand_joints_[k].hand_first ? from_ode(hand_feedback_[k].f1) : from_ode(hand_feedback_[k].f2);
     out.push_back(c);
   }
 }

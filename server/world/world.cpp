@@ -158,9 +158,13 @@ void World::step(double dt_s) {
     apply_reactions();
     rigid_->step(step_dt_);
     place_solved_bodies();
-    finish_ode_hands();
   }
   timings.rigid_ms = ms_since(t1);
+  if (rigid_) {
+    const auto t_ode_hands = Clock::now();
+    finish_ode_hands();
+    timings.linearize_ms += ms_since(t_ode_hands);
+  }
   record_contacts();
   const auto t2 = Clock::now();
   collide_all();
@@ -180,7 +184,7 @@ void World::finish_ode_hands() {
     if (hand_soft_[h] >= 0) continue;
     mine.clear();
     for (const RigidWorld::HandContact& c : ode_hand_contacts_)
-      if (c.hand == h) mine.push_back({c.handle, c.p_W, c.n_W, c.depth_m, c.mu, c.f_W.norm()});
+      if (c.hand == h) mine.push_back({c.handle, c.p_W, c.n_W, c.depth_m, c.mu});
     static_cast<hand::OdeHand&>(*hands_[h].model).set_contacts(mine);
     if (!options_.linearize) continue;
     snapshot_.linear_model_valid[h] =
