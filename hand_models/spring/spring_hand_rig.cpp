@@ -137,6 +137,7 @@ SpringHandRig::SpringHandRig(dWorldID world, dSpaceID space, const SpringHandPar
     }
   }
   set_body_poses(start);
+  update_tracked_tips();
   if (!params.gravity) {
     dBodySetGravityMode(palm_, 0);
     for (dBodyID b : base_) dBodySetGravityMode(b, 0);
@@ -218,6 +219,7 @@ void SpringHandRig::place(const TrackedHand& t) {
   tracked_ = tracked_before_ = t;
   tracked_.q_W.normalize();
   tracked_before_.q_W.normalize();
+  update_tracked_tips();
   steps_since_reading_ = 0;
   steps_between_readings_ = 1;
 }
@@ -255,14 +257,12 @@ void SpringHandRig::set_tracked(const TrackedHand& reading) {
   steps_between_readings_ = std::max(steps_since_reading_, 1);
   steps_since_reading_ = 0;
   reaction_sum_.setZero();
+  update_tracked_tips();
 }
 
-Eigen::Vector3d SpringHandRig::tracked_tip_in_hand(const HandJointAngles& a, int finger) const {
-  return skeleton_pose(a, left_).joints[finger][3];
-}
-
-Eigen::Vector3d SpringHandRig::spring_tip_in_hand(int finger) const {
-  return palm_orientation().conjugate() * (tip_W(finger) - palm_position());
+void SpringHandRig::update_tracked_tips() {
+  const SkeletonPose now = skeleton_pose(tracked_.angles, left_), before = skeleton_pose(tracked_before_.angles, left_);
+  for (int f = 0; f < kHandFingers; ++f) tips_H_[f] = now.joints[f][3], tips_before_H_[f] = before.joints[f][3];
 }
 
 void SpringHandRig::apply_springs(double h) {
@@ -302,8 +302,7 @@ void SpringHandRig::apply_springs(double h) {
   // The fingertips (section 4.4), and f_ls of section 4.5: the same spring in the palm's frame.
   const Eigen::Matrix3d R_s = q_s.toRotationMatrix();
   for (int f = 0; f < kHandFingers; ++f) {
-    const Eigen::Vector3d tip_t_H = tracked_tip_in_hand(tracked_.angles, f),
-                          tip_t0_H = tracked_tip_in_hand(tracked_before_.angles, f);
+    const Eigen::Vector3d &tip_t_H = tips_H_[f], &tip_t0_H = tips_before_H_[f];
     const Eigen::Vector3d tip_t = tracked_.p_W + tracked_.q_W * tip_t_H,
                           tip_t0 = tracked_before_.p_W + tracked_before_.q_W * tip_t0_H;
     const Eigen::Vector3d tip_s = tip_W(f);

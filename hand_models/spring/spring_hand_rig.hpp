@@ -135,8 +135,8 @@ class SpringHandRig {
  private:
   // The bodies' poses for tracked hand `t` (the skeleton's forward kinematics).
   void set_body_poses(const TrackedHand& t);
-  Eigen::Vector3d tracked_tip_in_hand(const HandJointAngles& a, int finger) const;
-  Eigen::Vector3d spring_tip_in_hand(int finger) const;
+  // The tracked fingertips in the hand frame, of the last reading and of the one before.
+  void update_tracked_tips();
 
   SpringHandParams params_;
   bool left_;
@@ -152,6 +152,7 @@ class SpringHandRig {
   // Per finger: the fingertip in the distal phalanx's body frame.
   std::array<Eigen::Vector3d, kHandFingers> tip_in_distal_;
   TrackedHand tracked_, tracked_before_;
+  std::array<Eigen::Vector3d, kHandFingers> tips_H_, tips_before_H_;  // update_tracked_tips()
   int steps_since_reading_ = 0, steps_between_readings_ = 1;
   std::array<double, kHandJointDofs> torque_{};
   Eigen::Vector3d palm_force_ = Eigen::Vector3d::Zero(), palm_torque_ = Eigen::Vector3d::Zero();
