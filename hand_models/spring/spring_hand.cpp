@@ -267,6 +267,15 @@ bool SpringHand::linearize_next_step(HandleLinearization& out, ContactLinearizat
 
 Eigen::VectorXd SpringHand::coupling_wrench() const { return reaction(handles_); }
 
+double SpringHand::glove_feedback(int finger, const Eigen::Vector3d& n_W) const {
+  if (num_handles() == 1 || finger < 0 || finger >= kHandFingers) return 0.0;
+  const int first = 1 + 3 * finger;  // the finger's proximal phalanx's handle; then middle, distal
+  const bool touching = std::any_of(contacts_.begin(), contacts_.end(), [first](const OdeHandContact& c) {
+    return c.handle >= first && c.handle < first + 3;
+  });
+  return rig_->feedback(finger, touching, n_W);
+}
+
 Eigen::Vector3d SpringHand::skin_point(int i) const {
   if (i <= 0) return rig_->palm_position();
   if (i <= kHandPhalanges) return rig_->phalanx_pose(i - 1).translation();

@@ -92,6 +92,11 @@ class SpringHand : public OdeHand {
   int geom_handle(int i) const override { return num_handles() == 1 ? 0 : i; }
 
   const SpringHandRig& rig() const { return *rig_; }
+  // Section 4.5's force for a 1-DoF-per-finger glove actuator along its line of action n_W (the
+  // distal phalanx's dorsal axis when zero), from the last ODE step's springs; zero for a finger
+  // none of whose phalanges touched anything in that step (section 4.6.2). A glove-driven hand only
+  // (16 handles: a contact's handle names its phalanx); 0 for a stylus-driven one.
+  double glove_feedback(int finger, const Eigen::Vector3d& n_W = Eigen::Vector3d::Zero()) const;
 
  private:
   TrackedHand tracked() const;

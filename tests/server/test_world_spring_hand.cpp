@@ -271,6 +271,46 @@ TEST(WorldSpringHand, AGlovesFramesBendItsFingersAndEachFrameFeelsItsSprings) {
   EXPECT_LT((predicted - F).norm(), 0.05 * F.norm());
 }
 
+// Section 4.5 through the world: a glove-driven hand in free space gives every finger zero (4.6.2),
+// whatever its springs pull; its index bent into the floor gives the index a force resisting the
+// flexion, and the fingers above the floor none.
+TEST(WorldSpringHand, TheGloveForceIsZeroForAFingerTouchingNothingAndResistsTheFloorsBlock) {
+  SceneDesc scene = floor_scene();
+  scene.hands[0].handles = HandleSet::phalanges;
+  WorldOptions options;
+  options.hand_gravity = false;
+  // Fingers straight, the palm 15 cm up (free space), then 4.5 cm up: the straight fingers clear
+  // the floor; the index bent 0.5, 0.3, 0.2 rad would put its distal capsule 9 mm into it.
+  hand::HandJointAngles straight;
+  for (int f = 0; f < hand::kHandFingers; ++f) straight.finger[f] = {hand::rest_joint_angles().finger[f][0], 0, 0, 0};
+  Eigen::Vector3d palm(0, 0, 0.15);
+  scene.hands[0].pose.p_W = palm;
+  World w(scene, options);
+  const auto drive = [&](const hand::HandJointAngles& a, int steps) {
+    const std::vector<hand::HandleTarget> frames = glove_frames(a, palm);
+    for (int k = 0; k < steps; ++k) {
+      for (int j = 0; j < 16; ++j) ASSERT_TRUE(w.hand(0).set_target(j, frames[j]));
+      w.step();
+    }
+  };
+  const hand::spring::SpringHand& hand = spring_of(w);
+  // Free space, the tracked index flexing: its springs pull, yet no finger touches anything.
+  hand::HandJointAngles bent = straight;
+  bent.finger[1] = {straight.finger[1][0], 0.5, 0.4, 0.3};
+  drive(straight, 30);
+  drive(bent, 3);
+  EXPECT_GT(std::abs(hand.rig().joint_torque(4 * 1 + 1)), 0.01) << "the index's springs pull";
+  for (int f = 0; f < hand::kHandFingers; ++f) EXPECT_EQ(hand.glove_feedback(f), 0.0) << f;
+  // The spring index comes down onto the floor and stops there, less flexed than the tracked one.
+  bent.finger[1] = {straight.finger[1][0], 0.5, 0.3, 0.2};
+  palm.z() = 0.045;
+  drive(bent, 60);
+  EXPECT_GT(hand.glove_feedback(1), 0.05) << "the index is stopped by the floor: the glove resists its flexion";
+  for (int f : {2, 3, 4}) EXPECT_EQ(hand.glove_feedback(f), 0.0) << f;
+  std::printf("index glove force %.3f N, base joint torque %.4f N m\n", hand.glove_feedback(1),
+              hand.rig().joint_torque(4 * 1 + 1));
+}
+
 TEST(WorldSpringHand, TheSceneFileLoadsAndStepsWithTheBunny) {
   World w(load_scene(std::string(HAPTICD_SCENES_DIR) + "/spring_bunny.json"));
   for (int k = 0; k < 30; ++k) w.step();
