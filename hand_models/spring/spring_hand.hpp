@@ -28,7 +28,7 @@
 // come from the frames (joint_angles_from_segments), and each frame feels the joint springs'
 // reactions about the spring joints' axes (its child's -tau, its parent's +tau) and, a distal one,
 // its fingertip spring's. The 6-frame glove layout (no joint angles in it) is not built yet, nor is
-// the section-4.5 finger force through the server (the rig computes it).
+// the section-4.5 finger force (glove_feedback) through the server's glove output.
 #include <memory>
 #include <vector>
 
