@@ -22,6 +22,11 @@ inline constexpr int kHandFingers = 5;
 inline constexpr int kHandPhalanges = 15;  // finger-major: thumb, index, middle, ring, little; proximal, middle, distal
 inline constexpr int kHandJointDofs = 20;
 
+// The palm as a box centred on the hand frame's origin, the rigid hands' (seeds 001 and 002 give no
+// sizes): the procedural hand's palm (procedural_hand.cpp) with its trapezoid's mean width. Half
+// extents along x, y, z, m.
+inline constexpr double kPalmHalfWidth_m = 0.037, kPalmHalfLength_m = 0.045, kPalmHalfThickness_m = 0.0125;
+
 // Fixed geometry of one finger (right hand frame), m and rad.
 struct FingerGeometry {
   Eigen::Vector3d base;           // base joint position

@@ -7,8 +7,36 @@
 #include <vector>
 
 #include "hand_models/hand.hpp"
+#include "hand_models/hand_model.hpp"
 
 namespace hapticd::hand {
+
+// What a hand that finds its own contacts (the contact-point hand of seed 001, whose phalanges do not
+// collide through ODE) asks of the world's objects, indexed as the world's (RigidWorld) are.
+class RigidObjects {
+ public:
+  virtual ~RigidObjects() = default;
+  virtual int object_count() const = 0;
+  // Point p_W against object i: depth > 0 inside, the unit normal out of the object; with margin_m > 0
+  // also points up to that far outside (depth < 0: a gap). p + depth n is then on the surface. False
+  // when farther.
+  virtual bool surface_near(int i, const Eigen::Vector3d& p_W, double margin_m, double& depth_m,
+                            Eigen::Vector3d& n_W) const = 0;
+  // The first point where the segment from -> to enters object i's surface, and the normal there.
+  virtual bool ray_hit(int i, const Eigen::Vector3d& from_W, const Eigen::Vector3d& to_W, Eigen::Vector3d& hit_W,
+                       Eigen::Vector3d& n_W) const = 0;
+  // The object's frame in the world (its geometry moves with it).
+  virtual Eigen::Isometry3d object_pose(int i) const = 0;
+  // A rigid body the world moves (false: static geometry, which nothing moves).
+  virtual bool object_dynamic(int i) const = 0;
+  // Mass, world inertia, centre of mass and velocities of a dynamic object.
+  virtual ContactBody object_body(int i) const = 0;
+  // Adds a force at the centre of mass and a torque to a dynamic object for the coming ODE step.
+  virtual void add_object_wrench(int i, const Eigen::Vector3d& f_W, const Eigen::Vector3d& torque_W) = 0;
+  // The object's Coulomb coefficients: sliding and sticking.
+  virtual double object_friction(int i) const = 0;
+  virtual double object_friction_static(int i) const = 0;
+};
 
 // A contact of an OdeHand's geom with an object, as ODE found it in the last ODE step.
 struct OdeHandContact {
@@ -24,8 +52,17 @@ class OdeHand : public Hand {
   // After the world's ODE steps: this hand's contacts in the last of them (the rows its model
   // carries into the haptic tick).
   virtual void set_contacts(const std::vector<OdeHandContact>& contacts) = 0;
-  // Before each ODE step of length h: the forces that drive the hand toward its targets.
-  virtual void before_ode_step(double h) = 0;
+  // Before each ODE step of length h: the forces that drive the hand toward its targets, and for a
+  // hand that finds its own contacts, their forces on the objects.
+  virtual void before_ode_step(double h, RigidObjects& objects) = 0;
+  // A hand that finds its own contacts (no geoms): those of the last ODE step, appended, each on the
+  // handle of its part, with the force on the hand (N) and the object's index.
+  struct OwnContact {
+    int handle = 0, object = -1;
+    Eigen::Vector3d p_W = Eigen::Vector3d::Zero(), n_W = Eigen::Vector3d::UnitZ(), f_W = Eigen::Vector3d::Zero();
+    double depth_m = 0, mu = 0;
+  };
+  virtual void own_contacts(std::vector<OwnContact>&) const {}
   // The longest ODE step its bodies take stably (the world's rigid step is cut to it).
   virtual double max_ode_step_s() const = 0;
   // After the world's ODE steps: a hand whose bodies went non-finite, too fast or too far from their

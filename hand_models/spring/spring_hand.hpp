@@ -80,7 +80,7 @@ class SpringHand : public OdeHand {
   Eigen::Vector3d skin_point(int i) const override;
   int skin_handle(int i) const override;
 
-  void before_ode_step(double h) override { rig_->apply_springs(h); }
+  void before_ode_step(double h, RigidObjects&) override { rig_->apply_springs(h); }
   void set_contacts(const std::vector<OdeHandContact>& contacts) override;
   double max_ode_step_s() const override { return rig_->max_stable_step(); }
   void after_ode_steps() override;

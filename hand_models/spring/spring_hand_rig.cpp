@@ -20,9 +20,6 @@ void ensure_ode_for_this_thread() {
 namespace hapticd::hand::spring {
 namespace {
 
-// Palm box (hand frame; seed 002 gives no sizes: the procedural hand's palm, procedural_hand.cpp,
-// with its trapezoid's mean width).
-constexpr double kPalmHalfWidth_m = 0.037, kPalmHalfLength_m = 0.045, kPalmHalfThickness_m = 0.0125;
 // The point mass joining a base joint's two hinges (section 4.6.1): this share of the proximal
 // phalanx's mass, in a sphere of half the base's flesh radius.
 constexpr double kBaseMassShare = 0.1;

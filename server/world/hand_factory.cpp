@@ -3,6 +3,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "hand_models/contact_point/contact_point_hand.hpp"
 #include "hand_models/fem_hand.hpp"
 #include "hand_models/procedural_handles.hpp"
 #include "hand_models/spring/spring_hand.hpp"
@@ -82,6 +83,22 @@ std::unique_ptr<hand::Hand> make_spring_hand(const HandDesc& d, const HandBuild&
   }
 }
 
+// Seed 001's contact-point hand: kinematic, touching the rigid world's objects through its own
+// contact points.
+std::unique_ptr<hand::Hand> make_contact_point_hand(const HandDesc& d, const HandBuild& build) {
+  hand::contact_point::ContactPointHandConfig config;
+  config.left = d.side == HandSide::left;
+  config.handles = handle_count(d.handles);
+  config.friction = d.material.friction;
+  config.friction_static = d.material.static_friction();
+  config.touches = build.hand_contacts;
+  try {
+    return std::make_unique<hand::contact_point::ContactPointHand>(config, d.pose.p_W, d.pose.q_W);
+  } catch (const std::invalid_argument& e) {
+    throw std::runtime_error("hands." + d.name + ": " + e.what());
+  }
+}
+
 }  // namespace
 
 std::unique_ptr<hand::Hand> make_hand(const HandDesc& desc, const HandBuild& build) {
@@ -90,12 +107,13 @@ std::unique_ptr<hand::Hand> make_hand(const HandDesc& desc, const HandBuild& bui
       return make_fem_hand(desc, build);
     case HandModelKind::spring:
       return make_spring_hand(desc, build);
-    case HandModelKind::soft_pad:
     case HandModelKind::contact_point:
+      return make_contact_point_hand(desc, build);
+    case HandModelKind::soft_pad:
       break;
   }
   throw std::runtime_error("hands." + desc.name + ": model \"" + std::string(to_string(desc.model)) +
-                           "\" is not built yet (only \"fem\" and \"spring\")");
+                           "\" is not built yet (only \"fem\", \"spring\" and \"contact_point\")");
 }
 
 }  // namespace hapticd::world

@@ -24,6 +24,7 @@ struct HandBuild {
   dWorldID ode_world = nullptr;
   dSpaceID ode_space = nullptr;
   bool spring_body_step_model = false;  // WorldOptions::spring_body_step_model
+  bool hand_contacts = true;            // WorldOptions::hand_contacts (false: a hand touches nothing)
 };
 
 // The hand `desc` describes, placed at its scene pose, at rest. Throws std::runtime_error naming

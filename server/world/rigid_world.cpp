@@ -375,7 +375,43 @@ RigidWorld::~RigidWorld() {
     if (o.body) dBodyDestroy(o.body);
   }
   dSpaceDestroy(space_);
+  if (ray_) dGeomDestroy(ray_);
   if (world_) dWorldDestroy(world_);
+}
+
+bool RigidWorld::ray_hit(int i, const Eigen::Vector3d& from, const Eigen::Vector3d& to, Eigen::Vector3d& hit,
+                         Eigen::Vector3d& n) const {
+  const Eigen::Vector3d d = to - from;
+  const double length = d.norm();
+  if (!(length > 0) || !std::isfinite(length)) return false;
+  if (!ray_) {
+    ensure_ode_for_this_thread();
+    ray_ = dCreateRay(nullptr, length);
+    dGeomRaySetClosestHit(ray_, 1);
+  }
+  dGeomRaySetLength(ray_, length);
+  dGeomRaySet(ray_, from.x(), from.y(), from.z(), d.x() / length, d.y() / length, d.z() / length);
+  dContactGeom c;
+  if (dCollide(ray_, objects_[i].geom, 1, &c, sizeof(dContactGeom)) < 1) return false;
+  hit = from_ode(c.pos);
+  n = from_ode(c.normal).normalized();
+  if (n.dot(d) > 0) n = -n;  // out of the object, against the ray that entered it
+  return hit.allFinite() && n.allFinite();
+}
+
+Eigen::Isometry3d RigidWorld::object_pose(int i) const {
+  const RigidBodyState s = state(i);
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = s.q_WO.toRotationMatrix();
+  T.translation() = s.p_WO;
+  return T;
+}
+
+void RigidWorld::add_object_wrench(int i, const Eigen::Vector3d& f, const Eigen::Vector3d& torque) {
+  dBodyID b = objects_[i].body;
+  if (!b || !f.allFinite() || !torque.allFinite()) return;
+  dBodyAddForce(b, f.x(), f.y(), f.z());
+  dBodyAddTorque(b, torque.x(), torque.y(), torque.z());
 }
 
 int RigidWorld::find(const std::string& n) const {
@@ -605,6 +641,23 @@ void RigidWorld::hand_contacts(std::vector<HandContact>& out) const {
     c.f_W = hand_joints_[k].hand_first ? from_ode(hand_feedback_[k].f1) : from_ode(hand_feedback_[k].f2);
     out.push_back(c);
   }
+  std::vector<hand::OdeHand::OwnContact> own;
+  for (size_t h = 0; h < hands_.size(); ++h) {
+    own.clear();
+    hands_[h]->own_contacts(own);
+    for (const hand::OdeHand::OwnContact& o : own) {
+      HandContact c;
+      c.hand = hand_ids_[h];
+      c.handle = o.handle;
+      c.object = o.object;
+      c.p_W = o.p_W;
+      c.n_W = o.n_W;
+      c.f_W = o.f_W;
+      c.depth_m = o.depth_m;
+      c.mu = o.mu;
+      out.push_back(c);
+    }
+  }
 }
 
 dContact RigidWorld::friction_contact(const dContactGeom& geom, dBodyID b1, dBodyID b2, double mu_sliding,
@@ -738,7 +791,7 @@ void RigidWorld::step(double dt) {
     contacts_last_step_ = 0;  // the last substep's
     hand_joints_.clear();
     hand_feedback_.clear();
-    for (hand::OdeHand* hand : hands_) hand->before_ode_step(dt / n);
+    for (hand::OdeHand* hand : hands_) hand->before_ode_step(dt / n, *this);
     dSpaceCollide(space_, this, &RigidWorld::near_callback);
     if (bodies <= kExactStepMaxBodies) {
       dWorldStep(world_, dt / n);

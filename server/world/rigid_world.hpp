@@ -38,7 +38,7 @@ struct BodyBounds {
   double max_distance_m = 1000.0;           // of the centre of mass from the world origin
 };
 
-class RigidWorld {
+class RigidWorld : public hand::RigidObjects {
  public:
   // ODE's exact big-matrix step up to this many bodies, its iterative QuickStep beyond.
   static constexpr int kExactStepMaxBodies = 64;
@@ -154,6 +154,22 @@ class RigidWorld {
   };
   void hand_contacts(std::vector<HandContact>& out) const;
 
+  // --- The objects as a hand that finds its own contacts sees them (hand::RigidObjects).
+  int object_count() const override { return num_objects(); }
+  bool surface_near(int i, const Eigen::Vector3d& p_W, double margin_m, double& depth_m,
+                    Eigen::Vector3d& n_W) const override {
+    return penetration(i, p_W, depth_m, n_W, Eigen::Vector3d::Zero(), margin_m);
+  }
+  // ODE's ray against the object's geom (the closest hit).
+  bool ray_hit(int i, const Eigen::Vector3d& from_W, const Eigen::Vector3d& to_W, Eigen::Vector3d& hit_W,
+               Eigen::Vector3d& n_W) const override;
+  Eigen::Isometry3d object_pose(int i) const override;
+  bool object_dynamic(int i) const override { return is_dynamic(i); }
+  hand::ContactBody object_body(int i) const override { return contact_body(i); }
+  void add_object_wrench(int i, const Eigen::Vector3d& f_W, const Eigen::Vector3d& torque_W) override;
+  double object_friction(int i) const override { return friction(i); }
+  double object_friction_static(int i) const override { return objects_[i].friction_static; }
+
   dSpaceID space() const { return space_; }
   dGeomID geom(int i) const { return objects_[i].geom; }
   // Object index of an ODE geom of this world, -1 for a foreign geom.
@@ -186,6 +202,7 @@ class RigidWorld {
 
   dWorldID world_ = nullptr;
   dSpaceID space_ = nullptr;
+  mutable dGeomID ray_ = nullptr;  // ray_hit's, in no space, made at its first use
   // OdeHands (add_hand), their geoms' data -1 - index; the last ODE step's contacts of theirs, with
   // the feedback ODE filled (reserved: the vector never moves while the joints point into it).
   std::vector<hand::OdeHand*> hands_;

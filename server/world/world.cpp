@@ -25,7 +25,8 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
       options_(options) {
   bool has_geometry = false, ode_hands = false;
   for (const ObjectDesc& o : scene.objects) has_geometry = has_geometry || o.kind != BodyKind::deformable;
-  for (const HandDesc& d : scene.hands) ode_hands = ode_hands || d.model == HandModelKind::spring;
+  for (const HandDesc& d : scene.hands)
+    ode_hands = ode_hands || d.model == HandModelKind::spring || d.model == HandModelKind::contact_point;
   if (has_geometry || ode_hands) {
     rigid_ = std::make_unique<RigidWorld>(scene, ode_hands);
     rigid_->set_bounds(options.body_bounds);
@@ -38,6 +39,7 @@ World::World(const SceneDesc& scene, const WorldOptions& options)
   hand_build.palm_mass_scale = options.palm_hand_mass_scale;
   if (rigid_) hand_build.ode_world = rigid_->ode_world(), hand_build.ode_space = rigid_->space();
   hand_build.spring_body_step_model = options.spring_body_step_model;
+  hand_build.hand_contacts = options.hand_contacts;
   for (const HandDesc& d : scene.hands) {
     HandSlot slot;
     slot.name = d.name;

@@ -1,0 +1,487 @@
+#include "hand_models/contact_point/contact_point_hand.hpp"
+
+#include <Eigen/Cholesky>
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+#include "hand_models/contact_pgs.hpp"
+
+namespace hapticd::hand::contact_point {
+namespace {
+
+bool thumb_or_palm(int s) { return s == 0 || (s - 1) / 3 == 0; }
+
+// The pair's Coulomb coefficient: the geometric mean, as the world's other contacts take it.
+double pair(double a, double b) { return std::sqrt(std::max(a, 0.0) * std::max(b, 0.0)); }
+
+// Probe points spread over a shape's surface, shape frame: the capsule's (axis along y from lo to hi,
+// radius r) at three stations by eight around and its two poles; the palm box's faces on 3 x 3 grids.
+std::vector<Eigen::Vector3d> capsule_probes(double lo, double hi, double r) {
+  std::vector<Eigen::Vector3d> out;
+  for (int a = 0; a < 3; ++a) {
+    const double y = lo + 0.5 * a * (hi - lo);
+    for (int k = 0; k < 8; ++k) {
+      const double phi = k * M_PI / 4;
+      out.emplace_back(r * std::cos(phi), y, r * std::sin(phi));
+    }
+  }
+  out.emplace_back(0, lo - r, 0);
+  out.emplace_back(0, hi + r, 0);
+  return out;
+}
+
+std::vector<Eigen::Vector3d> box_probes(const Eigen::Vector3d& half) {
+  std::vector<Eigen::Vector3d> out;
+  for (int axis = 0; axis < 3; ++axis)
+    for (int sign = -1; sign <= 1; sign += 2)
+      for (int i = -1; i <= 1; ++i)
+        for (int j = -1; j <= 1; ++j) {
+          Eigen::Vector3d p;
+          p[axis] = sign * half[axis];
+          p[(axis + 1) % 3] = 0.8 * i * half[(axis + 1) % 3];
+          p[(axis + 2) % 3] = 0.8 * j * half[(axis + 2) % 3];
+          out.push_back(p);
+        }
+  return out;
+}
+
+const Eigen::Vector3d kPalmHalf(kPalmHalfWidth_m, kPalmHalfLength_m, kPalmHalfThickness_m);
+
+}  // namespace
+
+ContactPointHand::ContactPointHand(const ContactPointHandConfig& config, const Eigen::Vector3d& p_W,
+                                   const Eigen::Quaterniond& q_W)
+    : config_(config), handles_(static_cast<std::size_t>(std::max(config.handles, 1))) {
+  if (config.handles != 1 && config.handles != 1 + kHandPhalanges)
+    throw std::invalid_argument(
+        "the contact-point hand is driven by its palm (1 handle, a stylus) or by a glove's palm "
+        "and 15 phalanges (16), not " +
+        std::to_string(config.handles) + " handles");
+  const ContactPointParams& p = config.params;
+  if (!(p.gamma_n_m > 0) || !std::isfinite(p.gamma_n_m) || !(p.threshold_m >= 0) || !(p.threshold_m < 0.05) ||
+      p.samples < 1 || p.samples > kMaxContactSamples || !(p.sample_radius_m >= 0) || !(p.wide_sample_radius_m >= 0) ||
+      !(p.sample_radius_m < 0.05) || !(p.wide_sample_radius_m < 0.05) || !(p.lookahead_m >= p.threshold_m) ||
+      !(p.lookahead_m < 0.1))
+    throw std::invalid_argument(
+        "contact-point hand: gamma must be positive and finite, the threshold in [0, 5 cm), 1 to " +
+        std::to_string(kMaxContactSamples) +
+        " samples, their radii in [0, 5 cm) and the lookahead in [threshold, 10 cm)");
+  rest_pose_ = skeleton_pose(rest_joint_angles(), config.left);
+  probes_S_[0] = box_probes(kPalmHalf);
+  for (int f = 0; f < kHandFingers; ++f) {
+    const FingerGeometry& g = finger_geometry()[f];
+    for (int k = 0; k < 3; ++k) {
+      const int i = 3 * f + k;
+      radius_[i] = 0.5 * (g.radius[k] + g.radius[k + 1]);
+      // Joint to joint about the segment's midpoint; the distal's round end at the fingertip.
+      half_length_[i] = 0.5 * g.length[k];
+      const double hi = k < 2 ? half_length_[i] : half_length_[i] - radius_[i];
+      probes_S_[1 + i] = capsule_probes(-half_length_[i], hi, radius_[i]);
+    }
+  }
+  place_handles(p_W, q_W.normalized());
+}
+
+void ContactPointHand::place_handles(const Eigen::Vector3d& p_W, const Eigen::Quaterniond& q_W) {
+  for (HandleState& h : handles_) h = HandleState{};
+  handles_[0].p_WH = p_W;
+  handles_[0].q_WH = q_W;
+  for (int i = 0; i + 1 < num_handles(); ++i) {
+    handles_[i + 1].p_WH = p_W + q_W * rest_pose_.centre[i];
+    handles_[i + 1].q_WH = q_W * Eigen::Quaterniond(rest_pose_.R[i]);
+  }
+}
+
+HandleInfo ContactPointHand::handle_info(int, int) const {
+  HandleInfo info;
+  info.mass_kg = config_.handle_mass_kg;
+  info.inertia_B = Eigen::Matrix3d::Identity() * 0.4 * config_.handle_mass_kg * 1e-4;  // a 1 cm ball
+  return info;
+}
+
+bool ContactPointHand::set_target(int j, const HandleTarget& target) {
+  if (j < 0 || j >= num_handles() || !target.p_W.allFinite() || !target.q_W.coeffs().allFinite() ||
+      !target.v_W.allFinite() || !target.w_W.allFinite() || !(target.q_W.norm() > 0))
+    return false;
+  HandleState& h = handles_[static_cast<std::size_t>(j)];
+  h.p_WH = target.p_W;
+  h.q_WH = target.q_W.normalized();
+  h.v_WH = target.v_W;
+  h.w_WH = target.w_W;
+  return true;
+}
+
+void ContactPointHand::place(const Eigen::Vector3d& p_W, const Eigen::Quaterniond& q_W) {
+  place_handles(p_W, q_W.normalized());
+  clear_contacts();
+}
+
+void ContactPointHand::clear_contacts() {
+  for (Contact& c : contacts_) c = Contact{};
+  has_last_ = false;  // a placed hand did not sweep from where it was
+}
+
+void ContactPointHand::recover(const Eigen::Vector3d& fallback_p_W, const Eigen::Quaterniond& fallback_q_W) {
+  ++resets_;
+  bool whole = true;
+  for (const HandleState& h : handles_) whole = whole && h.p_WH.allFinite() && h.q_WH.coeffs().allFinite();
+  if (whole) {
+    clear_contacts();
+  } else if (fallback_p_W.allFinite() && fallback_q_W.coeffs().allFinite()) {
+    place(fallback_p_W, fallback_q_W);
+  } else {
+    place(Eigen::Vector3d::Zero(), Eigen::Quaterniond::Identity());
+  }
+}
+
+Eigen::Isometry3d ContactPointHand::shape_pose(int s) const {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  if (num_handles() > 1 || s == 0) {
+    const HandleState& h = handles_[static_cast<std::size_t>(num_handles() > 1 ? s : 0)];
+    T.linear() = h.q_WH.toRotationMatrix();
+    T.translation() = h.p_WH;
+    return T;
+  }
+  const HandleState& palm = handles_[0];
+  T.linear() = palm.q_WH * rest_pose_.R[s - 1];
+  T.translation() = palm.p_WH + palm.q_WH * rest_pose_.centre[s - 1];
+  return T;
+}
+
+Eigen::Vector3d ContactPointHand::project_to_surface(int s, const Eigen::Vector3d& p) const {
+  if (s == 0) {
+    Eigen::Vector3d q = p.cwiseMax(-kPalmHalf).cwiseMin(kPalmHalf);
+    if ((q - p).squaredNorm() > 0) return q;  // outside: the clamp is on the surface
+    // Inside: out through the nearest face.
+    const Eigen::Vector3d gap = kPalmHalf - p.cwiseAbs();
+    int axis = 0;
+    gap.minCoeff(&axis);
+    q[axis] = p[axis] >= 0 ? kPalmHalf[axis] : -kPalmHalf[axis];
+    return q;
+  }
+  const int i = s - 1, k = i % 3;
+  const double lo = -half_length_[i], hi = k < 2 ? half_length_[i] : half_length_[i] - radius_[i];
+  const Eigen::Vector3d a(0, std::clamp(p.y(), lo, hi), 0);
+  Eigen::Vector3d d = p - a;
+  if (d.norm() < 1e-12) d = Eigen::Vector3d::UnitZ() * -1.0;  // on the axis: the palmar side
+  return a + radius_[i] * d.normalized();
+}
+
+int ContactPointHand::probe(int s, const RigidObjects& objects, double margin_m, Eigen::Vector3d& p_S, double& depth_m,
+                            Eigen::Vector3d& n_W) const {
+  const Eigen::Isometry3d T = shape_pose(s);
+  int best = -1;
+  double best_depth = -margin_m;
+  for (int o = 0; o < objects.object_count(); ++o)
+    for (const Eigen::Vector3d& q : probes_S_[s]) {
+      double d;
+      Eigen::Vector3d n;
+      if (!objects.surface_near(o, T * q, margin_m, d, n) || !(d > best_depth)) continue;
+      best = o, best_depth = d, p_S = q, n_W = n;
+    }
+  depth_m = best_depth;
+  if (best < 0) return best;
+  // A shape lying along a face touches it with many probes at once (a capsule along a table, the
+  // palm flat on it): the contact centres on those within kFlatTolerance_m of the deepest.
+  constexpr double kFlatTolerance_m = 5e-4;
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  int count = 0;
+  for (const Eigen::Vector3d& q : probes_S_[s]) {
+    double d;
+    Eigen::Vector3d n;
+    if (objects.surface_near(best, T * q, margin_m + kFlatTolerance_m, d, n) && d > best_depth - kFlatTolerance_m)
+      sum += q, ++count;
+  }
+  const Eigen::Vector3d centre = project_to_surface(s, sum / count);
+  double d;
+  Eigen::Vector3d n;
+  if (count > 1 && objects.surface_near(best, T * centre, margin_m + kFlatTolerance_m, d, n) &&
+      d > best_depth - kFlatTolerance_m)
+    p_S = centre, depth_m = d, n_W = n;
+  return best;
+}
+
+void ContactPointHand::make_contact(int s, int object, const Eigen::Vector3d& p_S, const Eigen::Vector3d& n_W,
+                                    const RigidObjects& objects) {
+  const ContactPointParams& prm = config_.params;
+  const Eigen::Isometry3d T = shape_pose(s), T_O = objects.object_pose(object), T_OW = T_O.inverse();
+  const double rho = thumb_or_palm(s) ? prm.wide_sample_radius_m : prm.sample_radius_m;
+  const Eigen::Vector3d n_S = T.linear().transpose() * n_W;
+  const Eigen::Vector3d t1 = n_S.unitOrthogonal(), t2 = n_S.cross(t1);
+  Contact c;
+  c.object = object;
+  c.mu_static = pair(config_.friction_static, objects.object_friction_static(object));
+  c.mu_dynamic = pair(config_.friction, objects.object_friction(object));
+  // The samples on a ring around the probe point (a symmetric area: no moment about its centre from
+  // an even load), each put on the shape's surface, each with the object's surface point nearest to it.
+  for (int k = 0; k < prm.samples; ++k) {
+    const double phi = 2 * M_PI * k / prm.samples;
+    const Eigen::Vector3d q =
+        prm.samples == 1 ? p_S : project_to_surface(s, p_S + rho * (std::cos(phi) * t1 + std::sin(phi) * t2));
+    const Eigen::Vector3d q_W = T * q;
+    double d;
+    Eigen::Vector3d n, C;
+    if (!objects.surface_near(object, q_W, prm.threshold_m + 2 * rho + 0.01, d, n)) continue;
+    C = q_W + d * n;
+    // A point already deep inside: where it entered the surface since the last step, when it did.
+    Eigen::Vector3d hit, n_hit;
+    if (d > prm.threshold_m && has_last_ && objects.ray_hit(object, last_T_[s] * q, q_W, hit, n_hit))
+      C = hit, n = n_hit;
+    Sample& sample = c.samples[c.count++];
+    sample.p_S = q;
+    sample.C_O = T_OW * C;
+    sample.n_O = T_OW.linear() * n;
+  }
+  if (c.count > 0) contacts_[s] = c;
+}
+
+void ContactPointHand::slide(Sample& sample, double mu_dynamic, const Eigen::Isometry3d& T_O,
+                             const Eigen::Vector3d& p_W, int object, const RigidObjects& objects) const {
+  const Eigen::Vector3d C = T_O * sample.C_O, n = T_O.linear() * sample.n_O;
+  const Eigen::Vector3d target = slide_target(mu_dynamic, C, n, p_W);
+  if (target == C) return;
+  // Section 3.5: from just outside the surface, a ray toward the hand point finds the surface.
+  const double offset = std::max(config_.params.threshold_m, 1e-3);
+  Eigen::Vector3d C_new, n_new;
+  double d;
+  if (objects.ray_hit(object, target + offset * n, p_W, C_new, n_new)) {
+  } else if (objects.surface_near(object, target, 0.01, d, n_new)) {
+    C_new = target + d * n_new;  // the ray missed (the target is past an edge): the nearest surface point
+  } else {
+    return;
+  }
+  if (n_new.dot(n) <= 0) return;  // an occluding part of the object (3.5, rays R4 and R5 of Fig. 3)
+  const Eigen::Isometry3d T_OW = T_O.inverse();
+  sample.C_O = T_OW * C_new;
+  sample.n_O = T_OW.linear() * n_new;
+}
+
+void ContactPointHand::before_ode_step(double h, RigidObjects& objects) {
+  objects_ = &objects;
+  if (!config_.touches) return;
+  const ContactPointParams& prm = config_.params;
+  const int n_objects = objects.object_count();
+  wrench_.assign(static_cast<std::size_t>(n_objects), Vector6::Zero());
+  stiffness_.assign(static_cast<std::size_t>(n_objects), Matrix6::Zero());
+  applied_.assign(static_cast<std::size_t>(n_objects), Vector6::Zero());
+  std::vector<char> pushed(static_cast<std::size_t>(n_objects), 0);
+  for (int s = 0; s < kContactPointShapes; ++s) {
+    Contact& c = contacts_[s];
+    const Eigen::Isometry3d T = shape_pose(s);
+    if (c.object < 0) {
+      Eigen::Vector3d p_S, n_W;
+      double depth;
+      int o = probe(s, objects, prm.threshold_m, p_S, depth, n_W);
+      if (o >= 0 && depth > prm.threshold_m && has_last_) {
+        // The shape went past the threshold within one step (a fast move, a teleport): the object its
+        // point entered first along the way (3.5: continuous collision detection for fast hands).
+        double first = INFINITY;
+        const Eigen::Vector3d from = last_T_[s] * p_S, to = T * p_S;
+        for (int k = 0; k < objects.object_count(); ++k) {
+          Eigen::Vector3d hit, n;
+          if (objects.ray_hit(k, from, to, hit, n) && (hit - from).norm() < first)
+            first = (hit - from).norm(), o = k, n_W = n;
+        }
+      }
+      if (o >= 0) make_contact(s, o, p_S, n_W, objects);
+      continue;  // its force starts with the next ODE step
+    }
+    const Eigen::Isometry3d T_O = objects.object_pose(c.object);
+    const bool dynamic = objects.object_dynamic(c.object);
+    const Eigen::Vector3d com = dynamic ? objects.object_body(c.object).p_com_W : Eigen::Vector3d::Zero();
+    const double gamma = prm.gamma_n_m / c.count;
+    bool left = true;
+    int active = 0;
+    c.f_W.setZero();
+    Eigen::Vector3d p_sum = Eigen::Vector3d::Zero(), n_sum = Eigen::Vector3d::Zero();
+    c.depth_m = 0;
+    for (int k = 0; k < c.count; ++k) {
+      Sample& sample = c.samples[k];
+      const Eigen::Vector3d p = T * sample.p_S, C = T_O * sample.C_O, n = T_O.linear() * sample.n_O;
+      const double depth = n.dot(C - p);
+      left = left && depth < -prm.threshold_m;
+      const ContactForce f = contact_force(gamma, c.mu_static, c.mu_dynamic, C, n, p);
+      sample.state = f.state;
+      if (f.state == ContactState::separated) continue;
+      ++active;
+      c.f_W += f.total();
+      p_sum += C;
+      n_sum += n;
+      c.depth_m = std::max(c.depth_m, depth);
+      if (dynamic) {
+        // The object takes -f at C; C moves with it, so the spring stiffens its motion (implicit below).
+        const Eigen::Vector3d r = C - com;
+        Eigen::Matrix<double, 3, 6> J;
+        J << Eigen::Matrix3d::Identity(), -skew(r);
+        const Eigen::Matrix3d K = f.state == ContactState::stuck ? Eigen::Matrix3d(gamma * Eigen::Matrix3d::Identity())
+                                                                 : Eigen::Matrix3d(gamma * n * n.transpose());
+        wrench_[c.object] += J.transpose() * -f.total();
+        stiffness_[c.object] += J.transpose() * K * J;
+        pushed[c.object] = 1;
+      }
+      if (f.state == ContactState::sliding) slide(sample, c.mu_dynamic, T_O, p, c.object, objects);
+    }
+    if (left) {
+      c = Contact{};  // every hand point has left the object: the contact ends (3.2)
+      continue;
+    }
+    if (active > 0) c.p_W = p_sum / active, c.n_W = n_sum.normalized();
+  }
+  for (int s = 0; s < kContactPointShapes; ++s) last_T_[s] = shape_pose(s);
+  has_last_ = true;
+  // Each pushed body: the springs integrated implicitly over h with its mass (a 6x6 solve), applied
+  // as the force that gives ODE's explicit step the same velocity change.
+  for (int o = 0; o < n_objects; ++o) {
+    if (!pushed[o]) continue;
+    const ContactBody b = objects.object_body(o);
+    Matrix6 M = Matrix6::Zero();
+    M.topLeftCorner<3, 3>() = b.mass_kg * Eigen::Matrix3d::Identity();
+    M.bottomRightCorner<3, 3>() = b.inertia_W;
+    Vector6 xi;
+    xi << b.v_W, b.w_W;
+    const Eigen::LDLT<Matrix6> A(M + h * h * stiffness_[o]);
+    const Vector6 dxi = A.solve(h * wrench_[o] - h * h * stiffness_[o] * xi);
+    const Vector6 w = M * dxi / h;
+    if (A.info() != Eigen::Success || !w.allFinite()) {
+      ++resets_;  // nothing non-finite reaches a body
+      clear_contacts();
+      return;
+    }
+    objects.add_object_wrench(o, w.head<3>(), w.tail<3>());
+    applied_[o] = w;
+  }
+}
+
+void ContactPointHand::own_contacts(std::vector<OwnContact>& out) const {
+  for (int s = 0; s < kContactPointShapes; ++s) {
+    const Contact& c = contacts_[s];
+    if (c.object < 0 || c.f_W.isZero()) continue;
+    OwnContact o;
+    o.handle = shape_handle(s);
+    o.object = c.object;
+    o.p_W = c.p_W;
+    o.n_W = c.n_W;
+    o.f_W = c.f_W;
+    o.depth_m = c.depth_m;
+    o.mu = c.mu_dynamic;
+    out.push_back(o);
+  }
+}
+
+bool ContactPointHand::linearize_next_step(HandleLinearization& out, ContactLinearization) {
+  const int m = num_handles();
+  out.F0 = Eigen::VectorXd::Zero(6 * m);
+  out.K = Eigen::MatrixXd::Zero(6 * m, 6 * m);
+  out.D = Eigen::MatrixXd::Zero(6 * m, 6 * m);
+  out.x0 = handles_;
+  out.contacts = HandleContactModel{};
+  if (!objects_ || !config_.touches) return true;
+  const ContactPointParams& prm = config_.params;
+  struct Row {
+    int handle;
+    Eigen::Vector3d p, C, n;
+    double gamma, mu, depth;
+  };
+  std::vector<Row> rows;
+  for (int s = 0; s < kContactPointShapes; ++s) {
+    const Contact& c = contacts_[s];
+    const Eigen::Isometry3d T = shape_pose(s);
+    if (c.object >= 0) {
+      const Eigen::Isometry3d T_O = objects_->object_pose(c.object);
+      for (int k = 0; k < c.count; ++k) {
+        const Sample& sample = c.samples[k];
+        const Eigen::Vector3d p = T * sample.p_S, C = T_O * sample.C_O, n = T_O.linear() * sample.n_O;
+        const double depth = n.dot(C - p);
+        if (depth > -prm.lookahead_m)
+          rows.push_back({shape_handle(s), p, C, n, prm.gamma_n_m / c.count, c.mu_static, depth});
+      }
+      continue;
+    }
+    // A speculative row: the shape's nearest point, the whole contact's gamma.
+    Eigen::Vector3d p_S, n_W;
+    double depth;
+    const int o = probe(s, *objects_, prm.lookahead_m, p_S, depth, n_W);
+    if (o < 0) continue;
+    const Eigen::Vector3d p = T * p_S;
+    rows.push_back({shape_handle(s), p, p + depth * n_W, n_W, prm.gamma_n_m,
+                    pair(config_.friction_static, objects_->object_friction_static(o)), depth});
+  }
+  if (rows.empty()) return true;
+  if (static_cast<int>(rows.size()) > kMaxLinearizedContacts) {
+    std::partial_sort(rows.begin(), rows.begin() + kMaxLinearizedContacts, rows.end(),
+                      [](const Row& a, const Row& b) { return a.depth > b.depth; });
+    rows.resize(kMaxLinearizedContacts);
+  }
+  // Eqs. 1-5 as rows (see the header): with impulse lambda over the step h along direction e of the
+  // contact frame, the hand takes e lambda / h at p; the row's velocity u = -e . (C - p(x)) / h +
+  // lambda / (gamma h^2) vanishes at lambda = gamma h e . (C - p), the spring, and the complementarity
+  // keeps lambda_n >= 0 (a hand point outside exerts nothing) and the tangential impulses in the cone.
+  const double h = dt_s_;
+  const int c = static_cast<int>(rows.size());
+  HandleContactModel& model = out.contacts;
+  model.G = Eigen::MatrixXd::Zero(6 * m, 3 * c);
+  model.W = Eigen::MatrixXd::Zero(3 * c, 3 * c);
+  model.u0 = Eigen::VectorXd::Zero(3 * c);
+  model.U_K = Eigen::MatrixXd::Zero(3 * c, 6 * m);
+  model.U_D = Eigen::MatrixXd::Zero(3 * c, 6 * m);
+  model.bias = Eigen::VectorXd::Zero(c);
+  model.mu.resize(c);
+  model.lambda0 = Eigen::VectorXd::Zero(3 * c);
+  for (int i = 0; i < c; ++i) {
+    const Row& r = rows[i];
+    const Eigen::Vector3d t1 = r.n.unitOrthogonal(), t2 = r.n.cross(t1);
+    const Eigen::Vector3d dirs[3] = {r.n, t1, t2};
+    const Eigen::Vector3d arm = r.p - handles_[r.handle].p_WH;
+    const ContactForce f = contact_force(r.gamma, r.mu, r.mu, r.C, r.n, r.p);
+    for (int a = 0; a < 3; ++a) {
+      const int row = 3 * i + a;
+      const Eigen::Vector3d& e = dirs[a];
+      model.G.block<3, 1>(6 * r.handle, row) = e / h;
+      model.G.block<3, 1>(6 * r.handle + 3, row) = arm.cross(e) / h;
+      model.U_K.row(row) = model.G.col(row).transpose();
+      model.W(row, row) = 1.0 / (r.gamma * h * h);
+      model.u0[row] = -e.dot(r.C - r.p) / h;
+      model.lambda0[row] = h * e.dot(f.total());
+    }
+    model.mu[i] = r.mu;
+  }
+  return true;
+}
+
+Eigen::VectorXd ContactPointHand::coupling_wrench() const {
+  Eigen::VectorXd out = Eigen::VectorXd::Zero(6 * num_handles());
+  if (!objects_) return out;
+  for (int s = 0; s < kContactPointShapes; ++s) {
+    const Contact& c = contacts_[s];
+    if (c.object < 0) continue;
+    const Eigen::Isometry3d T = shape_pose(s), T_O = objects_->object_pose(c.object);
+    const int j = shape_handle(s);
+    for (int k = 0; k < c.count; ++k) {
+      const Sample& sample = c.samples[k];
+      const Eigen::Vector3d p = T * sample.p_S;
+      const Eigen::Vector3d f = contact_force(config_.params.gamma_n_m / c.count, c.mu_static, c.mu_dynamic,
+                                              T_O * sample.C_O, T_O.linear() * sample.n_O, p)
+                                    .total();
+      out.segment<3>(6 * j) += f;
+      out.segment<3>(6 * j + 3) += (p - handles_[j].p_WH).cross(f);
+    }
+  }
+  return out;
+}
+
+Eigen::Vector3d ContactPointHand::skin_point(int i) const {
+  if (i < kContactPointShapes) return shape_pose(std::max(i, 0)).translation();
+  const int distal = 3 * (i - kContactPointShapes) + 2;
+  return shape_pose(1 + distal) * Eigen::Vector3d(0, half_length_[distal], 0);
+}
+
+int ContactPointHand::skin_handle(int i) const {
+  if (i < 0 || i >= num_skin_points()) return -1;
+  if (num_handles() == 1) return 0;
+  if (i < kContactPointShapes) return i;
+  return 1 + 3 * (i - kContactPointShapes) + 2;  // a fingertip: its distal phalanx's
+}
+
+}  // namespace hapticd::hand::contact_point
