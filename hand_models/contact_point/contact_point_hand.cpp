@@ -49,6 +49,9 @@ std::vector<Eigen::Vector3d> box_probes(const Eigen::Vector3d& half) {
 
 const Eigen::Vector3d kPalmHalf(kPalmHalfWidth_m, kPalmHalfLength_m, kPalmHalfThickness_m);
 
+// A sample belongs to its contact's surface while their normals are within 60 degrees.
+constexpr double kSameSurfaceCosine = 0.5;
+
 }  // namespace
 
 ContactPointHand::ContactPointHand(const ContactPointHandConfig& config, const Eigen::Vector3d& p_W,
@@ -229,6 +232,10 @@ void ContactPointHand::make_contact(int s, int object, const Eigen::Vector3d& p_
     Eigen::Vector3d hit, n_hit;
     if (d > prm.threshold_m && has_last_ && objects.ray_hit(object, last_T_[s] * q, q_W, hit, n_hit))
       C = hit, n = n_hit;
+    // A sample whose nearest surface faces another way than the contact's (the far side of a thin
+    // part, a bulge's underside beside the contact) is another part of the object (3.5's occlusion
+    // test by the normals): a plane there would push the hand sideways or pull it in.
+    if (n.dot(n_W) < kSameSurfaceCosine) continue;
     Sample& sample = c.samples[c.count++];
     sample.p_S = q;
     sample.C_O = T_OW * C;
@@ -301,8 +308,14 @@ void ContactPointHand::before_ode_step(double h, RigidObjects& objects) {
       Sample& sample = c.samples[k];
       const Eigen::Vector3d p = T * sample.p_S, C = T_O * sample.C_O, n = T_O.linear() * sample.n_O;
       const double depth = n.dot(C - p);
-      left = left && depth < -prm.threshold_m;
-      const ContactForce f = contact_force(gamma, c.mu_static, c.mu_dynamic, C, n, p);
+      // The contact point's tangent plane stands for the object only near it: a hand point farther
+      // than the threshold outside the object's surface (past an edge, beside a curved part) exerts
+      // nothing. (Not its sign: a mesh's distance grid and the plane differ by up to a millimetre.)
+      double d_geometry;
+      Eigen::Vector3d n_geometry;
+      const bool near = objects.surface_near(c.object, p, prm.threshold_m, d_geometry, n_geometry);
+      left = left && !near;
+      const ContactForce f = near ? contact_force(gamma, c.mu_static, c.mu_dynamic, C, n, p) : ContactForce{};
       sample.state = f.state;
       if (f.state == ContactState::separated) continue;
       ++active;
@@ -394,7 +407,9 @@ bool ContactPointHand::linearize_next_step(HandleLinearization& out, ContactLine
         const Sample& sample = c.samples[k];
         const Eigen::Vector3d p = T * sample.p_S, C = T_O * sample.C_O, n = T_O.linear() * sample.n_O;
         const double depth = n.dot(C - p);
-        if (depth > -prm.lookahead_m)
+        double d;
+        Eigen::Vector3d n_geometry;
+        if (depth > -prm.lookahead_m && objects_->surface_near(c.object, p, prm.lookahead_m, d, n_geometry))
           rows.push_back({shape_handle(s), p, C, n, prm.gamma_n_m / c.count, c.mu_static, depth});
       }
       continue;
@@ -461,6 +476,9 @@ Eigen::VectorXd ContactPointHand::coupling_wrench() const {
     for (int k = 0; k < c.count; ++k) {
       const Sample& sample = c.samples[k];
       const Eigen::Vector3d p = T * sample.p_S;
+      double d;
+      Eigen::Vector3d n;
+      if (!objects_->surface_near(c.object, p, config_.params.threshold_m, d, n)) continue;  // as before_ode_step
       const Eigen::Vector3d f = contact_force(config_.params.gamma_n_m / c.count, c.mu_static, c.mu_dynamic,
                                               T_O * sample.C_O, T_O.linear() * sample.n_O, p)
                                     .total();

@@ -113,7 +113,7 @@ class ContactPointHand : public OdeHand {
   // A sample of a contact: a point of the hand (shape frame) and its contact point and normal on the
   // object (object frame), with its state in the last ODE step.
   struct Sample {
-    Eigen::Vector3d p_S, C_O, n_O;
+    Eigen::Vector3d p_S = Eigen::Vector3d::Zero(), C_O = Eigen::Vector3d::Zero(), n_O = Eigen::Vector3d::UnitZ();
     ContactState state = ContactState::separated;
   };
   struct Contact {

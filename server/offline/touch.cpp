@@ -64,12 +64,18 @@ double PressSchedule::z(double t) const {
 }
 
 world::SceneDesc press_scene(const std::string& object) {
-  // The spring hand of seed 002 in the same places: its scene is the stylus scene with that hand.
-  if (object.rfind("spring_", 0) == 0) {
-    if (object.substr(7) == "deformable_bunny")
-      throw std::invalid_argument("press_scene: the spring hand does not touch deformable objects yet");
-    world::SceneDesc s = press_scene(object.substr(7));
-    for (world::HandDesc& h : s.hands) h.model = world::HandModelKind::spring;
+  // The rigid hands of seeds 002 and 001 in the same places: their scene is the stylus scene with that
+  // hand.
+  for (const auto& [prefix, model] :
+       {std::pair<std::string, world::HandModelKind>{"spring_", world::HandModelKind::spring},
+        {"contact_point_", world::HandModelKind::contact_point}}) {
+    if (object.rfind(prefix, 0) != 0) continue;
+    const std::string place = object.substr(prefix.size());
+    if (place == "deformable_bunny")
+      throw std::invalid_argument("press_scene: the " + prefix.substr(0, prefix.size() - 1) +
+                                  " hand does not touch deformable objects yet");
+    world::SceneDesc s = press_scene(place);
+    for (world::HandDesc& h : s.hands) h.model = model;
     return s;
   }
   if (object == "movable_bunny") return scene_file("stylus_bunny");
@@ -96,8 +102,8 @@ world::SceneDesc press_scene(const std::string& object) {
     return s;
   }
   throw std::invalid_argument("press_scene: no object '" + object +
-                              "' (movable_bunny, fixed_bunny, deformable_bunny, table_edge, free_space; spring_ before "
-                              "one of them but the deformable bunny for the spring hand)");
+                              "' (movable_bunny, fixed_bunny, deformable_bunny, table_edge, free_space; spring_ or "
+                              "contact_point_ before one of them but the deformable bunny for a rigid hand)");
 }
 
 TouchRun run_press_hold_lift(const world::SceneDesc& scene, const PressSchedule& schedule,

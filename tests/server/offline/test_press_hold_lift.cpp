@@ -68,6 +68,13 @@ TouchRun press_hold_lift(const Case& c, const std::string& object, const PressSc
 
 class PressHoldLift : public ::testing::TestWithParam<Case> {};
 
+// The free space of the same hand model as `object` ("spring_fixed_bunny": "spring_free_space").
+std::string free_space_of(const std::string& object) {
+  for (const char* model : {"spring_", "contact_point_"})
+    if (object.rfind(model, 0) == 0) return std::string(model) + "free_space";
+  return "free_space";
+}
+
 TEST_P(PressHoldLift, TakesEnergyOutOfTheDeviceAndLetsGo) {
   const Case& c = GetParam();
   const PressSchedule schedule(c.press);
@@ -95,8 +102,7 @@ LiftPulls lift_pulls(const Case& c) {
   const PressSchedule schedule(c.press);
   const long ticks = std::lround(schedule.end / kPeriod);
   const TouchRun run = press_hold_lift(c, c.object, schedule);
-  const std::string spring = c.object.rfind("spring_", 0) == 0 ? "spring_" : "";
-  const TouchRun free = press_hold_lift(c, spring + "free_space", schedule);
+  const TouchRun free = press_hold_lift(c, free_space_of(c.object), schedule);
   LiftPulls out;
   EXPECT_EQ(static_cast<long>(run.trace.replies.size()), ticks);
   EXPECT_EQ(static_cast<long>(free.trace.replies.size()), ticks);
@@ -159,10 +165,28 @@ std::vector<Case> spring_cases() {
   return out;
 }
 
+// Seed 001's contact-point hand (issue 18) on the rigid objects: the same bounds. Its model is its
+// own force law (penalty rows the tick solves), and the served hand has no mass. PressHoldLift passes
+// (18 of 18: energy -0.0015 to -0.028 J, nothing felt or flagged a second after the lift). The force
+// bounds are a known fault, run by ctest as Issue18KnownFault.ContactPointHandLiftPulls (13 of 18 pass):
+// on the bunny the lift pulls 0.43-2.5 N in 5 cases, the frictionless hand as much (0.57-1.9 N), so not
+// static friction: rows and contacts of surfaces facing partly down (normals 20-40 degrees below the
+// horizon, the bunny's flanks under the fingers the stylus hand holds curled), which the rigid capsules
+// meet on the way up; the FEM hand's flesh gives way there.
+std::vector<Case> contact_point_cases() {
+  std::vector<Case> out;
+  for (const char* object : {"contact_point_movable_bunny", "contact_point_fixed_bunny", "contact_point_table_edge"})
+    for (int every : {67, 33, 17})
+      for (const Press& p : {kGentle, kDeepFast}) out.push_back({object, every, p});
+  return out;
+}
+
 INSTANTIATE_TEST_SUITE_P(Touch, PressHoldLift, ::testing::ValuesIn(cases()), case_name);
 INSTANTIATE_TEST_SUITE_P(Touch, PressHoldLiftForces, ::testing::ValuesIn(cases()), case_name);
 INSTANTIATE_TEST_SUITE_P(SpringTouch, PressHoldLift, ::testing::ValuesIn(spring_cases()), case_name);
 INSTANTIATE_TEST_SUITE_P(SpringTouch, PressHoldLiftForces, ::testing::ValuesIn(spring_cases()), case_name);
+INSTANTIATE_TEST_SUITE_P(ContactPointTouch, PressHoldLift, ::testing::ValuesIn(contact_point_cases()), case_name);
+INSTANTIATE_TEST_SUITE_P(ContactPointTouch, PressHoldLiftForces, ::testing::ValuesIn(contact_point_cases()), case_name);
 
 }  // namespace
 }  // namespace hapticd::offline
