@@ -249,11 +249,12 @@ void ContactPointHand::slide(Sample& sample, double mu_dynamic, const Eigen::Iso
   const Eigen::Vector3d C = T_O * sample.C_O, n = T_O.linear() * sample.n_O;
   const Eigen::Vector3d target = slide_target(mu_dynamic, C, n, p_W);
   if (target == C) return;
-  // Section 3.5: from just outside the surface, a ray toward the hand point finds the surface.
+  // Section 3.5: from just outside the surface, a ray finds it; cast along the old normal (the paper
+  // casts toward the hand point, which on a flat face lands short of the target, between it and p).
   const double offset = std::max(config_.params.threshold_m, 1e-3);
   Eigen::Vector3d C_new, n_new;
   double d;
-  if (objects.ray_hit(object, target + offset * n, p_W, C_new, n_new)) {
+  if (objects.ray_hit(object, target + offset * n, target - offset * n, C_new, n_new)) {
   } else if (objects.surface_near(object, target, 0.01, d, n_new)) {
     C_new = target + d * n_new;  // the ray missed (the target is past an edge): the nearest surface point
   } else {
@@ -299,6 +300,11 @@ void ContactPointHand::before_ode_step(double h, RigidObjects& objects) {
     const bool dynamic = objects.object_dynamic(c.object);
     const Eigen::Vector3d com = dynamic ? objects.object_body(c.object).p_com_W : Eigen::Vector3d::Zero();
     const double gamma = prm.gamma_n_m / c.count;
+    // The contact ends once every hand point is this far outside: the threshold it was made within,
+    // and as much again plus its samples' spread (its ring of samples, made around a point just
+    // within the threshold, lies partly beyond it: without the margin a finger's contacts ended the
+    // step they were made, over and over, and never pushed).
+    const double release = 2 * prm.threshold_m + (thumb_or_palm(s) ? prm.wide_sample_radius_m : prm.sample_radius_m);
     bool left = true;
     int active = 0;
     c.f_W.setZero();
@@ -314,27 +320,34 @@ void ContactPointHand::before_ode_step(double h, RigidObjects& objects) {
       double d_geometry;
       Eigen::Vector3d n_geometry;
       const bool near = objects.surface_near(c.object, p, prm.threshold_m, d_geometry, n_geometry);
-      left = left && !near;
-      const ContactForce f = near ? contact_force(gamma, c.mu_static, c.mu_dynamic, C, n, p) : ContactForce{};
+      left = left && (near ? false : !objects.surface_near(c.object, p, release, d_geometry, n_geometry));
+      ContactForce f = near ? contact_force(gamma, c.mu_static, c.mu_dynamic, C, n, p) : ContactForce{};
       sample.state = f.state;
       if (f.state == ContactState::separated) continue;
+      Eigen::Vector3d C_at = C;
+      if (f.state == ContactState::sliding) {
+        // The point slides first (section 3.5), to where its spring is the kinetic force (eq. 5); the
+        // object then takes that spring as a stuck one's, implicitly. A kinetic force applied as a
+        // constant overshot: a 100 g box held by sliding fingers swung 3 mm up and down every step.
+        slide(sample, c.mu_dynamic, T_O, p, c.object, objects);
+        C_at = T_O * sample.C_O;
+        f = contact_force(gamma, c.mu_static, c.mu_dynamic, C_at, T_O.linear() * sample.n_O, p);
+        f.state = ContactState::sliding;
+      }
       ++active;
       c.f_W += f.total();
-      p_sum += C;
+      p_sum += C_at;
       n_sum += n;
       c.depth_m = std::max(c.depth_m, depth);
       if (dynamic) {
         // The object takes -f at C; C moves with it, so the spring stiffens its motion (implicit below).
-        const Eigen::Vector3d r = C - com;
+        const Eigen::Vector3d r = C_at - com;
         Eigen::Matrix<double, 3, 6> J;
         J << Eigen::Matrix3d::Identity(), -skew(r);
-        const Eigen::Matrix3d K = f.state == ContactState::stuck ? Eigen::Matrix3d(gamma * Eigen::Matrix3d::Identity())
-                                                                 : Eigen::Matrix3d(gamma * n * n.transpose());
         wrench_[c.object] += J.transpose() * -f.total();
-        stiffness_[c.object] += J.transpose() * K * J;
+        stiffness_[c.object] += gamma * J.transpose() * J;
         pushed[c.object] = 1;
       }
-      if (f.state == ContactState::sliding) slide(sample, c.mu_dynamic, T_O, p, c.object, objects);
     }
     if (left) {
       c = Contact{};  // every hand point has left the object: the contact ends (3.2)
@@ -352,11 +365,15 @@ void ContactPointHand::before_ode_step(double h, RigidObjects& objects) {
     Matrix6 M = Matrix6::Zero();
     M.topLeftCorner<3, 3>() = b.mass_kg * Eigen::Matrix3d::Identity();
     M.bottomRightCorner<3, 3>() = b.inertia_W;
-    Vector6 xi;
+    Vector6 xi, weight = Vector6::Zero();
     xi << b.v_W, b.w_W;
+    weight.head<3>() = b.mass_kg * b.gravity_W;
+    // With its weight in the solve (ODE adds the weight itself, so it comes off again): without it
+    // the springs' share shrank to M / (M + h^2 K) of their force, and a 100 g box held by four
+    // stuck fingers pulling it up with 5.5 N stayed on the table.
     const Eigen::LDLT<Matrix6> A(M + h * h * stiffness_[o]);
-    const Vector6 dxi = A.solve(h * wrench_[o] - h * h * stiffness_[o] * xi);
-    const Vector6 w = M * dxi / h;
+    const Vector6 dxi = A.solve(h * (wrench_[o] + weight) - h * h * stiffness_[o] * xi);
+    const Vector6 w = M * dxi / h - weight;
     if (A.info() != Eigen::Success || !w.allFinite()) {
       ++resets_;  // nothing non-finite reaches a body
       clear_contacts();

@@ -15,14 +15,15 @@
 //    tangential part inside the static friction cone or the kinetic force outside it; a sliding
 //    sample's C moves along the surface toward the hand point (3.5: a step along the tangent plane
 //    to where the spring's tangential force is the kinetic one, put back on the surface by a ray
-//    from just outside it toward the hand point; a hit whose normal turns against the old one is an
-//    occluding part and leaves C where it was);
+//    from just outside it; a hit whose normal turns against the old one is an occluding part and
+//    leaves C where it was), and the spring from there is the kinetic force;
 //  - the objects take the opposite forces at their C (3.5: "applied via the physics engine"): per
 //    ODE step, the springs on each body integrated implicitly with its mass (a 6x6 solve), so a
 //    light object under a stiff contact stays stable at any step (the paper's PhysX step was
-//    explicit; a 1 g ball under 400 N/m would need 1.6 ms steps);
+//    explicit; a 1 g ball under 1000 N/m would need 1 ms steps);
 //  - the phalanges never collide through ODE (3.5: once in contact they are triggers).
-// A contact whose hand points have all left the object by more than the threshold ends.
+// A contact whose hand points have all left the object by more than twice the threshold and its
+// samples' spread ends.
 //
 // The device feels the sum of the hand's contact forces. The handle-space model the haptic loop
 // renders is exact for this hand: each sample's eqs. 1-5 are a penalty row of the tick's
@@ -46,10 +47,11 @@ namespace hapticd::hand::contact_point {
 
 struct ContactPointParams {
   // Eq. 1's gamma per contact (shape), shared by its samples, N/m (the paper gives none; a phalanx
-  // pressed 2.5 mm in pushes with 1 N).
-  double gamma_n_m = 400.0;
+  // pressed 1 mm in pushes with 1 N, the order of a fingertip pad's stiffness; at 400 N/m the glove's
+  // tripod grasp squeezed the 100 g box too little to lift it).
+  double gamma_n_m = 1000.0;
   // A contact is made within this distance of an object's surface (section 3.2's threshold, 3.5's
-  // "Default Contact Offset"), and ends when every hand point is this far outside again.
+  // "Default Contact Offset"); its samples push only within it.
   double threshold_m = 0.002;
   int samples = 8;  // per contact (section 5.2: 8 samples per contact point)
   // The radius of the area the samples cover: fingers, and thumb and palm (3.2: "sampled over a

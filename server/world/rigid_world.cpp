@@ -504,6 +504,9 @@ hand::ContactBody RigidWorld::contact_body(int i) const {
   b.p_com_W = from_ode(dBodyGetPosition(body));
   b.v_W = from_ode(dBodyGetLinearVel(body));
   b.w_W = from_ode(dBodyGetAngularVel(body));
+  dVector3 g;
+  dWorldGetGravity(world_, g);
+  b.gravity_W = dBodyGetGravityMode(body) ? from_ode(g) : Eigen::Vector3d::Zero();
   return b;
 }
 

@@ -309,11 +309,12 @@ void print_run(const char* what, const GraspRun& r) {
   std::printf("[glove grasp]   total (%.3f, %.3f, %.3f) N\n", total.x(), total.y(), total.z());
 }
 
-// Seed 002's spring hand (ODE capsules on hinges, pulled by springs toward the tracked hand) driven
-// by the same glove frames: the pair's friction coefficient mu on the box and on the hand.
-GraspRun run_spring_grasp(const GraspSpec& g, double mu) {
+// A rigid hand driven by the same glove frames: seed 002's spring hand (ODE capsules on hinges, pulled
+// by springs toward the tracked hand) or seed 001's contact-point hand (its capsules on the frames);
+// the pair's friction coefficient mu on the box and on the hand.
+GraspRun run_rigid_grasp(const GraspSpec& g, double mu, HandModelKind model) {
   const Eigen::Vector3d above = Eigen::Vector3d(0, 0, 0.5 * g.size_m + 0.04) - g.object_H;
-  SceneDesc scene = grasp_scene(g, above, HandModelKind::spring);
+  SceneDesc scene = grasp_scene(g, above, model);
   scene.objects[1].material.friction = mu;
   scene.hands[0].material.friction = mu;
   WorldOptions o;
@@ -405,7 +406,7 @@ void expect_pinch_forces(const GraspSpec& g, const GraspRun& r) {
 // (measured: lifted 42.7 of the palm's 50 mm, 0.16 mm of slip, the fingers' forces carrying its
 // weight to 0.1 %), and at mu = 0.05 the box slips out and stays on the table.
 TEST(WorldGloveGrasp, TheSpringHandHoldsTheBoxAtMu08AndLetsItSlipAtMu005) {
-  const GraspRun held = run_spring_grasp(box_grasp(), 0.8);
+  const GraspRun held = run_rigid_grasp(box_grasp(), 0.8, HandModelKind::spring);
   print_run("box, spring hand, mu 0.8", held);
   EXPECT_GT(held.lift_m, 40 * kMm);
   EXPECT_LT(held.slip_m, 2 * kMm);
@@ -413,8 +414,27 @@ TEST(WorldGloveGrasp, TheSpringHandHoldsTheBoxAtMu08AndLetsItSlipAtMu005) {
   EXPECT_GT(held.release_s, 0.0);
   EXPECT_LT(held.release_s, 0.25) << "it falls once the fingers open";
   EXPECT_EQ(held.resets, 0);
-  const GraspRun slipped = run_spring_grasp(box_grasp(), 0.05);
+  const GraspRun slipped = run_rigid_grasp(box_grasp(), 0.05, HandModelKind::spring);
   print_run("box, spring hand, mu 0.05", slipped);
+  EXPECT_LT(slipped.lift_m, 5 * kMm);
+  EXPECT_EQ(slipped.resets, 0);
+}
+
+// Issue 18: the contact-point hand's tripod grasp of the 100 g box: the fingers' capsules on the
+// glove's frames, their contact points (gamma 400 N/m per contact) squeezing the box.
+TEST(WorldGloveGrasp, TheContactPointHandHoldsTheBoxAtMu08AndLetsItSlipAtMu005) {
+  GraspSpec g = box_grasp();
+  g.object_H.z() += 0.008;  // the hand 8 mm lower: the capsules meet the box 6 mm under its top edge
+  const GraspRun held = run_rigid_grasp(g, 0.8, HandModelKind::contact_point);
+  print_run("box, contact-point hand, mu 0.8", held);
+  EXPECT_GT(held.lift_m, 40 * kMm);
+  EXPECT_LT(held.slip_m, 2 * kMm);
+  EXPECT_NEAR(total_force(held).z(), 0.1 * kG, 0.05 * 0.1 * kG) << "the hand carries the box's weight";
+  EXPECT_GT(held.release_s, 0.0);
+  EXPECT_LT(held.release_s, 0.25) << "it falls once the fingers open";
+  EXPECT_EQ(held.resets, 0);
+  const GraspRun slipped = run_rigid_grasp(g, 0.05, HandModelKind::contact_point);
+  print_run("box, contact-point hand, mu 0.05", slipped);
   EXPECT_LT(slipped.lift_m, 5 * kMm);
   EXPECT_EQ(slipped.resets, 0);
 }
