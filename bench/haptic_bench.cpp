@@ -1,20 +1,22 @@
 // haptic-bench: the project's whole-scenario benchmarks (see README, Performance).
-#include <CLI/CLI.hpp>
-#include <cstdio>
-#include <exception>
 #include <spdlog/sinks/stdout_sinks.h>
 #include <spdlog/spdlog.h>
 
+#include <CLI/CLI.hpp>
+#include <cstdio>
+#include <exception>
+
 #include "contact_bench.hpp"
-#include "touch_bench.hpp"
 #include "hand_bench.hpp"
+#include "hands_bench.hpp"
 #include "haptic_rate_bench.hpp"
 #include "latency_bench.hpp"
 #include "multirate_bench.hpp"
 #include "resolution_bench.hpp"
+#include "server/process_heap.hpp"
 #include "soak_bench.hpp"
 #include "solvers_bench.hpp"
-#include "server/process_heap.hpp"
+#include "touch_bench.hpp"
 #include "world_bench.hpp"
 
 int main(int argc, char** argv) {
@@ -32,6 +34,7 @@ int main(int argc, char** argv) {
   hapticd::bench::add_soak_suite(app);
   hapticd::bench::add_contact_suite(app);
   hapticd::bench::add_touch_suite(app);
+  hapticd::bench::add_hands_suite(app);
   hapticd::bench::add_haptic_rate_suite(app);
   hapticd::bench::add_solvers_suite(app);
   hapticd::bench::add_resolution_suite(app);

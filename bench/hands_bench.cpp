@@ -1,0 +1,223 @@
+// `haptic-bench hands [--size tiny|default] [--json FILE]`
+//
+// Every hand model on the same scripted interactions (issue 18), closed loop through the lockstep
+// runner (hapticd's haptic tick and visual step, the passivity controller on as in hapticd), each
+// scripted as the touch tests script it (server/offline/touch.hpp):
+//   table_press  the simulated stylus presses 2 cm (device) into the table's edge (stylus_bunny.json,
+//                half the palm over the edge) at 2 cm/s, holds 0.5 s, lifts at 5 cm/s;
+//   bunny_press  the same on the movable bunny;
+//   grasp_box    the simulated 16-frame glove lowers its palm over the 5 cm box of glove_grasp.json,
+//                closes in a tripod grasp, lifts it 5 cm, opens.
+// Models: "fem" (seed 004, the scenes' hands), "spring" (seed 002), "contact_point" (seed 001), each
+// at a 30 Hz visual step and once with the world stepped at every haptic tick. That run is the
+// reference for "what the hand should feel", the same for every model: the model's own world without
+// the multi-rate split, so the error is the rendering's (the linearized model between visual steps),
+// not the hand model's.
+//
+// JSON (--json FILE): {"suite": "hands", "size", "haptic_hz": 1000, "method", "rows": [...], "wall_s",
+// "threads": 1, "machine": {...}}. One row per (interaction, model, visual rate):
+//   interaction         string  "table_press" | "bunny_press" | "grasp_box"
+//   model               string  "fem" | "spring" | "contact_point"
+//   visual_hz           number  30, or 1000 for the reference
+//   energy_j            number  work of the rendered forces on the device over the run (> 0: put in)
+//   release_n           number  the force toward the object after the lift (presses) / the largest frame
+//                               force once the glove is open, after one haptic and one visual period, N
+//   after_n             number  the largest force from one second after the lift / the opening, N
+//   rms_force_error_n   number  RMS over ticks of sqrt(sum over frames |f_D - f_D,ref|^2) against the
+//                               same model's reference run, N (0 on the reference row)
+//   max_force_error_n   number  its largest value, N
+//   penetration_max_mm  number  the deepest point of the hand inside anything after any visual step, mm
+//   tick_us_median, tick_us_p99       one haptic tick's wall time, us
+//   visual_ms_median, visual_ms_p99   one visual step's wall time (world step and model), ms
+//   resets              number  proxy and world resets
+//   lift_mm             number  grasp_box: how high the box rose (the palm rises 50 mm), else 0
+//   grasped             bool    grasp_box: the box rose 40 mm or more
+//   reference           bool    the world stepped at every tick
+#include "hands_bench.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <chrono>
+#include <cstdio>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "bench_common.hpp"
+#include "server/offline/multirate.hpp"
+#include "server/offline/touch.hpp"
+#include "server/world/scene_loader.hpp"
+
+namespace hapticd::bench {
+namespace {
+
+constexpr int kVisualEveryTicks = 33;  // 30 Hz
+constexpr double kGraspedM = 0.04;
+
+struct HandsArgs {
+  std::string size = "default";
+  std::string json;
+};
+
+struct Model {
+  const char* name;
+  world::HandModelKind kind;
+  const char* press_prefix;  // offline::press_scene's
+};
+constexpr Model kModels[] = {{"fem", world::HandModelKind::fem, ""},
+                             {"spring", world::HandModelKind::spring, "spring_"},
+                             {"contact_point", world::HandModelKind::contact_point, "contact_point_"}};
+
+struct Row {
+  std::string interaction, model;
+  int every = kVisualEveryTicks;
+  offline::TouchRun run;
+  double release_n = 0, after_n = 0, lift_m = 0;
+  offline::ForceError error;
+  bool reference = false;
+};
+
+offline::OfflineOptions options_for(int every) {
+  offline::OfflineOptions o;
+  o.haptic_period_s = 1e-3;
+  o.visual_every_ticks = every;
+  return o;
+}
+
+Row press_row(const world::SceneDesc& scene, int every) {
+  const offline::PressSchedule schedule(offline::Press{0.02, 0.02, 0.05});
+  offline::OfflineOptions options = options_for(every);
+  options.settle_s = 0.5;
+  Row r;
+  r.every = every;
+  r.run = offline::run_press_hold_lift(scene, schedule, options);
+  const offline::AfterLift a = offline::after_lift(r.run.trace, schedule, options);
+  r.release_n = a.pull;
+  r.after_n = a.after;
+  return r;
+}
+
+Row grasp_row(const world::SceneDesc& scene, int every) {
+  const offline::GraspRun g = offline::run_grasp_release(scene, options_for(every));
+  Row r;
+  r.every = every;
+  r.run = g;
+  r.release_n = g.release_n;
+  r.after_n = g.after_n;
+  r.lift_m = g.box_top - g.box_z0;
+  return r;
+}
+
+world::SceneDesc with_model(world::SceneDesc scene, world::HandModelKind kind, int fem_tets) {
+  for (world::HandDesc& h : scene.hands) {
+    h.model = kind;
+    if (fem_tets > 0) h.resolution_tets = fem_tets;
+  }
+  return scene;
+}
+
+nlohmann::json row_json(const Row& r) {
+  const offline::OfflineTimings& t = r.run.trace.timings;
+  return {{"interaction", r.interaction},
+          {"model", r.model},
+          {"visual_hz", r.reference ? 1000 : 30},
+          {"energy_j", r.run.energy_j},
+          {"release_n", r.release_n},
+          {"after_n", r.after_n},
+          {"rms_force_error_n", r.error.rms_n},
+          {"max_force_error_n", r.error.max_n},
+          {"penetration_max_mm", 1e3 * r.run.penetration_max_m},
+          {"tick_us_median", t.haptic_us_median},
+          {"tick_us_p99", t.haptic_us_p99},
+          {"visual_ms_median", t.visual_ms_median},
+          {"visual_ms_p99", t.visual_ms_p99},
+          {"resets", r.run.trace.resets},
+          {"lift_mm", 1e3 * r.lift_m},
+          {"grasped", r.interaction == "grasp_box" && r.lift_m >= kGraspedM},
+          {"reference", r.reference}};
+}
+
+void run_hands_bench(const HandsArgs& a) {
+  // tiny (a smoke run): the table press only, the FEM hand at ~400 tets.
+  const bool tiny = a.size == "tiny";
+  const int fem_tets = tiny ? 400 : 0;
+  const Machine machine = describe_machine();
+  const auto t0 = std::chrono::steady_clock::now();
+  const world::SceneDesc glove =
+      offline::grasp_scene(world::load_scene(std::string(HAPTICD_SCENES_DIR) + "/glove_grasp.json"));
+  std::vector<Row> rows;
+  for (const char* interaction : {"table_press", "bunny_press", "grasp_box"}) {
+    const std::string name = interaction;
+    if (tiny && name != "table_press") continue;
+    for (const Model& m : kModels) {
+      auto run = [&](int every) {
+        spdlog::info("hands: {} with the {} hand at {} ticks", name, m.name, every);
+        Row r =
+            name == "grasp_box"
+                ? grasp_row(with_model(glove, m.kind, fem_tets), every)
+                : press_row(with_model(offline::press_scene(std::string(m.press_prefix) +
+                                                            (name == "table_press" ? "table_edge" : "movable_bunny")),
+                                       m.kind, fem_tets),
+                            every);
+        r.interaction = name;
+        r.model = m.name;
+        return r;
+      };
+      Row reference = run(1);
+      reference.reference = true;
+      Row r = run(kVisualEveryTicks);
+      r.error = offline::force_error(r.run.trace, reference.run.trace);
+      rows.push_back(std::move(r));
+      rows.push_back(std::move(reference));
+    }
+  }
+  const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+
+  std::printf(
+      "Hand models on the same interactions, closed loop at 1 kHz, passivity controller on: table_press / "
+      "bunny_press = the stylus 2 cm into the table's edge / the movable bunny and lifted; grasp_box = the 16-frame "
+      "glove lifting the 5 cm box 5 cm and opening. Error against the same model's world stepped every tick.\n");
+  std::printf("%-12s %-14s %7s %10s %9s %9s %9s %9s %8s %8s %8s %8s %8s %6s %7s\n", "interaction", "model", "visual",
+              "energy_J", "release_N", "after_N", "rms_err_N", "max_err_N", "pen_mm", "tick_med", "tick_p99", "vis_med",
+              "vis_p99", "resets", "lift_mm");
+  nlohmann::json json_rows = nlohmann::json::array();
+  for (const Row& r : rows) {
+    const offline::OfflineTimings& t = r.run.trace.timings;
+    std::printf("%-12s %-14s %7s %+10.4f %9.3f %9.4f %9.4f %9.4f %8.2f %8.1f %8.1f %8.2f %8.2f %6ld %7.1f\n",
+                r.interaction.c_str(), r.model.c_str(), r.reference ? "1 kHz" : "30 Hz", r.run.energy_j, r.release_n,
+                r.after_n, r.error.rms_n, r.error.max_n, 1e3 * r.run.penetration_max_m, t.haptic_us_median,
+                t.haptic_us_p99, t.visual_ms_median, t.visual_ms_p99, r.run.trace.resets, 1e3 * r.lift_m);
+    json_rows.push_back(row_json(r));
+  }
+  std::printf("%.1f s wall (all runs); machine: %s, %d cores, BLAS %s, revision %s (one thread)\n", wall_s,
+              machine.cpu.c_str(), machine.cores, machine.blas.c_str(), machine.git_revision.c_str());
+  if (!a.json.empty())
+    write_json(a.json,
+               {{"suite", "hands"},
+                {"size", a.size},
+                {"haptic_hz", 1000},
+                {"method",
+                 "closed loop through the lockstep runner, passivity controller on, 30 Hz visual step; "
+                 "table_press and bunny_press: the stylus 2 cm (device) into the table's edge or the movable "
+                 "bunny at 2 cm/s, held 0.5 s, lifted at 5 cm/s; grasp_box: the 16-frame glove lowers its "
+                 "palm over the box, closes in a tripod grasp, lifts it 5 cm, opens (server/offline/touch.hpp); "
+                 "reference, for every model alike: the same model's world stepped at every haptic tick; "
+                 "force error per tick = sqrt(sum over frames |f_D - f_D,ref|^2)"},
+                {"rows", json_rows},
+                {"wall_s", wall_s},
+                {"threads", 1},
+                {"machine", to_json(machine)}});
+}
+
+}  // namespace
+
+void add_hands_suite(CLI::App& app) {
+  auto args = std::make_shared<HandsArgs>();
+  CLI::App* sub = app.add_subcommand(
+      "hands", "every hand model (fem, spring, contact_point) on the same presses and grasp: cost, energy, error");
+  sub->add_option("--size", args->size, "tiny (a smoke run) | default")->check(CLI::IsMember({"tiny", "default"}));
+  sub->add_option("--json", args->json, "write the results as JSON to this file");
+  sub->callback([args] { run_hands_bench(*args); });
+}
+
+}  // namespace hapticd::bench
