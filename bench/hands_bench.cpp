@@ -33,6 +33,11 @@
 //   lift_mm             number  grasp_box: how high the box rose (the palm rises 50 mm), else 0
 //   grasped             bool    grasp_box: the box rose 40 mm or more
 //   reference           bool    the world stepped at every tick
+// and "timing": the contact-point hand's world step with 0, 6, 16 and 32 phalanges in contact (seed
+// 001 section 5.2: 0.6, 0.9 and 1.5 ms for 6, 16 and 32 phalanges, PhysX with the whole scene): one
+// row per count, {"phalanges", "hands", "contacts", "step_ms_median", "step_ms_p99"}: that many of
+// the glove-driven hands' shapes (one hand up to 16, two for 32) pressed 2 mm into a 200 g tile each,
+// the tiles on a floor side by side, a 60 Hz world stepped 300 times (the first 60 not timed).
 #include "hands_bench.hpp"
 
 #include <spdlog/spdlog.h>
@@ -44,9 +49,11 @@
 #include <vector>
 
 #include "bench_common.hpp"
+#include "hand_models/contact_point/contact_point_hand.hpp"
 #include "server/offline/multirate.hpp"
 #include "server/offline/touch.hpp"
 #include "server/world/scene_loader.hpp"
+#include "server/world/world.hpp"
 
 namespace hapticd::bench {
 namespace {
@@ -137,6 +144,70 @@ nlohmann::json row_json(const Row& r) {
           {"reference", r.reference}};
 }
 
+struct TimingRow {
+  int phalanges = 0, hands = 0, contacts = 0;
+  double step_ms_median = 0, step_ms_p99 = 0;
+};
+
+// `phalanges` of the contact-point hands' shapes flat on tiles, 2 mm in, each in its own 12 cm cell.
+TimingRow time_phalanges(int phalanges) {
+  namespace cp = hand::contact_point;
+  world::SceneDesc scene;
+  scene.dt_s = 1.0 / 60.0;
+  world::ObjectDesc floor;
+  floor.name = "floor";
+  floor.kind = world::BodyKind::static_body;
+  floor.shape.type = world::ShapeType::plane;
+  floor.shape.normal = {0, 0, 1};
+  scene.objects.push_back(floor);
+  // Under each pressed phalanx a 200 g tile (10 x 10 x 2 cm) on the floor: the step solves the
+  // hand's contacts on a moving body and ODE's on the floor, as a scene's interaction would.
+  constexpr double kCell = 0.12, kTile = 0.02;
+  for (int k = 0; k < phalanges; ++k) {
+    world::ObjectDesc tile;
+    tile.name = "tile" + std::to_string(k);
+    tile.shape.type = world::ShapeType::box;
+    tile.shape.size = {0.1, 0.1, kTile};
+    tile.mass_kg = 0.2;
+    tile.pose.p_W = {kCell * (k % 8), kCell * (k / 8), 0.5 * kTile};
+    scene.objects.push_back(tile);
+  }
+  const int hands = phalanges > cp::kContactPointShapes ? 2 : 1;
+  for (int h = 0; h < hands; ++h) {
+    world::HandDesc d;
+    d.name = "hand" + std::to_string(h);
+    d.model = world::HandModelKind::contact_point;
+    d.handles = world::HandleSet::phalanges;
+    d.pose.p_W = {0, 0.5 * h, 1};
+    scene.hands.push_back(d);
+  }
+  world::World w(scene);
+  const double depth = 0.002;
+  for (int h = 0; h < hands; ++h) {
+    auto& hand = dynamic_cast<cp::ContactPointHand&>(w.hand(h));
+    for (int s = 0; s < cp::kContactPointShapes; ++s) {
+      const int k = h * cp::kContactPointShapes + s;
+      hand::HandleTarget t;
+      // Shape s lying flat: the palm face down, a capsule along x with its side down.
+      const double lowest = s == 0 ? hand::kPalmHalfThickness_m : hand.project_to_surface(s, {0, 0, -1}).norm();
+      t.p_W = {kCell * (k % 8), kCell * (k / 8), k < phalanges ? kTile + lowest - depth : 0.5};
+      hand.set_target(s, t);
+    }
+  }
+  std::vector<double> ms;
+  for (int k = 0; k < 300; ++k) {
+    w.step();
+    if (k >= 60) ms.push_back(w.snapshot().timings.total_ms);
+  }
+  TimingRow r;
+  r.phalanges = phalanges;
+  r.hands = hands;
+  for (const world::ContactRecord& c : w.snapshot().contacts) r.contacts += c.hand >= 0;
+  r.step_ms_median = percentile(ms, 50);
+  r.step_ms_p99 = percentile(ms, 99);
+  return r;
+}
+
 void run_hands_bench(const HandsArgs& a) {
   // tiny (a smoke run): the table press only, the FEM hand at ~400 tets.
   const bool tiny = a.size == "tiny";
@@ -171,6 +242,11 @@ void run_hands_bench(const HandsArgs& a) {
       rows.push_back(std::move(reference));
     }
   }
+  std::vector<TimingRow> timing;
+  for (int phalanges : {0, 6, 16, 32}) {
+    spdlog::info("hands: contact-point world step with {} phalanges in contact", phalanges);
+    timing.push_back(time_phalanges(phalanges));
+  }
   const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 
   std::printf(
@@ -188,6 +264,19 @@ void run_hands_bench(const HandsArgs& a) {
                 r.after_n, r.error.rms_n, r.error.max_n, 1e3 * r.run.penetration_max_m, t.haptic_us_median,
                 t.haptic_us_p99, t.visual_ms_median, t.visual_ms_p99, r.run.trace.resets, 1e3 * r.lift_m);
     json_rows.push_back(row_json(r));
+  }
+  std::printf(
+      "\nThe contact-point hand's world step with phalanges in contact (seed 001: 0.6 / 0.9 / 1.5 ms for 6 / "
+      "16 / 32), each 2 mm into a 200 g tile on a floor, 60 Hz:\n%10s %6s %9s %12s %10s\n",
+      "phalanges", "hands", "contacts", "median_ms", "p99_ms");
+  nlohmann::json timing_rows = nlohmann::json::array();
+  for (const TimingRow& t : timing) {
+    std::printf("%10d %6d %9d %12.3f %10.3f\n", t.phalanges, t.hands, t.contacts, t.step_ms_median, t.step_ms_p99);
+    timing_rows.push_back({{"phalanges", t.phalanges},
+                           {"hands", t.hands},
+                           {"contacts", t.contacts},
+                           {"step_ms_median", t.step_ms_median},
+                           {"step_ms_p99", t.step_ms_p99}});
   }
   std::printf("%.1f s wall (all runs); machine: %s, %d cores, BLAS %s, revision %s (one thread)\n", wall_s,
               machine.cpu.c_str(), machine.cores, machine.blas.c_str(), machine.git_revision.c_str());
