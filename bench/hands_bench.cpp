@@ -293,6 +293,7 @@ void run_hands_bench(const HandsArgs& a) {
                  "reference, for every model alike: the same model's world stepped at every haptic tick; "
                  "force error per tick = sqrt(sum over frames |f_D - f_D,ref|^2)"},
                 {"rows", json_rows},
+                {"timing", timing_rows},
                 {"wall_s", wall_s},
                 {"threads", 1},
                 {"machine", to_json(machine)}});
