@@ -84,40 +84,17 @@ ContactPointHand::ContactPointHand(const ContactPointHandConfig& config, const E
       probes_S_[1 + i] = capsule_probes(-half_length_[i], hi, radius_[i]);
     }
   }
-  place_handles(p_W, q_W.normalized());
+  tracked_frames::place(handles_, p_W, q_W.normalized(), rest_pose_);
 }
 
-void ContactPointHand::place_handles(const Eigen::Vector3d& p_W, const Eigen::Quaterniond& q_W) {
-  for (HandleState& h : handles_) h = HandleState{};
-  handles_[0].p_WH = p_W;
-  handles_[0].q_WH = q_W;
-  for (int i = 0; i + 1 < num_handles(); ++i) {
-    handles_[i + 1].p_WH = p_W + q_W * rest_pose_.centre[i];
-    handles_[i + 1].q_WH = q_W * Eigen::Quaterniond(rest_pose_.R[i]);
-  }
-}
-
-HandleInfo ContactPointHand::handle_info(int, int) const {
-  HandleInfo info;
-  info.mass_kg = config_.handle_mass_kg;
-  info.inertia_B = Eigen::Matrix3d::Identity() * 0.4 * config_.handle_mass_kg * 1e-4;  // a 1 cm ball
-  return info;
-}
+HandleInfo ContactPointHand::handle_info(int, int) const { return tracked_frames::info(config_.handle_mass_kg); }
 
 bool ContactPointHand::set_target(int j, const HandleTarget& target) {
-  if (j < 0 || j >= num_handles() || !target.p_W.allFinite() || !target.q_W.coeffs().allFinite() ||
-      !target.v_W.allFinite() || !target.w_W.allFinite() || !(target.q_W.norm() > 0))
-    return false;
-  HandleState& h = handles_[static_cast<std::size_t>(j)];
-  h.p_WH = target.p_W;
-  h.q_WH = target.q_W.normalized();
-  h.v_WH = target.v_W;
-  h.w_WH = target.w_W;
-  return true;
+  return tracked_frames::set(handles_, j, target);
 }
 
 void ContactPointHand::place(const Eigen::Vector3d& p_W, const Eigen::Quaterniond& q_W) {
-  place_handles(p_W, q_W.normalized());
+  tracked_frames::place(handles_, p_W, q_W.normalized(), rest_pose_);
   clear_contacts();
 }
 

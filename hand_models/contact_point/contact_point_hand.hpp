@@ -141,7 +141,6 @@ class ContactPointHand : public OdeHand {
   Eigen::Vector3d project_to_surface(int s, const Eigen::Vector3d& p_S) const;
 
  private:
-  void place_handles(const Eigen::Vector3d& p_W, const Eigen::Quaterniond& q_W);
   // The deepest of shape s's probe points against every object within `margin_m`: its object
   // (-1: none), the point (shape frame), depth and normal.
   int probe(int s, const RigidObjects& objects, double margin_m, Eigen::Vector3d& p_S, double& depth_m,

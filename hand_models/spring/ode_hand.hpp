@@ -8,6 +8,7 @@
 
 #include "hand_models/hand.hpp"
 #include "hand_models/hand_model.hpp"
+#include "hand_models/skeleton/hand_skeleton.hpp"
 
 namespace hapticd::hand {
 
@@ -46,6 +47,41 @@ struct OdeHandContact {
   double depth_m = 0;
   double mu = 0.5;  // the pair's Coulomb coefficient in that step
 };
+
+// The handles of a rigid hand (seeds 001 and 002) are the tracked frames themselves, with no body of
+// their own: the palm's, and for a glove each phalanx's segment frame.
+namespace tracked_frames {
+// A frame's haptic proxy: a 1 cm ball of `mass_kg` (light, so the device stays light in free space).
+inline HandleInfo info(double mass_kg) {
+  HandleInfo out;
+  out.mass_kg = mass_kg;
+  out.inertia_B = Eigen::Matrix3d::Identity() * 0.4 * mass_kg * 1e-4;
+  return out;
+}
+// Frame j takes the target; false (the frame kept) for an index out of range or a non-finite target.
+inline bool set(std::vector<HandleState>& frames, int j, const HandleTarget& target) {
+  if (j < 0 || j >= static_cast<int>(frames.size()) || !target.p_W.allFinite() || !target.q_W.coeffs().allFinite() ||
+      !target.v_W.allFinite() || !target.w_W.allFinite() || !(target.q_W.norm() > 0))
+    return false;
+  HandleState& h = frames[static_cast<std::size_t>(j)];
+  h.p_WH = target.p_W;
+  h.q_WH = target.q_W.normalized();
+  h.v_WH = target.v_W;
+  h.w_WH = target.w_W;
+  return true;
+}
+// The frames of a hand whose palm is at (p_W, q_W) in posture `pose`, at rest.
+inline void place(std::vector<HandleState>& frames, const Eigen::Vector3d& p_W, const Eigen::Quaterniond& q_W,
+                  const SkeletonPose& pose) {
+  for (HandleState& h : frames) h = HandleState{};
+  frames[0].p_WH = p_W;
+  frames[0].q_WH = q_W;
+  for (std::size_t i = 0; i + 1 < frames.size(); ++i) {
+    frames[i + 1].p_WH = p_W + q_W * pose.centre[i];
+    frames[i + 1].q_WH = q_W * Eigen::Quaterniond(pose.R[i]);
+  }
+}
+}  // namespace tracked_frames
 
 class OdeHand : public Hand {
  public:

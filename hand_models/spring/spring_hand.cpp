@@ -24,15 +24,9 @@ SpringHand::SpringHand(dWorldID world, dSpaceID space, const SpringHandConfig& c
 }
 
 void SpringHand::place_handles(const Eigen::Vector3d& p_W, const Eigen::Quaterniond& q_W) {
-  for (HandleState& h : handles_) h = HandleState{};
-  handles_[0].p_WH = p_W;
-  handles_[0].q_WH = q_W;
   const SkeletonPose pose = skeleton_pose(angles_, config_.left);
   for (int f = 0; f < kHandFingers; ++f) tips_H_[f] = pose.joints[f][3];
-  for (int i = 0; i + 1 < num_handles(); ++i) {
-    handles_[i + 1].p_WH = p_W + q_W * pose.centre[i];
-    handles_[i + 1].q_WH = q_W * Eigen::Quaterniond(pose.R[i]);
-  }
+  tracked_frames::place(handles_, p_W, q_W, pose);
 }
 
 HandJointAngles SpringHand::tracked_angles(const std::vector<HandleState>& h) const {
@@ -54,25 +48,9 @@ TrackedHand SpringHand::tracked() const {
   return t;
 }
 
-HandleInfo SpringHand::handle_info(int, int) const {
-  HandleInfo info;
-  info.mass_kg = config_.handle_mass_kg;
-  // A ball of that mass and 1 cm radius.
-  info.inertia_B = Eigen::Matrix3d::Identity() * 0.4 * config_.handle_mass_kg * 1e-4;
-  return info;
-}
+HandleInfo SpringHand::handle_info(int, int) const { return tracked_frames::info(config_.handle_mass_kg); }
 
-bool SpringHand::set_target(int j, const HandleTarget& target) {
-  if (j < 0 || j >= num_handles() || !target.p_W.allFinite() || !target.q_W.coeffs().allFinite() ||
-      !target.v_W.allFinite() || !target.w_W.allFinite() || !(target.q_W.norm() > 0))
-    return false;
-  HandleState& h = handles_[static_cast<std::size_t>(j)];
-  h.p_WH = target.p_W;
-  h.q_WH = target.q_W.normalized();
-  h.v_WH = target.v_W;
-  h.w_WH = target.w_W;
-  return true;
-}
+bool SpringHand::set_target(int j, const HandleTarget& target) { return tracked_frames::set(handles_, j, target); }
 
 void SpringHand::place(const Eigen::Vector3d& p_W, const Eigen::Quaterniond& q_W) {
   place_handles(p_W, q_W.normalized());

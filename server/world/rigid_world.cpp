@@ -650,14 +650,8 @@ void RigidWorld::hand_contacts(std::vector<HandContact>& out) const {
     hands_[h]->own_contacts(own);
     for (const hand::OdeHand::OwnContact& o : own) {
       HandContact c;
+      static_cast<hand::OdeHand::OwnContact&>(c) = o;
       c.hand = hand_ids_[h];
-      c.handle = o.handle;
-      c.object = o.object;
-      c.p_W = o.p_W;
-      c.n_W = o.n_W;
-      c.f_W = o.f_W;
-      c.depth_m = o.depth_m;
-      c.mu = o.mu;
       out.push_back(c);
     }
   }

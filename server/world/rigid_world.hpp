@@ -147,10 +147,8 @@ class RigidWorld : public hand::RigidObjects {
   void add_hand(hand::OdeHand* hand, int id);
   // A hand's contacts in the last ODE step: the force on the hand (N) and the normal out of the
   // object, toward the hand.
-  struct HandContact {
-    int hand = -1, handle = -1, object = -1;
-    Eigen::Vector3d p_W = Eigen::Vector3d::Zero(), n_W = Eigen::Vector3d::UnitZ(), f_W = Eigen::Vector3d::Zero();
-    double depth_m = 0, mu = 0;
+  struct HandContact : hand::OdeHand::OwnContact {
+    int hand = -1;
   };
   void hand_contacts(std::vector<HandContact>& out) const;
 
