@@ -57,10 +57,10 @@ constexpr double kSameSurfaceCosine = 0.5;
 ContactPointHand::ContactPointHand(const ContactPointHandConfig& config, const Eigen::Vector3d& p_W,
                                    const Eigen::Quaterniond& q_W)
     : config_(config), handles_(static_cast<std::size_t>(std::max(config.handles, 1))) {
-  if (config.handles != 1 && config.handles != 1 + kHandPhalanges)
+  if (config.handles != 1 && config.handles != 1 + kHandFingers && config.handles != 1 + kHandPhalanges)
     throw std::invalid_argument(
-        "the contact-point hand is driven by its palm (1 handle, a stylus) or by a glove's palm "
-        "and 15 phalanges (16), not " +
+        "the contact-point hand is driven by its palm (1 handle, a stylus) or by a glove's palm and 5 distal "
+        "phalanges (6) or 15 phalanges (16), not " +
         std::to_string(config.handles) + " handles");
   const ContactPointParams& p = config.params;
   if (!(p.gamma_n_m > 0) || !std::isfinite(p.gamma_n_m) || !(p.threshold_m >= 0) || !(p.threshold_m < 0.05) ||
@@ -72,6 +72,7 @@ ContactPointHand::ContactPointHand(const ContactPointHandConfig& config, const E
         std::to_string(kMaxContactSamples) +
         " samples, their radii in [0, 5 cm) and the lookahead in [threshold, 10 cm)");
   rest_pose_ = skeleton_pose(rest_joint_angles(), config.left);
+  pose_ = rest_pose_;
   probes_S_[0] = box_probes(kPalmHalf);
   for (int f = 0; f < kHandFingers; ++f) {
     const FingerGeometry& g = finger_geometry()[f];
@@ -85,16 +86,21 @@ ContactPointHand::ContactPointHand(const ContactPointHandConfig& config, const E
     }
   }
   tracked_frames::place(handles_, p_W, q_W.normalized(), rest_pose_);
+  pose_ = rest_pose_;
 }
 
 HandleInfo ContactPointHand::handle_info(int, int) const { return tracked_frames::info(config_.handle_mass_kg); }
 
 bool ContactPointHand::set_target(int j, const HandleTarget& target) {
-  return tracked_frames::set(handles_, j, target);
+  if (!tracked_frames::set(handles_, j, target)) return false;
+  update_posture();
+  return true;
 }
 
 void ContactPointHand::place(const Eigen::Vector3d& p_W, const Eigen::Quaterniond& q_W) {
   tracked_frames::place(handles_, p_W, q_W.normalized(), rest_pose_);
+  pose_ = rest_pose_;
+  angles_ = rest_joint_angles();
   clear_contacts();
 }
 
@@ -116,18 +122,34 @@ void ContactPointHand::recover(const Eigen::Vector3d& fallback_p_W, const Eigen:
   }
 }
 
+int ContactPointHand::shape_handle(int s) const {
+  if (num_handles() == 1 || s == 0) return 0;
+  if (num_handles() == 1 + kHandPhalanges) return s;
+  return (s - 1) % 3 == 2 ? 1 + (s - 1) / 3 : 0;  // 6 frames: a distal on its frame, the others on the palm
+}
+
 Eigen::Isometry3d ContactPointHand::shape_pose(int s) const {
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  if (num_handles() > 1 || s == 0) {
-    const HandleState& h = handles_[static_cast<std::size_t>(num_handles() > 1 ? s : 0)];
+  const int j = shape_handle(s);
+  if (j > 0 || s == 0) {  // on its own frame
+    const HandleState& h = handles_[static_cast<std::size_t>(j)];
     T.linear() = h.q_WH.toRotationMatrix();
     T.translation() = h.p_WH;
     return T;
   }
-  const HandleState& palm = handles_[0];
-  T.linear() = palm.q_WH * rest_pose_.R[s - 1];
-  T.translation() = palm.p_WH + palm.q_WH * rest_pose_.centre[s - 1];
+  const HandleState& palm = handles_[0];  // placed on the palm in the posture the frames give
+  T.linear() = palm.q_WH * pose_.R[s - 1];
+  T.translation() = palm.p_WH + palm.q_WH * pose_.centre[s - 1];
   return T;
+}
+
+void ContactPointHand::update_posture() {
+  if (num_handles() != 1 + kHandFingers) return;  // a stylus's fingers rest; a 16-frame glove's are tracked
+  std::array<Eigen::Matrix3d, kHandFingers> R;
+  const Eigen::Matrix3d palm_T = handles_[0].q_WH.toRotationMatrix().transpose();
+  for (int f = 0; f < kHandFingers; ++f) R[f] = palm_T * handles_[1 + f].q_WH.toRotationMatrix();
+  angles_ = joint_angles_from_distal(R, config_.left, &angles_);
+  pose_ = skeleton_pose(angles_, config_.left);
 }
 
 Eigen::Vector3d ContactPointHand::project_to_surface(int s, const Eigen::Vector3d& p) const {
@@ -491,9 +513,8 @@ Eigen::Vector3d ContactPointHand::skin_point(int i) const {
 
 int ContactPointHand::skin_handle(int i) const {
   if (i < 0 || i >= num_skin_points()) return -1;
-  if (num_handles() == 1) return 0;
-  if (i < kContactPointShapes) return i;
-  return 1 + 3 * (i - kContactPointShapes) + 2;  // a fingertip: its distal phalanx's
+  if (i < kContactPointShapes) return shape_handle(i);
+  return shape_handle(1 + 3 * (i - kContactPointShapes) + 2);  // a fingertip: its distal phalanx's
 }
 
 }  // namespace hapticd::hand::contact_point

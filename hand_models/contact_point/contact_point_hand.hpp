@@ -33,9 +33,10 @@
 // carry one speculative row each (their closest point, the contact's whole gamma), so a press
 // engages and a lift releases within the tick.
 //
-// Driven by a stylus (one handle, the palm; the fingers held at the skeleton's rest angles) or by a
-// glove's palm and 15 phalanx frames (16 handles, each shape on its frame). The 6-frame glove layout
-// is not built.
+// Driven by a stylus (one handle, the palm; the fingers held at the skeleton's rest angles), by a
+// glove's palm and 15 phalanx frames (16 handles, each shape on its frame) or by a glove's palm and 5
+// distal phalanx frames (6 handles: each distal on its frame, the proximal and middle phalanges placed
+// on the palm in the posture the frames give, joint_angles_from_distal, and pushing the palm's frame).
 #include <array>
 #include <vector>
 
@@ -80,7 +81,7 @@ class ContactPointHand : public OdeHand {
   using Vector6 = Eigen::Matrix<double, 6, 1>;
   using Matrix6 = Eigen::Matrix<double, 6, 6>;
   // The hand with its palm at (p_W, q_W). Throws std::invalid_argument for a handle count other than
-  // 1 or 16, or parameters out of range.
+  // 1, 6 or 16, or parameters out of range.
   ContactPointHand(const ContactPointHandConfig& config, const Eigen::Vector3d& p_W, const Eigen::Quaterniond& q_W);
 
   std::string_view model_name() const override { return "contact_point"; }
@@ -131,7 +132,7 @@ class ContactPointHand : public OdeHand {
   // Shape s (0 the palm, 1 + i phalanx i) in the world: its frame (the segment's: y along the bone).
   Eigen::Isometry3d shape_pose(int s) const;
   // The handle shape s moves with.
-  int shape_handle(int s) const { return num_handles() == 1 ? 0 : s; }
+  int shape_handle(int s) const;
   // What object i took from the hand in the last ODE step: the force at its centre of mass and the
   // torque (the implicit springs' share of that step, as ODE was given it); zero for static geometry.
   Eigen::Matrix<double, 6, 1> applied_wrench(int object) const {
@@ -151,12 +152,18 @@ class ContactPointHand : public OdeHand {
   // Section 3.5's surface point update of a sliding sample.
   void slide(Sample& sample, double mu_dynamic, const Eigen::Isometry3d& T_O, const Eigen::Vector3d& p_W, int object,
              const RigidObjects& objects) const;
+  // pose_ from the frames (a 6-frame glove).
+  void update_posture();
   // Drops every contact (a reset).
   void clear_contacts();
 
   ContactPointHandConfig config_;
   std::vector<HandleState> handles_;
-  SkeletonPose rest_pose_;                                       // the stylus-driven hand's fingers
+  SkeletonPose rest_pose_;  // the stylus-driven hand's fingers
+  // The posture the shapes not on a frame of their own take (a 6-frame glove's proximal and middle
+  // phalanges): joint_angles_from_distal of the frames; the rest posture for a stylus.
+  SkeletonPose pose_;
+  HandJointAngles angles_ = rest_joint_angles();                 // pose_'s
   std::array<double, kHandPhalanges> half_length_{}, radius_{};  // the capsules' (cylinder half length)
   std::array<std::vector<Eigen::Vector3d>, kContactPointShapes> probes_S_;
   std::array<Contact, kContactPointShapes> contacts_;

@@ -121,6 +121,27 @@ HandJointAngles joint_angles_from_segments(const std::array<Eigen::Matrix3d, kHa
   return a;
 }
 
+HandJointAngles joint_angles_from_distal(const std::array<Eigen::Matrix3d, kHandFingers>& R_distal, bool left,
+                                         const HandJointAngles* near) {
+  // Every segment of a finger given its distal's frame: the base joint takes the abduction and the
+  // whole flexion (the side axis does not depend on the pitch), the others none; then shared.
+  std::array<Eigen::Matrix3d, kHandPhalanges> R;
+  for (int i = 0; i < kHandPhalanges; ++i) R[i] = R_distal[i / 3];
+  HandJointAngles a = joint_angles_from_segments(R, left);
+  for (int f = 0; f < kHandFingers; ++f) {
+    std::array<double, 4>& finger = a.finger[f];
+    double total = finger[1] + finger[2] + finger[3];
+    if (near) {
+      const double was = near->finger[f][1] + near->finger[f][2] + near->finger[f][3];
+      total = was + std::remainder(total - was, 2.0 * std::numbers::pi);
+    }
+    finger[1] = 3.0 / 8.0 * total;
+    finger[2] = 3.0 / 8.0 * total;
+    finger[3] = 2.0 / 8.0 * total;
+  }
+  return a;
+}
+
 const char* finger_name(int finger) {
   static constexpr const char* kNames[] = {"thumb", "index", "middle", "ring", "little"};
   return finger >= 0 && finger < kHandFingers ? kNames[finger] : "?";

@@ -64,6 +64,15 @@ SkeletonPose skeleton_pose(const HandJointAngles& angles, bool left = false);
 // that no angles produce (noise, another skeleton) give the angles of their bones' directions.
 HandJointAngles joint_angles_from_segments(const std::array<Eigen::Matrix3d, kHandPhalanges>& R, bool left = false);
 
+// The posture a 6-frame glove's distal segments (SkeletonPose::R of phalanx 3 f + 2, in the hand
+// frame) give: each finger's abduction from its distal bone and its whole flexion from the distal's
+// pitch, shared 3 : 3 : 2 among its three joints (the distal joint bending about two thirds of the
+// middle one, the usual coupling of a curling finger). Exact for postures whose flexions are so shared.
+// The pitch tells the whole flexion up to whole turns: it is taken within half a turn of `near`'s (the
+// last posture: a fist curls a finger past a half turn), or in (-pi, pi] without it.
+HandJointAngles joint_angles_from_distal(const std::array<Eigen::Matrix3d, kHandFingers>& R, bool left = false,
+                                         const HandJointAngles* near = nullptr);
+
 const char* finger_name(int finger);    // "thumb" ... "little"
 const char* phalanx_name(int phalanx);  // "proximal", "middle", "distal"
 

@@ -70,15 +70,19 @@ inline bool set(std::vector<HandleState>& frames, int j, const HandleTarget& tar
   h.w_WH = target.w_W;
   return true;
 }
+// The phalanx frame j >= 1 of a glove of `frames` frames tracks: a 16-frame glove's every phalanx, a
+// 6-frame glove's distal ones.
+inline int phalanx(std::size_t frames, int j) { return frames == 1 + kHandFingers ? 3 * (j - 1) + 2 : j - 1; }
 // The frames of a hand whose palm is at (p_W, q_W) in posture `pose`, at rest.
 inline void place(std::vector<HandleState>& frames, const Eigen::Vector3d& p_W, const Eigen::Quaterniond& q_W,
                   const SkeletonPose& pose) {
   for (HandleState& h : frames) h = HandleState{};
   frames[0].p_WH = p_W;
   frames[0].q_WH = q_W;
-  for (std::size_t i = 0; i + 1 < frames.size(); ++i) {
-    frames[i + 1].p_WH = p_W + q_W * pose.centre[i];
-    frames[i + 1].q_WH = q_W * Eigen::Quaterniond(pose.R[i]);
+  for (std::size_t j = 1; j < frames.size(); ++j) {
+    const int i = phalanx(frames.size(), static_cast<int>(j));
+    frames[j].p_WH = p_W + q_W * pose.centre[i];
+    frames[j].q_WH = q_W * Eigen::Quaterniond(pose.R[i]);
   }
 }
 }  // namespace tracked_frames

@@ -93,6 +93,45 @@ TEST(HandSkeleton, TheJointAnglesComeBackFromTheSegmentFramesAtAnyFlexion) {
   EXPECT_LT((joint_angles_from_segments(skeleton_pose(fist).R).vector() - fist.vector()).cwiseAbs().maxCoeff(), 1e-9);
 }
 
+// A 6-frame glove's distal frames give back a posture whose flexions are shared 3 : 3 : 2 (left and
+// right, abducted, from a slight extension to a whole flexion of 3 rad), and of any other posture the
+// abduction and the whole flexion; past a half turn (a fist: 4.5 rad) from the last posture, 1 rad off.
+TEST(HandSkeleton, TheDistalFramesGiveBackThePostureWithFlexionSharedThreeThreeTwo) {
+  std::mt19937 rng(12);
+  std::uniform_real_distribution<double> abduction(-1.0, 0.5), whole(-0.3, 3.0), flexion(-0.2, 1.0), off(-1.0, 1.0);
+  for (int trial = 0; trial < 200; ++trial) {
+    const bool left = trial % 2 == 1;
+    HandJointAngles shared, any;
+    for (int f = 0; f < kHandFingers; ++f) {
+      const double a = abduction(rng), t = whole(rng);
+      shared.finger[f] = {a, 3.0 / 8 * t, 3.0 / 8 * t, 2.0 / 8 * t};
+      any.finger[f] = {a, flexion(rng), flexion(rng), flexion(rng)};
+    }
+    auto distal = [&](const HandJointAngles& angles) {
+      const SkeletonPose pose = skeleton_pose(angles, left);
+      std::array<Eigen::Matrix3d, kHandFingers> R;
+      for (int f = 0; f < kHandFingers; ++f) R[f] = pose.R[3 * f + 2];
+      return R;
+    };
+    const HandJointAngles back = joint_angles_from_distal(distal(shared), left);
+    EXPECT_LT((back.vector() - shared.vector()).cwiseAbs().maxCoeff(), 1e-9) << trial;
+    HandJointAngles fist = shared, last = shared;
+    for (int f = 0; f < kHandFingers; ++f) {
+      fist.finger[f] = {shared.finger[f][0], 3.0 / 8 * 4.5, 3.0 / 8 * 4.5, 2.0 / 8 * 4.5};
+      last.finger[f] = {shared.finger[f][0], 3.0 / 8 * (4.5 + off(rng)), 3.0 / 8 * 4.5, 2.0 / 8 * 4.5};
+    }
+    const HandJointAngles curled = joint_angles_from_distal(distal(fist), left, &last);
+    EXPECT_LT((curled.vector() - fist.vector()).cwiseAbs().maxCoeff(), 1e-9) << trial;
+    const HandJointAngles other = joint_angles_from_distal(distal(any), left);
+    for (int f = 0; f < kHandFingers; ++f) {
+      EXPECT_NEAR(other.finger[f][0], any.finger[f][0], 1e-9) << trial;
+      EXPECT_NEAR(other.finger[f][1] + other.finger[f][2] + other.finger[f][3],
+                  any.finger[f][1] + any.finger[f][2] + any.finger[f][3], 1e-9)
+          << trial;
+    }
+  }
+}
+
 TEST(HandSkeleton, TrackedFramesMapOntoTheHandlesOfAPlacedHand) {
   ProceduralHandOptions o;
   o.target_tets = 350;

@@ -266,6 +266,66 @@ TEST(WorldContactPointHand, ItsModelIsItsContactLawAtTheMovedHandleAndEngagesANe
   EXPECT_NEAR(predicted, actual, 0.2 * actual);
 }
 
+// A 6-frame glove (palm and distal phalanges): each distal shape sits on its frame, the proximal and
+// middle phalanges where the posture the frames give puts them (flexions shared 3 : 3 : 2 come back
+// exactly), on the palm's frame; a 1 cm block 2 mm into the index's distal pushes that frame alone, one
+// 2 mm into its proximal phalanx the palm's alone.
+TEST(WorldContactPointHand, ASixFrameGlovesFramesPlaceItsFingersAndEachContactPushesItsFrame) {
+  hand::HandJointAngles a = hand::rest_joint_angles();
+  for (int f = 0; f < hand::kHandFingers; ++f) a.finger[f] = {a.finger[f][0], 0.3, 0.3, 0.2};
+  const hand::SkeletonPose pose = hand::skeleton_pose(a);
+  const Eigen::Vector3d palm(0, 0, 0.3);
+  for (const int pressed : {kIndexDistal, 1 + 3}) {  // the index's distal, then its proximal phalanx
+    // Where the pressed shape reaches lowest, from a hand built in the posture.
+    Eigen::Vector3d lowest(0, 0, 1);
+    {
+      SceneDesc probe = glove_scene();
+      probe.hands[0].handles = HandleSet::fingertips;
+      World w(probe);
+      ContactPointHand& hand = dynamic_cast<ContactPointHand&>(w.hand(0));
+      for (int j = 0; j < 6; ++j) {
+        hand::HandleTarget t;
+        t.p_W = j == 0 ? palm : Eigen::Vector3d(palm + pose.centre[3 * (j - 1) + 2]);
+        if (j > 0) t.q_W = Eigen::Quaterniond(pose.R[3 * (j - 1) + 2]);
+        ASSERT_TRUE(hand.set_target(j, t));
+      }
+      ASSERT_EQ(hand.num_handles(), 6);
+      for (int i = 0; i < hand::kHandPhalanges; ++i) {
+        const Eigen::Isometry3d T = hand.shape_pose(1 + i);
+        EXPECT_LT((T.translation() - (palm + pose.centre[i])).norm(), 1e-9) << i;
+        EXPECT_LT((T.linear() - pose.R[i]).norm(), 1e-9) << i;
+        EXPECT_EQ(hand.shape_handle(1 + i), i % 3 == 2 ? 1 + i / 3 : 0) << i;
+      }
+      for (int k = 0; k < 4000; ++k) {
+        const Eigen::Vector3d q =
+            hand.shape_pose(pressed) * hand.project_to_surface(pressed, Eigen::Vector3d::Random() * 0.05);
+        if (q.z() < lowest.z()) lowest = q;
+      }
+    }
+    SceneDesc scene = glove_scene();
+    scene.hands[0].handles = HandleSet::fingertips;
+    scene.objects.push_back(box("block", {0.01, 0.01, 0.01}, 1.0, lowest + Eigen::Vector3d(0, 0, 0.002 - 0.005), 1.0));
+    scene.objects.back().kind = BodyKind::static_body;
+    World w(scene);
+    ContactPointHand& hand = dynamic_cast<ContactPointHand&>(w.hand(0));
+    for (int j = 0; j < 6; ++j) {
+      hand::HandleTarget t;
+      t.p_W = j == 0 ? palm : Eigen::Vector3d(palm + pose.centre[3 * (j - 1) + 2]);
+      if (j > 0) t.q_W = Eigen::Quaterniond(pose.R[3 * (j - 1) + 2]);
+      ASSERT_TRUE(hand.set_target(j, t));
+    }
+    w.step();
+    w.step();
+    const Eigen::VectorXd F = hand.coupling_wrench();
+    const int frame = hand.shape_handle(pressed);
+    std::printf("shape %d 2 mm into the block: frame %d feels %.3f N up, all the others %.3g N\n", pressed, frame,
+                F[6 * frame + 2], (F.norm() - F.segment<6>(6 * frame).norm()));
+    EXPECT_GT(F[6 * frame + 2], 0.5 * kGamma * 0.002) << "pushed up";
+    for (int j = 0; j < 6; ++j)
+      if (j != frame) EXPECT_EQ(F.segment<6>(6 * j).norm(), 0.0) << j;
+  }
+}
+
 // Hard cases: a NaN target is refused; a palm teleported 10 cm into a box on the floor and a 3 m/s
 // impact end without anything non-finite; boxes 1000 times lighter and heavier than the 0.65 kg of a
 // hand (0.65 g and 650 kg) pressed 2 cm stay on the floor, and nothing resets.
