@@ -14,10 +14,10 @@ namespace hapticd::hand::spring {
 SpringHand::SpringHand(dWorldID world, dSpaceID space, const SpringHandConfig& config, const Eigen::Vector3d& p_W,
                        const Eigen::Quaterniond& q_W)
     : config_(config), handles_(static_cast<std::size_t>(std::max(config.handles, 1))) {
-  if (config.handles != 1 && config.handles != 1 + kHandPhalanges)
+  if (config.handles != 1 && config.handles != 1 + kHandFingers && config.handles != 1 + kHandPhalanges)
     throw std::invalid_argument(
-        "the spring hand is driven by its palm (1 handle, a stylus) or by a glove's palm "
-        "and 15 phalanges (16), not " +
+        "the spring hand is driven by its palm (1 handle, a stylus) or by a glove's palm and 5 distal "
+        "phalanges (6) or 15 phalanges (16), not " +
         std::to_string(config.handles) + " handles");
   place_handles(p_W, q_W.normalized());
   rig_ = std::make_unique<SpringHandRig>(world, space, config.params, config.left, tracked());
@@ -31,8 +31,13 @@ void SpringHand::place_handles(const Eigen::Vector3d& p_W, const Eigen::Quaterni
 
 HandJointAngles SpringHand::tracked_angles(const std::vector<HandleState>& h) const {
   if (h.size() == 1) return angles_;
-  std::array<Eigen::Matrix3d, kHandPhalanges> R;
   const Eigen::Matrix3d palm_T = h[0].q_WH.toRotationMatrix().transpose();
+  if (h.size() == 1 + kHandFingers) {
+    std::array<Eigen::Matrix3d, kHandFingers> R_distal;
+    for (int f = 0; f < kHandFingers; ++f) R_distal[f] = palm_T * h[1 + f].q_WH.toRotationMatrix();
+    return joint_angles_from_distal(R_distal, config_.left, &angles_);
+  }
+  std::array<Eigen::Matrix3d, kHandPhalanges> R;
   for (int i = 0; i < kHandPhalanges; ++i) R[i] = palm_T * h[i + 1].q_WH.toRotationMatrix();
   return joint_angles_from_segments(R, config_.left);
 }
@@ -99,7 +104,7 @@ Eigen::VectorXd SpringHand::reaction(const std::vector<HandleState>& h) const {
   const HandJointAngles angles = tracked_angles(h);
   const SkeletonPose pose = skeleton_pose(angles, config_.left);
   for (int f = 0; f < kHandFingers; ++f) {
-    const int j = n == 1 ? 0 : 1 + 3 * f + 2;
+    const int j = phalanx_frame(3 * f + 2);
     const Eigen::Vector3d tip = h[0].p_WH + h[0].q_WH * pose.joints[f][3];
     const Eigen::Vector3d r = tip - h[j].p_WH;
     const Eigen::Vector3d f_tip =
@@ -112,14 +117,21 @@ Eigen::VectorXd SpringHand::reaction(const std::vector<HandleState>& h) const {
   // parent (the palm, for a base joint) +tau; the tracked angular rate is the frames' relative one.
   const Eigen::Matrix<double, kHandJointDofs, 1> theta_t = angles.vector(), theta_s = rig_->joint_angles().vector(),
                                                  omega_s = rig_->joint_rates();
+  // A 6-frame glove tracks each finger's distal frame alone, and its joints through it
+  // (joint_angles_from_distal): a joint's angle is its share of the distal's turn from the palm (all
+  // of the abduction, 3/8, 3/8 and 2/8 of the flexion), so its spring's reaction, by virtual work,
+  // is that share of tau on the distal frame and on the palm.
   for (int dof = 0; dof < kHandJointDofs; ++dof) {
     const int f = dof / 4, k = dof % 4;
-    const int child = 1 + 3 * f + std::max(k - 1, 0), parent = k <= 1 ? 0 : 1 + 3 * f + k - 2;
+    const bool six = n == 1 + kHandFingers;
+    const int child = six ? 1 + f : phalanx_frame(3 * f + std::max(k - 1, 0));
+    const int parent = six || k <= 1 ? 0 : phalanx_frame(3 * f + k - 2);
+    const double share = !six || k == 0 ? 1.0 : k == 3 ? 2.0 / 8.0 : 3.0 / 8.0;
     const Eigen::Vector3d a = rig_->joint_axis_W(dof);
-    const double omega_t = a.dot(h[child].w_WH - h[parent].w_WH);
+    const double omega_t = share * a.dot(h[child].w_WH - h[parent].w_WH);
     const double tau = joint_spring_torque(p.joint, theta_t[dof], theta_s[dof], omega_s[dof], omega_t);
-    out.segment<3>(6 * child + 3) -= tau * a;
-    out.segment<3>(6 * parent + 3) += tau * a;
+    out.segment<3>(6 * child + 3) -= share * tau * a;
+    out.segment<3>(6 * parent + 3) += share * tau * a;
   }
   return out;
 }
@@ -245,11 +257,17 @@ bool SpringHand::linearize_next_step(HandleLinearization& out, ContactLinearizat
 
 Eigen::VectorXd SpringHand::coupling_wrench() const { return reaction(handles_); }
 
+int SpringHand::phalanx_frame(int i) const {
+  if (num_handles() == 1) return 0;
+  return num_handles() == 1 + kHandFingers ? 1 + i / 3 : 1 + i;
+}
+
 double SpringHand::glove_feedback(int finger, const Eigen::Vector3d& n_W) const {
   if (num_handles() == 1 || finger < 0 || finger >= kHandFingers) return 0.0;
-  const int first = 1 + 3 * finger;  // the finger's proximal phalanx's handle; then middle, distal
-  const bool touching = std::any_of(contacts_.begin(), contacts_.end(), [first](const OdeHandContact& c) {
-    return c.handle >= first && c.handle < first + 3;
+  const bool touching = std::any_of(contacts_.begin(), contacts_.end(), [&](const OdeHandContact& c) {
+    for (int k = 0; k < 3; ++k)
+      if (c.handle == phalanx_frame(3 * finger + k)) return true;
+    return false;
   });
   return rig_->feedback(finger, touching, n_W);
 }
@@ -262,9 +280,9 @@ Eigen::Vector3d SpringHand::skin_point(int i) const {
 
 int SpringHand::skin_handle(int i) const {
   if (i < 0 || i >= num_skin_points()) return -1;
-  if (num_handles() == 1) return 0;
-  if (i <= kHandPhalanges) return i;            // the palm, a phalanx: its own handle
-  return 1 + 3 * (i - 1 - kHandPhalanges) + 2;  // a fingertip: its distal phalanx's
+  if (i == 0) return 0;
+  if (i <= kHandPhalanges) return phalanx_frame(i - 1);
+  return phalanx_frame(3 * (i - 1 - kHandPhalanges) + 2);  // a fingertip: its distal phalanx's
 }
 
 }  // namespace hapticd::hand::spring

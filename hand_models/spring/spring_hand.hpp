@@ -23,12 +23,14 @@
 // the force is no rendering model: the palm, still closing in, pulls the handle along through the
 // damper, a stiffness of +80 to +150 N/m at 15-60 Hz, which drove the stylus to its force limit.)
 //
-// Driven by a stylus (one handle, the palm; the fingers held at the skeleton's rest angles) or by a
+// Driven by a stylus (one handle, the palm; the fingers held at the skeleton's rest angles), by a
 // glove's palm and 15 phalanx frames (16 handles, each the tracked segment's frame): its joint angles
 // come from the frames (joint_angles_from_segments), and each frame feels the joint springs'
 // reactions about the spring joints' axes (its child's -tau, its parent's +tau) and, a distal one,
-// its fingertip spring's. The 6-frame glove layout (no joint angles in it) is not built yet, nor is
-// the section-4.5 finger force (glove_feedback) through the server's glove output.
+// its fingertip spring's; or by a glove's palm and 5 distal frames (6 handles): the joint angles from
+// the distal frames (joint_angles_from_distal, each finger's flexion shared 3:3:2), each joint
+// spring's reaction shared between its finger's distal frame and the palm's by the same shares. The
+// section-4.5 finger force (glove_feedback) does not reach the server's glove output yet.
 #include <memory>
 #include <vector>
 
@@ -57,7 +59,7 @@ struct SpringHandConfig {
 class SpringHand : public OdeHand {
  public:
   // Builds the hand's bodies in `world` and `space` with its palm at (p_W, q_W), at rest. Throws
-  // std::invalid_argument for a handle count other than 1 or 16.
+  // std::invalid_argument for a handle count other than 1, 6 or 16.
   SpringHand(dWorldID world, dSpaceID space, const SpringHandConfig& config, const Eigen::Vector3d& p_W,
              const Eigen::Quaterniond& q_W);
 
@@ -88,14 +90,17 @@ class SpringHand : public OdeHand {
   double friction_static() const override { return config_.friction_static; }
   int num_geoms() const override { return 1 + kHandPhalanges; }
   dGeomID geom(int i) const override { return i == 0 ? rig_->palm_geom() : rig_->phalanx_geom(i - 1); }
-  // The palm's geom is handle 0's; phalanx i's, handle 1 + i's for a glove (skin point 1 + i).
-  int geom_handle(int i) const override { return num_handles() == 1 ? 0 : i; }
+  // The palm's geom is handle 0's; phalanx i's, phalanx_frame(i)'s.
+  int geom_handle(int i) const override { return i == 0 ? 0 : phalanx_frame(i - 1); }
+  // The frame phalanx i's part of the hand is on: the palm's for a stylus, the phalanx's own for a
+  // 16-frame glove, its finger's distal one for a 6-frame glove.
+  int phalanx_frame(int i) const;
 
   const SpringHandRig& rig() const { return *rig_; }
   // Section 4.5's force for a 1-DoF-per-finger glove actuator along its line of action n_W (the
   // distal phalanx's dorsal axis when zero), from the last ODE step's springs; zero for a finger
   // none of whose phalanges touched anything in that step (section 4.6.2). A glove-driven hand only
-  // (16 handles: a contact's handle names its phalanx); 0 for a stylus-driven one.
+  // (a contact's handle names its phalanx's frame); 0 for a stylus-driven one.
   double glove_feedback(int finger, const Eigen::Vector3d& n_W = Eigen::Vector3d::Zero()) const;
 
  private:

@@ -274,6 +274,54 @@ TEST(WorldSpringHand, AGlovesFramesBendItsFingersAndEachFrameFeelsItsSprings) {
 // Section 4.5 through the world: a glove-driven hand in free space gives every finger zero (4.6.2),
 // whatever its springs pull; its index bent into the floor gives the index a force resisting the
 // flexion, and the fingers above the floor none.
+// A 6-frame glove (palm and distal phalanges) bends the fingers to the posture its frames give
+// (flexions shared 3:3:2 come back), and each joint spring's reaction reaches the distal frame by its
+// share: with the index flexed 0.1 rad further in all (shared 3:3:2), its distal frame's torque about
+// the flexion axis is what a 16-frame glove's proximal, middle and distal frames feel, weighted by how
+// far each turns for a turn of the distal (3/8, 6/8, 1), at the same spring hand.
+TEST(WorldSpringHand, ASixFrameGlovesDistalFramesBendItsFingersAndFeelTheirJointsShares) {
+  hand::HandJointAngles posture = hand::rest_joint_angles();
+  for (int f = 0; f < hand::kHandFingers; ++f)
+    posture.finger[f] = {posture.finger[f][0], 3.0 / 8 * 1.2, 3.0 / 8 * 1.2, 2.0 / 8 * 1.2};
+  hand::HandJointAngles further = posture;
+  further.finger[1][1] += 3.0 / 8 * 0.1, further.finger[1][2] += 3.0 / 8 * 0.1, further.finger[1][3] += 2.0 / 8 * 0.1;
+  Eigen::VectorXd wrench[2];
+  Eigen::Vector3d axis;
+  for (const int frames : {6, 16}) {
+    SceneDesc scene = floor_scene();
+    scene.hands[0].handles = frames == 6 ? HandleSet::fingertips : HandleSet::phalanges;
+    scene.hands[0].pose.p_W = {0, 0, 0.15};
+    WorldOptions options;
+    options.hand_gravity = false;
+    World w(scene, options);
+    ASSERT_EQ(w.hand(0).num_handles(), frames);
+    auto drive = [&](const hand::HandJointAngles& a) {
+      const std::vector<hand::HandleTarget> all = glove_frames(a, {0, 0, 0.15});
+      for (int j = 0; j < frames; ++j)
+        ASSERT_TRUE(w.hand(0).set_target(j, all[j == 0 ? 0 : frames == 6 ? 3 * (j - 1) + 3 : j]));
+    };
+    for (int k = 0; k < 90; ++k) {
+      drive(posture);
+      w.step();
+    }
+    const hand::spring::SpringHand& hand = spring_of(w);
+    EXPECT_LT((hand.rig().joint_angles().vector() - posture.vector()).cwiseAbs().maxCoeff(), 2e-3) << frames;
+    EXPECT_EQ(w.snapshot().resets, 0);
+    drive(further);
+    wrench[frames == 16] = w.hand(0).coupling_wrench();
+    axis = hand.rig().joint_axis_W(4 * 1 + 3);  // the index's flexion axes are parallel
+  }
+  const int distal6 = 1 + 1, proximal16 = 1 + 3 * 1;
+  const double six = axis.dot(wrench[0].segment<3>(6 * distal6 + 3));
+  const double sixteen = 3.0 / 8 * axis.dot(wrench[1].segment<3>(6 * proximal16 + 3)) +
+                         6.0 / 8 * axis.dot(wrench[1].segment<3>(6 * (proximal16 + 1) + 3)) +
+                         axis.dot(wrench[1].segment<3>(6 * (proximal16 + 2) + 3));
+  std::printf("index distal frame about its flexion axis: 6 frames %.5f N m, 16 frames weighted %.5f N m\n", six,
+              sixteen);
+  EXPECT_LT(six, -0.01) << "the springs pull the flexed finger back";
+  EXPECT_NEAR(six, sixteen, 1e-3 * std::abs(sixteen));
+}
+
 TEST(WorldSpringHand, TheGloveForceIsZeroForAFingerTouchingNothingAndResistsTheFloorsBlock) {
   SceneDesc scene = floor_scene();
   scene.hands[0].handles = HandleSet::phalanges;
