@@ -253,11 +253,10 @@ void ContactPointHand::slide(Sample& sample, double mu_dynamic, const Eigen::Iso
   const double offset = std::max(config_.params.threshold_m, 1e-3);
   Eigen::Vector3d C_new, n_new;
   double d;
-  if (objects.ray_hit(object, target + offset * n, target - offset * n, C_new, n_new)) {
-  } else if (objects.surface_near(object, target, 0.01, d, n_new)) {
-    C_new = target + d * n_new;  // the ray missed (the target is past an edge): the nearest surface point
-  } else {
-    return;
+  if (!objects.ray_hit(object, target + offset * n, target - offset * n, C_new, n_new)) {
+    // The ray missed (the target is past an edge): the nearest surface point.
+    if (!objects.surface_near(object, target, 0.01, d, n_new)) return;
+    C_new = target + d * n_new;
   }
   if (n_new.dot(n) <= 0) return;  // an occluding part of the object (3.5, rays R4 and R5 of Fig. 3)
   const Eigen::Isometry3d T_OW = T_O.inverse();

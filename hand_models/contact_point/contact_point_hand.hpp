@@ -11,7 +11,9 @@
 //  - a contact area (3.2): `samples` hand points on the shape's surface around that point, each with
 //    its own C on the object (fixed in the object's frame, so it moves with the object), spread
 //    over a wider area on the thumb and the palm;
-//  - forces (3.3, contact_point_law.hpp): gamma (C - p) per sample, its normal part and its
+//  - forces (3.3, contact_point_law.hpp): gamma (C - p) per sample (none from a hand point farther
+//    than the threshold outside the object: C's tangent plane stands for the surface only near it),
+//    its normal part and its
 //    tangential part inside the static friction cone or the kinetic force outside it; a sliding
 //    sample's C moves along the surface toward the hand point (3.5: a step along the tangent plane
 //    to where the spring's tangential force is the kinetic one, put back on the surface by a ray
@@ -48,8 +50,7 @@ namespace hapticd::hand::contact_point {
 
 struct ContactPointParams {
   // Eq. 1's gamma per contact (shape), shared by its samples, N/m (the paper gives none; a phalanx
-  // pressed 1 mm in pushes with 1 N, the order of a fingertip pad's stiffness; at 400 N/m the glove's
-  // tripod grasp squeezed the 100 g box too little to lift it).
+  // pressed 1 mm in pushes with 1 N, the order of a fingertip pad's stiffness).
   double gamma_n_m = 1000.0;
   // A contact is made within this distance of an object's surface (section 3.2's threshold, 3.5's
   // "Default Contact Offset"); its samples push only within it.
