@@ -321,8 +321,11 @@ TEST(WorldContactPointHand, ASixFrameGlovesFramesPlaceItsFingersAndEachContactPu
     std::printf("shape %d 2 mm into the block: frame %d feels %.3f N up, all the others %.3g N\n", pressed, frame,
                 F[6 * frame + 2], (F.norm() - F.segment<6>(6 * frame).norm()));
     EXPECT_GT(F[6 * frame + 2], 0.5 * kGamma * 0.002) << "pushed up";
-    for (int j = 0; j < 6; ++j)
-      if (j != frame) EXPECT_EQ(F.segment<6>(6 * j).norm(), 0.0) << j;
+    for (int j = 0; j < 6; ++j) {
+      if (j != frame) {
+        EXPECT_EQ(F.segment<6>(6 * j).norm(), 0.0) << j;
+      }
+    }
   }
 }
 
