@@ -275,6 +275,14 @@ TEST(WorldContactPointHand, ASixFrameGlovesFramesPlaceItsFingersAndEachContactPu
   for (int f = 0; f < hand::kHandFingers; ++f) a.finger[f] = {a.finger[f][0], 0.3, 0.3, 0.2};
   const hand::SkeletonPose pose = hand::skeleton_pose(a);
   const Eigen::Vector3d palm(0, 0, 0.3);
+  auto hold_posture = [&](ContactPointHand& hand) {  // the glove's 6 frames in the posture
+    for (int j = 0; j < 6; ++j) {
+      hand::HandleTarget t;
+      t.p_W = j == 0 ? palm : Eigen::Vector3d(palm + pose.centre[3 * (j - 1) + 2]);
+      if (j > 0) t.q_W = Eigen::Quaterniond(pose.R[3 * (j - 1) + 2]);
+      ASSERT_TRUE(hand.set_target(j, t));
+    }
+  };
   for (const int pressed : {kIndexDistal, 1 + 3}) {  // the index's distal, then its proximal phalanx
     // Where the pressed shape reaches lowest, from a hand built in the posture.
     Eigen::Vector3d lowest(0, 0, 1);
@@ -283,13 +291,8 @@ TEST(WorldContactPointHand, ASixFrameGlovesFramesPlaceItsFingersAndEachContactPu
       probe.hands[0].handles = HandleSet::fingertips;
       World w(probe);
       ContactPointHand& hand = dynamic_cast<ContactPointHand&>(w.hand(0));
-      for (int j = 0; j < 6; ++j) {
-        hand::HandleTarget t;
-        t.p_W = j == 0 ? palm : Eigen::Vector3d(palm + pose.centre[3 * (j - 1) + 2]);
-        if (j > 0) t.q_W = Eigen::Quaterniond(pose.R[3 * (j - 1) + 2]);
-        ASSERT_TRUE(hand.set_target(j, t));
-      }
       ASSERT_EQ(hand.num_handles(), 6);
+      hold_posture(hand);
       for (int i = 0; i < hand::kHandPhalanges; ++i) {
         const Eigen::Isometry3d T = hand.shape_pose(1 + i);
         EXPECT_LT((T.translation() - (palm + pose.centre[i])).norm(), 1e-9) << i;
@@ -308,12 +311,7 @@ TEST(WorldContactPointHand, ASixFrameGlovesFramesPlaceItsFingersAndEachContactPu
     scene.objects.back().kind = BodyKind::static_body;
     World w(scene);
     ContactPointHand& hand = dynamic_cast<ContactPointHand&>(w.hand(0));
-    for (int j = 0; j < 6; ++j) {
-      hand::HandleTarget t;
-      t.p_W = j == 0 ? palm : Eigen::Vector3d(palm + pose.centre[3 * (j - 1) + 2]);
-      if (j > 0) t.q_W = Eigen::Quaterniond(pose.R[3 * (j - 1) + 2]);
-      ASSERT_TRUE(hand.set_target(j, t));
-    }
+    hold_posture(hand);
     w.step();
     w.step();
     const Eigen::VectorXd F = hand.coupling_wrench();
