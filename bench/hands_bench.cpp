@@ -31,6 +31,7 @@
 //   visual_ms_median, visual_ms_p99   one visual step's wall time (world step and model), ms
 //   resets              number  proxy and world resets
 //   lift_mm             number  grasp_box: how high the box rose (the palm rises 50 mm), else 0
+//   hold_slip_mm        number  grasp_box: how far the box moved in the palm's frame while held up, else 0
 //   grasped             bool    grasp_box: the box rose 40 mm or more
 //   reference           bool    the world stepped at every tick
 // and "timing": the contact-point hand's world step with 0, 6, 16 and 32 phalanges in contact (seed
@@ -79,7 +80,7 @@ struct Row {
   std::string interaction, model;
   int every = kVisualEveryTicks;
   offline::TouchRun run;
-  double release_n = 0, after_n = 0, lift_m = 0;
+  double release_n = 0, after_n = 0, lift_m = 0, hold_slip_m = 0;
   offline::ForceError error;
   bool reference = false;
 };
@@ -112,6 +113,7 @@ Row grasp_row(const world::SceneDesc& scene, int every) {
   r.release_n = g.release_n;
   r.after_n = g.after_n;
   r.lift_m = g.box_top - g.box_z0;
+  r.hold_slip_m = g.hold_slip_m;
   return r;
 }
 
@@ -140,6 +142,7 @@ nlohmann::json row_json(const Row& r) {
           {"visual_ms_p99", t.visual_ms_p99},
           {"resets", r.run.trace.resets},
           {"lift_mm", 1e3 * r.lift_m},
+          {"hold_slip_mm", 1e3 * r.hold_slip_m},
           {"grasped", r.interaction == "grasp_box" && r.lift_m >= kGraspedM},
           {"reference", r.reference}};
 }
@@ -253,16 +256,17 @@ void run_hands_bench(const HandsArgs& a) {
       "Hand models on the same interactions, closed loop at 1 kHz, passivity controller on: table_press / "
       "bunny_press = the stylus 2 cm into the table's edge / the movable bunny and lifted; grasp_box = the 16-frame "
       "glove lifting the 5 cm box 5 cm and opening. Error against the same model's world stepped every tick.\n");
-  std::printf("%-12s %-14s %7s %10s %9s %9s %9s %9s %8s %8s %8s %8s %8s %6s %7s\n", "interaction", "model", "visual",
-              "energy_J", "release_N", "after_N", "rms_err_N", "max_err_N", "pen_mm", "tick_med", "tick_p99", "vis_med",
-              "vis_p99", "resets", "lift_mm");
+  std::printf("%-12s %-14s %7s %10s %9s %9s %9s %9s %8s %8s %8s %8s %8s %6s %7s %7s\n", "interaction", "model",
+              "visual", "energy_J", "release_N", "after_N", "rms_err_N", "max_err_N", "pen_mm", "tick_med", "tick_p99",
+              "vis_med", "vis_p99", "resets", "lift_mm", "slip_mm");
   nlohmann::json json_rows = nlohmann::json::array();
   for (const Row& r : rows) {
     const offline::OfflineTimings& t = r.run.trace.timings;
-    std::printf("%-12s %-14s %7s %+10.4f %9.3f %9.4f %9.4f %9.4f %8.2f %8.1f %8.1f %8.2f %8.2f %6ld %7.1f\n",
+    std::printf("%-12s %-14s %7s %+10.4f %9.3f %9.4f %9.4f %9.4f %8.2f %8.1f %8.1f %8.2f %8.2f %6ld %7.1f %7.2f\n",
                 r.interaction.c_str(), r.model.c_str(), r.reference ? "1 kHz" : "30 Hz", r.run.energy_j, r.release_n,
                 r.after_n, r.error.rms_n, r.error.max_n, 1e3 * r.run.penetration_max_m, t.haptic_us_median,
-                t.haptic_us_p99, t.visual_ms_median, t.visual_ms_p99, r.run.trace.resets, 1e3 * r.lift_m);
+                t.haptic_us_p99, t.visual_ms_median, t.visual_ms_p99, r.run.trace.resets, 1e3 * r.lift_m,
+                1e3 * r.hold_slip_m);
     json_rows.push_back(row_json(r));
   }
   std::printf(

@@ -189,12 +189,23 @@ GraspRun run_grasp_release(const world::SceneDesc& scene, const OfflineOptions& 
   SimulatedGlove glove(grasp_release_trajectory(palm_D, q_D), sim::kGloveFramesAll, left, options.haptic_period_s);
   const double T = options.haptic_period_s;
   const long lift_tick = std::lround(G::kLiftAt / T), open_tick = std::lround(G::kOpenAt / T);
+  const long held_tick = std::lround((G::kLiftAt + 1.0) / T);  // the lift's end
   auto probe = penetration_probe(loops, run.penetration_max_m);
+  auto box_in_palm = [&] {
+    const world::WorldSnapshot& s = loops.world().snapshot();
+    const hand::HandleState& palm = s.handles[0][0];
+    return Eigen::Vector3d(palm.q_WH.conjugate() * (s.bodies[box].p_WO - palm.p_WH));
+  };
+  Eigen::Vector3d held_at = Eigen::Vector3d::Zero();
   run.trace = run_offline(loops, glove, std::lround(G::kEnd / T), [&](long tick) {
     probe(tick);
     run.box_top = std::max(run.box_top, loops.world().snapshot().bodies[box].p_WO.z());
     if (tick == lift_tick) run.energy_at_lift_j = glove.simulation().passivity_energy_j();
-    if (tick == open_tick) run.energy_at_open_j = glove.simulation().passivity_energy_j();
+    if (tick == held_tick) held_at = box_in_palm();
+    if (tick == open_tick) {
+      run.energy_at_open_j = glove.simulation().passivity_energy_j();
+      run.hold_slip_m = (box_in_palm() - held_at).norm();
+    }
   });
   const double released_from = G::kOpenedAt + T + options.visual_every_ticks * T;
   for (std::size_t k = 0; k < run.trace.replies.size(); ++k) {

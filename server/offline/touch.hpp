@@ -82,6 +82,8 @@ struct GraspRun : TouchRun {
   double energy_at_lift_j = 0, energy_at_open_j = 0;  // the glove's energy so far when lifting and opening begin
   double observed_j = 0;           // the server's passivity observer: work the frames did on the rendering, J
   double box_z0 = 0, box_top = 0;  // the box's height at the start and its highest, m
+  // How far the box moved in the palm's frame while held up (from the lift's end to the opening), m.
+  double hold_slip_m = 0;
   world::RigidBodyState box_end;
   double release_n = 0;  // the largest frame force once the hand is open, after one haptic and one visual period
   double after_n = 0;    // the largest frame force from a second after the hand has opened

@@ -15,7 +15,7 @@ foreach(i RANGE ${last})
   smoke_check_fields(${i} STRINGS interaction model BOOLEANS reference grasped
                      NUMBERS visual_hz energy_j release_n after_n rms_force_error_n max_force_error_n
                              penetration_max_mm tick_us_median tick_us_p99 visual_ms_median visual_ms_p99 resets
-                             lift_mm)
+                             lift_mm hold_slip_mm)
   string(JSON interaction GET "${doc}" rows ${i} interaction)
   string(JSON model GET "${doc}" rows ${i} model)
   string(JSON reference GET "${doc}" rows ${i} reference)
