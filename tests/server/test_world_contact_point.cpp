@@ -4,10 +4,12 @@
 // force law at moved handles, and the hard cases.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 
 #include "hand_models/contact_point/contact_point_hand.hpp"
+#include "server/world/scene_loader.hpp"
 #include "server/world/world.hpp"
 
 namespace hapticd::world {
@@ -365,6 +367,35 @@ TEST(WorldContactPointHand, HardCasesEndWithoutNaNAndWithoutResets) {
     EXPECT_EQ(w.snapshot().resets, 0);
     EXPECT_EQ(w.snapshot().body_resets, 0);
   }
+}
+
+// The shipped scenes load and step: the stylus's (the bunny on the table, the palm lowered 5 cm onto
+// it, touching) and the glove's (the hand open above the table, touching nothing).
+TEST(WorldContactPointHand, TheSceneFilesLoadAndStep) {
+  World stylus(load_scene(std::string(HAPTICD_SCENES_DIR) + "/contact_point_bunny.json"));
+  EXPECT_EQ(stylus.hand(0).model_name(), "contact_point");
+  const hand::HandleState start = stylus.hand(0).handles()[0];
+  bool touched = false;
+  for (int k = 0; k < 60; ++k) {
+    hand::HandleTarget t;
+    t.p_W = start.p_WH - Eigen::Vector3d(0, 0, 0.05 * std::min(1.0, k / 30.0));
+    t.q_W = start.q_WH;
+    stylus.hand(0).set_target(0, t);
+    stylus.step();
+    for (const ContactRecord& c : stylus.snapshot().contacts) touched = touched || c.hand == 0;
+  }
+  EXPECT_TRUE(touched);
+  EXPECT_EQ(stylus.snapshot().resets, 0);
+  EXPECT_EQ(stylus.snapshot().body_resets, 0);
+  EXPECT_TRUE(stylus.hand(0).coupling_wrench().allFinite());
+  World glove(load_scene(std::string(HAPTICD_SCENES_DIR) + "/contact_point_grasp.json"));
+  EXPECT_EQ(glove.hand(0).num_handles(), 16);
+  for (int k = 0; k < 30; ++k) glove.step();
+  EXPECT_EQ(glove.snapshot().resets, 0);
+  EXPECT_EQ(glove.snapshot().body_resets, 0);
+  EXPECT_TRUE(glove.snapshot().contacts.empty() ||
+              std::none_of(glove.snapshot().contacts.begin(), glove.snapshot().contacts.end(),
+                           [](const ContactRecord& c) { return c.hand == 0; }));
 }
 
 }  // namespace
