@@ -318,7 +318,7 @@ void ContactPointHand::before_ode_step(double h, RigidObjects& objects) {
       double d_geometry;
       Eigen::Vector3d n_geometry;
       const bool near = objects.surface_near(c.object, p, prm.threshold_m, d_geometry, n_geometry);
-      left = left && (near ? false : !objects.surface_near(c.object, p, release, d_geometry, n_geometry));
+      if (near || objects.surface_near(c.object, p, release, d_geometry, n_geometry)) left = false;
       ContactForce f = near ? contact_force(gamma, c.mu_static, c.mu_dynamic, C, n, p) : ContactForce{};
       sample.state = f.state;
       if (f.state == ContactState::separated) continue;
