@@ -114,8 +114,8 @@ class OdeHand : public Hand {
   // The geoms its bodies collide with (the world marks them as the hand's).
   virtual int num_geoms() const = 0;
   virtual dGeomID geom(int i) const = 0;
-  // The handle whose part of the hand geom i is (a device frame's contact flag); skin point j of an
-  // OdeHand is on handle j, where the world records the geom's contacts.
+  // The handle whose part of the hand geom i is (a device frame's contact flag); the world records
+  // the geom's contacts at the first skin point on that handle.
   virtual int geom_handle(int i) const = 0;
 };
 

@@ -60,13 +60,19 @@ void World::record_contacts() {
       snapshot_.max_penetration_m = std::max(snapshot_.max_penetration_m, r.depth_m);
     }
   }
-  // Hands of ODE bodies: ODE's contacts of the last substep, at the skin point of the touching
-  // geom's handle (OdeHand: skin point j is on handle j).
+  // Hands of ODE bodies: their contacts of the last substep, at the first skin point on the touching
+  // part's handle (a 6-frame glove's frame 2, the index's distal phalanx, is not skin point 2's).
   for (const RigidWorld::HandContact& c : ode_hand_contacts_) {
     ContactRecord r;
     r.hand = c.hand;
     r.object = c.object;
-    r.point = std::max(c.handle, 0);
+    const hand::Hand& hand = *hands_[c.hand].model;
+    r.point = 0;
+    for (int i = 0; i < hand.num_skin_points(); ++i)
+      if (hand.skin_handle(i) == c.handle) {
+        r.point = i;
+        break;
+      }
     r.p_W = c.p_W;
     r.n_W = c.n_W;
     r.f_W = c.f_W;

@@ -318,6 +318,13 @@ TEST(WorldContactPointHand, ASixFrameGlovesFramesPlaceItsFingersAndEachContactPu
     w.step();
     const Eigen::VectorXd F = hand.coupling_wrench();
     const int frame = hand.shape_handle(pressed);
+    // The world records the contact on that frame's part of the hand (its flag for the device).
+    int recorded = 0;
+    for (const ContactRecord& c : w.snapshot().contacts) {
+      EXPECT_EQ(hand.skin_handle(c.point), frame);
+      ++recorded;
+    }
+    EXPECT_GT(recorded, 0);
     std::printf("shape %d 2 mm into the block: frame %d feels %.3f N up, all the others %.3g N\n", pressed, frame,
                 F[6 * frame + 2], (F.norm() - F.segment<6>(6 * frame).norm()));
     EXPECT_GT(F[6 * frame + 2], 0.5 * kGamma * 0.002) << "pushed up";
