@@ -55,6 +55,7 @@
 #include "server/offline/touch.hpp"
 #include "server/world/scene_loader.hpp"
 #include "server/world/world.hpp"
+#include "touch_runs.hpp"
 
 namespace hapticd::bench {
 namespace {
@@ -76,11 +77,9 @@ constexpr Model kModels[] = {{"fem", world::HandModelKind::fem, ""},
                              {"spring", world::HandModelKind::spring, "spring_"},
                              {"contact_point", world::HandModelKind::contact_point, "contact_point_"}};
 
-struct Row {
+struct Row : TouchOutcome {
   std::string interaction, model;
   int every = kVisualEveryTicks;
-  offline::TouchRun run;
-  double release_n = 0, after_n = 0, lift_m = 0, hold_slip_m = 0;
   offline::ForceError error;
   bool reference = false;
 };
@@ -92,29 +91,19 @@ offline::OfflineOptions options_for(int every) {
   return o;
 }
 
-Row press_row(const world::SceneDesc& scene, int every) {
-  const offline::PressSchedule schedule(offline::Press{0.02, 0.02, 0.05});
-  offline::OfflineOptions options = options_for(every);
-  options.settle_s = 0.5;
+Row row_of(const TouchOutcome& outcome, int every) {
   Row r;
+  static_cast<TouchOutcome&>(r) = outcome;
   r.every = every;
-  r.run = offline::run_press_hold_lift(scene, schedule, options);
-  const offline::AfterLift a = offline::after_lift(r.run.trace, schedule, options);
-  r.release_n = a.pull;
-  r.after_n = a.after;
   return r;
 }
 
+Row press_row(const world::SceneDesc& scene, int every) {
+  return row_of(bench_press(scene, options_for(every)), every);
+}
+
 Row grasp_row(const world::SceneDesc& scene, int every) {
-  const offline::GraspRun g = offline::run_grasp_release(scene, options_for(every));
-  Row r;
-  r.every = every;
-  r.run = g;
-  r.release_n = g.release_n;
-  r.after_n = g.after_n;
-  r.lift_m = g.box_top - g.box_z0;
-  r.hold_slip_m = g.hold_slip_m;
-  return r;
+  return row_of(bench_grasp(scene, options_for(every)), every);
 }
 
 world::SceneDesc with_model(world::SceneDesc scene, world::HandModelKind kind, int fem_tets) {

@@ -48,6 +48,7 @@
 #include "server/offline/multirate.hpp"
 #include "server/offline/touch.hpp"
 #include "server/world/scene_loader.hpp"
+#include "touch_runs.hpp"
 
 namespace hapticd::bench {
 namespace {
@@ -72,12 +73,10 @@ Size size_of(const std::string& name) {
   return {{67, 33, 17}, 0, true};
 }
 
-struct Row {
+struct Row : TouchOutcome {
   std::string interaction;
   int every = 1;
   haptic::HandleModelKind model = haptic::HandleModelKind::linearized;
-  offline::TouchRun run;
-  double release_n = 0, after_n = 0, lift_m = 0;
   offline::ForceError error;
   bool reference = false;
 };
@@ -97,30 +96,20 @@ offline::OfflineOptions options_for(int every, haptic::HandleModelKind model) {
 }
 
 Row press_row(const world::SceneDesc& scene, int every, haptic::HandleModelKind model) {
-  const offline::PressSchedule schedule(offline::Press{0.02, 0.02, 0.05});
-  offline::OfflineOptions options = options_for(every, model);
-  options.settle_s = 0.5;  // the bunny settles on the table first, at every rate alike
   Row r;
+  static_cast<TouchOutcome&>(r) = bench_press(scene, options_for(every, model));
   r.interaction = "press_hold_lift";
   r.every = every;
   r.model = model;
-  r.run = offline::run_press_hold_lift(scene, schedule, options);
-  const offline::AfterLift a = offline::after_lift(r.run.trace, schedule, options);
-  r.release_n = a.pull;
-  r.after_n = a.after;
   return r;
 }
 
 Row grasp_row(const world::SceneDesc& scene, int every, haptic::HandleModelKind model) {
-  const offline::GraspRun g = offline::run_grasp_release(scene, options_for(every, model));
   Row r;
+  static_cast<TouchOutcome&>(r) = bench_grasp(scene, options_for(every, model));
   r.interaction = "grasp_release";
   r.every = every;
   r.model = model;
-  r.run = g;
-  r.release_n = g.release_n;
-  r.after_n = g.after_n;
-  r.lift_m = g.box_top - g.box_z0;
   return r;
 }
 

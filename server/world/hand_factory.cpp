@@ -64,6 +64,16 @@ std::unique_ptr<hand::Hand> make_fem_hand(const HandDesc& d, const HandBuild& bu
   return h;
 }
 
+// The hand `build` makes, its constructor's std::invalid_argument named after the scene's hand.
+template <class Build>
+std::unique_ptr<hand::Hand> named(const HandDesc& d, Build build) {
+  try {
+    return build();
+  } catch (const std::invalid_argument& e) {
+    throw std::runtime_error("hands." + d.name + ": " + e.what());
+  }
+}
+
 // Seed 002's articulated spring hand, in the rigid world's ODE world.
 std::unique_ptr<hand::Hand> make_spring_hand(const HandDesc& d, const HandBuild& build) {
   if (!build.ode_world || !build.ode_space)
@@ -76,11 +86,9 @@ std::unique_ptr<hand::Hand> make_spring_hand(const HandDesc& d, const HandBuild&
   config.gravity_m_s2 = build.gravity_m_s2;
   config.params.gravity = build.gravity_m_s2.squaredNorm() > 0;
   config.body_step_model = build.spring_body_step_model;
-  try {
+  return named(d, [&] {
     return std::make_unique<hand::spring::SpringHand>(build.ode_world, build.ode_space, config, d.pose.p_W, d.pose.q_W);
-  } catch (const std::invalid_argument& e) {
-    throw std::runtime_error("hands." + d.name + ": " + e.what());
-  }
+  });
 }
 
 // Seed 001's contact-point hand: kinematic, touching the rigid world's objects through its own
@@ -92,11 +100,8 @@ std::unique_ptr<hand::Hand> make_contact_point_hand(const HandDesc& d, const Han
   config.friction = d.material.friction;
   config.friction_static = d.material.static_friction();
   config.touches = build.hand_contacts;
-  try {
-    return std::make_unique<hand::contact_point::ContactPointHand>(config, d.pose.p_W, d.pose.q_W);
-  } catch (const std::invalid_argument& e) {
-    throw std::runtime_error("hands." + d.name + ": " + e.what());
-  }
+  return named(d,
+               [&] { return std::make_unique<hand::contact_point::ContactPointHand>(config, d.pose.p_W, d.pose.q_W); });
 }
 
 }  // namespace

@@ -1,0 +1,27 @@
+#include "touch_runs.hpp"
+
+namespace hapticd::bench {
+
+TouchOutcome bench_press(const world::SceneDesc& scene, offline::OfflineOptions options) {
+  const offline::PressSchedule schedule(offline::Press{0.02, 0.02, 0.05});
+  options.settle_s = 0.5;
+  TouchOutcome out;
+  out.run = offline::run_press_hold_lift(scene, schedule, options);
+  const offline::AfterLift a = offline::after_lift(out.run.trace, schedule, options);
+  out.release_n = a.pull;
+  out.after_n = a.after;
+  return out;
+}
+
+TouchOutcome bench_grasp(const world::SceneDesc& scene, const offline::OfflineOptions& options) {
+  const offline::GraspRun g = offline::run_grasp_release(scene, options);
+  TouchOutcome out;
+  out.run = g;
+  out.release_n = g.release_n;
+  out.after_n = g.after_n;
+  out.lift_m = g.box_top - g.box_z0;
+  out.hold_slip_m = g.hold_slip_m;
+  return out;
+}
+
+}  // namespace hapticd::bench

@@ -1,0 +1,22 @@
+#pragma once
+// The scripted touches the `touch` and `hands` suites run (server/offline/touch.hpp), with what both
+// report of them.
+#include "server/offline/touch.hpp"
+
+namespace hapticd::bench {
+
+struct TouchOutcome {
+  offline::TouchRun run;
+  double release_n = 0;    // the force after the release (AfterLift::pull, GraspRun::release_n), N
+  double after_n = 0;      // the largest force from one second after the release, N
+  double lift_m = 0;       // grasps: how high the box rose
+  double hold_slip_m = 0;  // grasps: how far the box moved in the palm's frame while held up
+};
+
+// The benches' press: 2 cm (device) at 2 cm/s, held 0.5 s, lifted at 5 cm/s; the scene settles 0.5 s
+// first (the bunny on the table, at every rate alike).
+TouchOutcome bench_press(const world::SceneDesc& scene, offline::OfflineOptions options);
+// The glove's grasp, lift and release of the box (offline::run_grasp_release).
+TouchOutcome bench_grasp(const world::SceneDesc& scene, const offline::OfflineOptions& options);
+
+}  // namespace hapticd::bench
