@@ -5,8 +5,10 @@
 #include <cmath>
 #include <stdexcept>
 #include <string>
+#include <utility>
 
 #include "hand_models/contact_pgs.hpp"
+#include "hand_models/rigid_handle.hpp"
 
 namespace hapticd::hand::contact_point {
 namespace {
@@ -403,8 +405,22 @@ bool ContactPointHand::linearize_next_step(HandleLinearization& out, ContactLine
   out.F0 = Eigen::VectorXd::Zero(6 * m);
   out.K = Eigen::MatrixXd::Zero(6 * m, 6 * m);
   out.D = Eigen::MatrixXd::Zero(6 * m, 6 * m);
-  out.x0 = handles_;
   out.contacts = HandleContactModel{};
+  // The model is the law where the tick will ask it: the tick carries each proxy to the model's step
+  // end (seed 004 section 3), one step after the poses the world was stepped to, so the rows are taken
+  // at the tracked frames carried along by their velocities for that step. Anchored at the step's
+  // start instead, the rows stood 2-4 cm behind a stylus lifting off the fixed bunny at 15 Hz, and
+  // the tangent planes of samples beside its curved flank pulled it down 1.5 N (0.32 N anchored here).
+  struct Restore {
+    std::vector<HandleState>& handles;
+    std::vector<HandleState> saved;
+    ~Restore() { handles = std::move(saved); }
+  } restore{handles_, handles_};
+  for (HandleState& hs : handles_) {
+    hs.p_WH += dt_s_ * hs.v_WH;
+    hs.q_WH = rotate_by(hs.q_WH, dt_s_ * hs.w_WH);
+  }
+  out.x0 = handles_;
   if (!objects_ || !config_.touches) return true;
   const ContactPointParams& prm = config_.params;
   struct Row {
@@ -424,8 +440,20 @@ bool ContactPointHand::linearize_next_step(HandleLinearization& out, ContactLine
         const double depth = n.dot(C - p);
         double d;
         Eigen::Vector3d n_geometry;
-        if (depth > -prm.lookahead_m && objects_->surface_near(c.object, p, prm.lookahead_m, d, n_geometry))
-          rows.push_back({shape_handle(s), p, C, n, prm.gamma_n_m / c.count, c.mu_static, depth});
+        if (!objects_->surface_near(c.object, p, prm.lookahead_m, d, n_geometry)) continue;
+        if (d < -prm.threshold_m) {
+          // Past the threshold the sample exerts nothing in the world (before_ode_step), whatever its
+          // tangent plane says; its row is the surface there instead, speculative as a near shape's.
+          // Its plane kept, a sample 12 mm above the bunny whose plane said 2 mm inside held a lifting
+          // stylus back, 0.6 N down.
+          rows.push_back({shape_handle(s), p, p + d * n_geometry, n_geometry, prm.gamma_n_m / c.count, c.mu_static, d});
+          continue;
+        }
+        // The tick's cone is the sample's state's (eq. 5): a sample the last ODE step slid is taken
+        // kinetic. A static cone on a finger sliding up the bunny's flank as the stylus lifted
+        // dragged it down 0.5 N where the world's kinetic samples dragged 0.05-0.11 N.
+        const double mu = sample.state == ContactState::sliding ? c.mu_dynamic : c.mu_static;
+        if (depth > -prm.lookahead_m) rows.push_back({shape_handle(s), p, C, n, prm.gamma_n_m / c.count, mu, depth});
       }
       continue;
     }

@@ -268,6 +268,78 @@ TEST(WorldContactPointHand, ItsModelIsItsContactLawAtTheMovedHandleAndEngagesANe
   EXPECT_NEAR(predicted, actual, 0.2 * actual);
 }
 
+// The model is the law where the tick asks it: at the step's end, the frames carried along by their
+// velocities for a step (the tick extrapolates its proxies there), and without the samples the law
+// leaves out. A fingertip 1 mm into the top of a block, 2 mm in from its edge, then moved 8 mm past
+// the edge at the same height: its samples' tangent plane (the top) says 1 mm inside, the block's
+// surface 3-9 mm beside it, so the law exerts nothing, and neither may the model (with the tangent
+// planes as rows it pushed ~1 N up, and on the bunny a stale plane held a lifting stylus 0.6 N down).
+TEST(WorldContactPointHand, ItsModelIsTheLawAtTheStepEndAndLeavesOutWhatTheLawLeavesOut) {
+  SceneDesc scene = glove_scene();
+  scene.objects.push_back(box("block", {0.2, 0.2, 0.02}, 1.0, {0, 0, 0.01}, 1.0));
+  scene.objects.back().kind = BodyKind::static_body;
+  World w(scene);
+  ContactPointHand& hand = dynamic_cast<ContactPointHand&>(w.hand(0));
+  const double h = 1.0 / 60.0;
+  hand.set_step_length(h);
+  const double r = capsule_radius(hand, kIndexDistal);
+  Frames f;
+  f.t[0].p_W = {0, 0, 0.5};
+  f.t[kIndexDistal].p_W = {0.1 - 0.002, 0, 0.02 + r - 0.001};
+  drive(w, f);
+  w.step();
+  ASSERT_EQ(hand.contact(kIndexDistal).object, 1);
+  // Moving up and along the block at 3 and 6 cm/s: the model's anchor is a step ahead.
+  const Eigen::Vector3d v(0.03, 0, 0.06);
+  hand::HandleTarget moving = f.t[kIndexDistal];
+  moving.v_W = v;
+  ASSERT_TRUE(hand.set_target(kIndexDistal, moving));
+  hand::HandleLinearization model;
+  ASSERT_TRUE(hand.linearize_next_step(model, hand::ContactLinearization::unilateral));
+  EXPECT_LT((model.x0[kIndexDistal].p_WH - (moving.p_W + h * v)).norm(), 1e-12);
+  ASSERT_GE(model.contacts.count(), 1);
+  const auto model_is_the_law = [&](const Eigen::Vector3d& dx) {
+    std::vector<hand::HandleState> moved = model.x0;
+    moved[kIndexDistal].p_WH += dx;
+    const Eigen::VectorXd predicted = model.evaluate(moved);
+    hand::HandleTarget at = f.t[kIndexDistal];
+    at.p_W = moved[kIndexDistal].p_WH;
+    ASSERT_TRUE(hand.set_target(kIndexDistal, at));
+    const Eigen::VectorXd actual = hand.coupling_wrench();
+    EXPECT_GT(actual.norm(), 0.1) << "dx " << dx.transpose() << ": pressed in, the law pushes";
+    EXPECT_LT((predicted - actual).norm(), 1e-6 * std::max(1.0, actual.norm()))
+        << "dx " << dx.transpose() << ": model " << predicted.segment<3>(6 * kIndexDistal).transpose() << ", law "
+        << actual.segment<3>(6 * kIndexDistal).transpose();
+  };
+  for (const Eigen::Vector3d& dx : {Eigen::Vector3d(0, 0, -0.002), Eigen::Vector3d(-0.0003, 0.0002, -0.0015)})
+    model_is_the_law(dx);
+  // Dragged 2 mm along the block, 1 mm in, the samples slide: the model's cone is then the kinetic
+  // one, as the law's force (a static cone said 0.84 N along the block where the law says 0.78 N).
+  f.t[kIndexDistal].p_W.y() -= 0.002;
+  drive(w, f);
+  w.step();
+  ASSERT_EQ(hand.contact(kIndexDistal).samples[0].state, ContactState::sliding);
+  ASSERT_TRUE(hand.linearize_next_step(model, hand::ContactLinearization::unilateral));
+  model_is_the_law({0, -0.0005, -0.0002});
+  // Past the edge at the same height: the contact is kept (within its release distance), the law
+  // and the model exert nothing.
+  f.t[kIndexDistal].p_W.x() += 0.008;
+  drive(w, f);
+  w.step();
+  ASSERT_EQ(hand.contact(kIndexDistal).object, 1) << "the contact should outlive the move";
+  const Eigen::VectorXd law = hand.coupling_wrench();
+  ASSERT_TRUE(hand.linearize_next_step(model, hand::ContactLinearization::unilateral));
+  const Eigen::VectorXd at_anchor = model.evaluate(model.x0);
+  std::printf("past the edge: law %.4f N, model %.4f N\n", law.segment<3>(6 * kIndexDistal).norm(),
+              at_anchor.segment<3>(6 * kIndexDistal).norm());
+  EXPECT_EQ(law.norm(), 0.0);
+  EXPECT_LT(at_anchor.norm(), 1e-9);
+  // Its rows are the block's side now: the finger moved back 6 mm toward it meets the side ~1-3 mm in.
+  std::vector<hand::HandleState> back = model.x0;
+  back[kIndexDistal].p_WH.x() -= 0.006;
+  EXPECT_GT(model.evaluate(back)[6 * kIndexDistal], 0.1) << "the side pushes the finger back out (+x)";
+}
+
 // A 6-frame glove (palm and distal phalanges): each distal shape sits on its frame, the proximal and
 // middle phalanges where the posture the frames give puts them (flexions shared 3 : 3 : 2 come back
 // exactly), on the palm's frame; a 1 cm block 2 mm into the index's distal pushes that frame alone, one

@@ -166,15 +166,12 @@ std::vector<Case> spring_cases() {
 }
 
 // Seed 001's contact-point hand (issue 18) on the rigid objects: the same bounds. Its model is its
-// own force law (penalty rows the tick solves), and the served hand has no mass. PressHoldLift passes
-// (18 of 18: energy -0.0016 to -0.030 J, nothing felt or flagged a second after the lift). The force
-// bounds are a known fault, run by ctest as Issue18KnownFault.ContactPointHandLiftPulls (13 of 18 pass):
-// on the bunny the lift pulls 0.32-1.5 N in 5 cases. Not static friction (a frictionless hand pulled as
-// much, 0.57-1.9 N, measured at gamma 400 N/m), and not the world's contacts (on the fixed bunny at 15
-// Hz they carried at most 0.15 N down as the stylus rose): the tick's rows. A sample on the bunny's
-// flank under the curled fingers has a normal 15-30 degrees below the horizon; its row is the tangent
-// plane there, and as the stylus rises through a visual step the plane says it goes deeper, where
-// the convex flank curves away (the world, which checks the point against the mesh, lets go).
+// own force law (penalty rows the tick solves), and the served hand has no mass. When added, the force
+// bounds failed in 5 of 18 cases (the lift pulled 0.32-1.5 N on the bunny) while the world's own
+// contacts carried at most 0.15 N: the rows were taken at the poses the world was stepped to, 2-4 cm
+// behind a lifting stylus at the model's step end; samples the world had let go (their hand points
+// past the threshold outside) kept their tangent planes; and sliding samples had the static cone.
+// Measured after the fixes (ContactPointHand::linearize_next_step): pulls 0.05-0.27 N.
 std::vector<Case> contact_point_cases() {
   std::vector<Case> out;
   for (const char* object : {"contact_point_movable_bunny", "contact_point_fixed_bunny", "contact_point_table_edge"})
