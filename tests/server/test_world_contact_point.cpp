@@ -57,6 +57,14 @@ ObjectDesc box(const char* name, const Eigen::Vector3d& size, double mass, const
   return b;
 }
 
+// The glove scene with a static 20 x 20 x 2 cm block on the floor (its top at z = 2 cm, mu 1).
+SceneDesc block_scene() {
+  SceneDesc scene = glove_scene();
+  scene.objects.push_back(box("block", {0.2, 0.2, 0.02}, 1.0, {0, 0, 0.01}, 1.0));
+  scene.objects.back().kind = BodyKind::static_body;
+  return scene;
+}
+
 // Every frame parked far above the scene but those given.
 struct Frames {
   std::vector<hand::HandleTarget> t = std::vector<hand::HandleTarget>(16);
@@ -214,10 +222,7 @@ TEST(WorldContactPointHand, AnObjectHeldBetweenTwoFingersSpinsWhenOneMovesAlongI
 // contact yet engages through its speculative row when moved 8 mm down, and the world's contact
 // made there agrees within 20 %.
 TEST(WorldContactPointHand, ItsModelIsItsContactLawAtTheMovedHandleAndEngagesANearSurface) {
-  SceneDesc scene = glove_scene();
-  scene.objects.push_back(box("block", {0.2, 0.2, 0.02}, 1.0, {0, 0, 0.01}, 1.0));
-  scene.objects.back().kind = BodyKind::static_body;
-  World w(scene);
+  World w(block_scene());
   ContactPointHand& hand = dynamic_cast<ContactPointHand&>(w.hand(0));
   Frames f;
   const double z = 0.02 + hand::kPalmHalfThickness_m - 0.003;
@@ -275,10 +280,7 @@ TEST(WorldContactPointHand, ItsModelIsItsContactLawAtTheMovedHandleAndEngagesANe
 // surface 3-9 mm beside it, so the law exerts nothing, and neither may the model (with the tangent
 // planes as rows it pushed ~1 N up, and on the bunny a stale plane held a lifting stylus 0.6 N down).
 TEST(WorldContactPointHand, ItsModelIsTheLawAtTheStepEndAndLeavesOutWhatTheLawLeavesOut) {
-  SceneDesc scene = glove_scene();
-  scene.objects.push_back(box("block", {0.2, 0.2, 0.02}, 1.0, {0, 0, 0.01}, 1.0));
-  scene.objects.back().kind = BodyKind::static_body;
-  World w(scene);
+  World w(block_scene());
   ContactPointHand& hand = dynamic_cast<ContactPointHand&>(w.hand(0));
   const double h = 1.0 / 60.0;
   hand.set_step_length(h);
