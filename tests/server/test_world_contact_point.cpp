@@ -316,7 +316,7 @@ TEST(WorldContactPointHand, ItsModelIsTheLawAtTheStepEndAndLeavesOutWhatTheLawLe
   for (const Eigen::Vector3d& dx : {Eigen::Vector3d(0, 0, -0.002), Eigen::Vector3d(-0.0003, 0.0002, -0.0015)})
     model_is_the_law(dx);
   // Dragged 2 mm along the block, 1 mm in, the samples slide: the model's cone is then the kinetic
-  // one, as the law's force (a static cone said 0.84 N along the block where the law says 0.78 N).
+  // one, as the law's force (a static cone said 0.89 N along the block where the law says 0.77 N).
   f.t[kIndexDistal].p_W.y() -= 0.002;
   drive(w, f);
   w.step();
