@@ -191,6 +191,11 @@ struct HandleTarget {
   Eigen::Quaterniond q_W = Eigen::Quaterniond::Identity();
   Eigen::Vector3d v_W = Eigen::Vector3d::Zero();
   Eigen::Vector3d w_W = Eigen::Vector3d::Zero();
+  // The device's own motion (the tracked frame's, world): where the user is going. The proxy's
+  // (v_W, w_W) is partly the rendering's doing: a proxy held against a contact moves as the model's
+  // rows push it.
+  Eigen::Vector3d v_device_W = Eigen::Vector3d::Zero();
+  Eigen::Vector3d w_device_W = Eigen::Vector3d::Zero();
 };
 
 // Per-stage wall time of the last step, ms (measured for the stats; nothing steps by it), and

@@ -160,6 +160,7 @@ class ContactPointHand : public OdeHand {
 
   ContactPointHandConfig config_;
   std::vector<HandleState> handles_;
+  std::vector<Vector6> device_v_;  // per handle: its device's velocity and angular velocity (HandleTarget)
   SkeletonPose rest_pose_;  // the stylus-driven hand's fingers
   // The posture the shapes not on a frame of their own take (a 6-frame glove's proximal and middle
   // phalanges): joint_angles_from_distal of the frames; the rest posture for a stylus.

@@ -192,6 +192,8 @@ void HapticCore::tick(std::uint64_t now) {
       out.pose[link.hand][j] = s.proxy.proxy(j);
       out.v_W[link.hand][j] = s.proxy.proxy_velocity(j);
       out.w_W[link.hand][j] = s.proxy.proxy_angular_velocity(j);
+      out.v_device_W[link.hand][j] = s.proxy.device_velocity(j);
+      out.w_device_W[link.hand][j] = s.proxy.device_angular_velocity(j);
     }
   }
   targets_.publish();

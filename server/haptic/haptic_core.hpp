@@ -37,6 +37,11 @@ struct HapticSnapshot {
 // What the haptic loop publishes for the visual loop: per hand, where its
 // driving session's proxies are (the targets the simulated handles are pulled to).
 struct ProxyTargets {
+  ProxyTargets() {
+    for (int h = 0; h < kMaxHands; ++h)
+      for (int j = 0; j < kMaxHapticHandles; ++j)
+        v_W[h][j].setZero(), w_W[h][j].setZero(), v_device_W[h][j].setZero(), w_device_W[h][j].setZero();
+  }
   bool driven[kMaxHands]{};
   // Counts the driving session's re-syncs (a first pose, a pose after a gap): the
   // proxies jumped onto the device, and the hand is moved there rigidly rather
@@ -44,6 +49,8 @@ struct ProxyTargets {
   std::uint32_t resyncs[kMaxHands]{};
   HapticPose pose[kMaxHands][kMaxHapticHandles];
   Eigen::Vector3d v_W[kMaxHands][kMaxHapticHandles], w_W[kMaxHands][kMaxHapticHandles];
+  // The devices' filtered velocities (HandleTarget::v_device_W).
+  Eigen::Vector3d v_device_W[kMaxHands][kMaxHapticHandles], w_device_W[kMaxHands][kMaxHapticHandles];
   // The time the poses are of (CLOCK_MONOTONIC, ns): the end of the haptic tick that integrated
   // them, up to one period after the visual loop reads them.
   std::uint64_t t_ns = 0;

@@ -290,6 +290,8 @@ class ProxyHand {
   const Eigen::Vector3d& proxy_velocity(int j) const { return v_[j]; }
   const Eigen::Vector3d& proxy_angular_velocity(int j) const { return w_[j]; }
   const HapticPose& device(int j) const { return device_[j]; }
+  const Eigen::Vector3d& device_velocity(int j) const { return v_dev_[j]; }  // filtered, world
+  const Eigen::Vector3d& device_angular_velocity(int j) const { return w_dev_[j]; }
   long resets() const { return resets_; }
   long clamps() const { return clamps_; }
   // Ticks of a model on kMinPreparedHandles or more handles that the dense LU solved: the model had

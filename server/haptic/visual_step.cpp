@@ -137,7 +137,8 @@ hand::HandleTarget proxy_target(const ProxyTargets& targets, int h, int j, std::
         hand::clearance_share(planes, planes_count, p.p_W - from->p_WH, hand::rotation_difference(p.q_W, from->q_WH),
                               ahead * targets.v_W[h][j], ahead * targets.w_W[h][j]);
   const Eigen::Vector3d v = share * targets.v_W[h][j], w = share * targets.w_W[h][j];
-  return {p.p_W + ahead * v, hand::rotate_by(p.q_W, ahead * w), v, w};
+  return {p.p_W + ahead * v,        hand::rotate_by(p.q_W, ahead * w), v, w,
+          targets.v_device_W[h][j], targets.w_device_W[h][j]};
 }
 
 VisualStep::VisualStep(world::World& world, TripleBuffer<HapticSnapshot>& snapshots,

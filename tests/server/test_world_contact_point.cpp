@@ -274,7 +274,7 @@ TEST(WorldContactPointHand, ItsModelIsItsContactLawAtTheMovedHandleAndEngagesANe
 }
 
 // The model is the law where the tick asks it: at the step's end, the frames carried along by their
-// velocities for a step (the tick extrapolates its proxies there), and without the samples the law
+// devices' velocities for a step (the tick extrapolates its proxies there), and without the samples the law
 // leaves out. A fingertip 1 mm into the top of a block, 2 mm in from its edge, then moved 8 mm past
 // the edge at the same height: its samples' tangent plane (the top) says 1 mm inside, the block's
 // surface 3-9 mm beside it, so the law exerts nothing, and neither may the model (with the tangent
@@ -291,12 +291,18 @@ TEST(WorldContactPointHand, ItsModelIsTheLawAtTheStepEndAndLeavesOutWhatTheLawLe
   drive(w, f);
   w.step();
   ASSERT_EQ(hand.contact(kIndexDistal).object, 1);
-  // Moving up and along the block at 3 and 6 cm/s: the model's anchor is a step ahead.
-  const Eigen::Vector3d v(0.03, 0, 0.06);
+  // Its proxy pushed along at 10 cm/s by the rows: the anchor stays (the proxy's motion is the
+  // rendering's own).
   hand::HandleTarget moving = f.t[kIndexDistal];
-  moving.v_W = v;
+  moving.v_W = {0.1, 0, 0};
   ASSERT_TRUE(hand.set_target(kIndexDistal, moving));
   hand::HandleLinearization model;
+  ASSERT_TRUE(hand.linearize_next_step(model, hand::ContactLinearization::unilateral));
+  EXPECT_LT((model.x0[kIndexDistal].p_WH - moving.p_W).norm(), 1e-12);
+  // The device moving up and along the block at 3 and 6 cm/s: the model's anchor is a step ahead.
+  const Eigen::Vector3d v(0.03, 0, 0.06);
+  moving.v_device_W = v;
+  ASSERT_TRUE(hand.set_target(kIndexDistal, moving));
   ASSERT_TRUE(hand.linearize_next_step(model, hand::ContactLinearization::unilateral));
   EXPECT_LT((model.x0[kIndexDistal].p_WH - (moving.p_W + h * v)).norm(), 1e-12);
   ASSERT_GE(model.contacts.count(), 1);
