@@ -26,6 +26,8 @@ ProxyTargets moving_proxy(std::uint64_t t_ns) {
   t.pose[0][1].p_W = {0.1, 0.2, 0.3};
   t.v_W[0][1] = {0.1, 0.0, -0.2};
   t.w_W[0][1] = {0.0, 0.0, 2.0};
+  t.v_device_W[0][1] = {0.05, 0.0, -0.3};  // the device: the proxy lags it, pushed by a model
+  t.w_device_W[0][1] = {0.0, 1.0, 0.0};
   return t;
 }
 
@@ -39,6 +41,9 @@ TEST(VisualLoopTargets, AProxyIsExtrapolatedFromTheTimeItIsOfToThePublication) {
               1e-12);
   EXPECT_EQ(h.v_W, targets.v_W[0][1]);
   EXPECT_EQ(h.w_W, targets.w_W[0][1]);
+  // The device's own motion passes as it is (HandleTarget::v_device_W).
+  EXPECT_EQ(h.v_device_W, targets.v_device_W[0][1]);
+  EXPECT_EQ(h.w_device_W, targets.w_device_W[0][1]);
   // Proxies of the end of a tick still running (0.4 ms after the publication): taken back 0.4 ms.
   h = proxy_target(targets, 0, 1, t - 400'000);
   EXPECT_NEAR((h.p_W - Eigen::Vector3d(0.09996, 0.2, 0.30008)).norm(), 0.0, 1e-12);
@@ -62,6 +67,8 @@ TEST(VisualLoopTargets, TheExtrapolationStopsAtTheHandlesClearancePlanes) {
   EXPECT_NEAR((h.p_W - Eigen::Vector3d(0.1 + 0.15 * 0.01, 0.2, 0.3 - 0.003)).norm(), 0.0, 1e-12);
   EXPECT_NEAR((h.v_W - 0.15 * targets.v_W[0][1]).norm(), 0.0, 1e-12);
   EXPECT_NEAR((h.w_W - 0.15 * targets.w_W[0][1]).norm(), 0.0, 1e-12);
+  // The planes bound where the world takes the hand, not what the device is doing.
+  EXPECT_EQ(h.v_device_W, targets.v_device_W[0][1]);
   // Moving away from the floor the planes leave it alone; a proxy already past a plane only comes back.
   ProxyTargets rising = targets;
   rising.v_W[0][1].z() = 0.2;
