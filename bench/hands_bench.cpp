@@ -63,10 +63,6 @@ namespace {
 constexpr int kVisualEveryTicks = 33;  // 30 Hz
 constexpr double kGraspedM = 0.04;
 
-struct HandsArgs {
-  std::string size = "default";
-  std::string json;
-};
 
 struct Model {
   const char* name;
@@ -200,7 +196,7 @@ TimingRow time_phalanges(int phalanges) {
   return r;
 }
 
-void run_hands_bench(const HandsArgs& a) {
+void run_hands_bench(const TouchSuiteArgs& a) {
   // tiny (a smoke run): the table press only, the FEM hand at ~400 tets.
   const bool tiny = a.size == "tiny";
   const int fem_tets = tiny ? 400 : 0;
@@ -295,12 +291,7 @@ void run_hands_bench(const HandsArgs& a) {
 }  // namespace
 
 void add_hands_suite(CLI::App& app) {
-  auto args = std::make_shared<HandsArgs>();
-  CLI::App* sub = app.add_subcommand(
-      "hands", "every hand model (fem, spring, contact_point) on the same presses and grasp: cost, energy, error");
-  sub->add_option("--size", args->size, "tiny (a smoke run) | default")->check(CLI::IsMember({"tiny", "default"}));
-  sub->add_option("--json", args->json, "write the results as JSON to this file");
-  sub->callback([args] { run_hands_bench(*args); });
+  add_touch_suite_command(app, "hands", "every hand model (fem, spring, contact_point) on the same presses and grasp: cost, energy, error", run_hands_bench);
 }
 
 }  // namespace hapticd::bench

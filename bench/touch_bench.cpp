@@ -55,10 +55,6 @@ namespace {
 
 constexpr double kHapticPeriodS = 1e-3;
 
-struct TouchArgs {
-  std::string size = "default";
-  std::string json;
-};
 
 // default (a few minutes on a 2-core EPYC): both interactions at 15, 30 and 60 Hz with the scenes'
 // hands; tiny (a smoke run of ~10 s): the press at 30 Hz with a ~400-tet hand (the glove's reference
@@ -134,7 +130,7 @@ nlohmann::json row_json(const Row& r) {
           {"reference", r.reference}};
 }
 
-void run_touch_bench(const TouchArgs& a) {
+void run_touch_bench(const TouchSuiteArgs& a) {
   const Size size = size_of(a.size);
   const Machine machine = describe_machine();
   const auto t0 = std::chrono::steady_clock::now();
@@ -204,12 +200,7 @@ void run_touch_bench(const TouchArgs& a) {
 }  // namespace
 
 void add_touch_suite(CLI::App& app) {
-  auto args = std::make_shared<TouchArgs>();
-  CLI::App* sub = app.add_subcommand(
-      "touch", "press-hold-lift and grasp-release at 15/30/60 Hz: energy, force after release, error, tick cost");
-  sub->add_option("--size", args->size, "tiny (a smoke run) | default")->check(CLI::IsMember({"tiny", "default"}));
-  sub->add_option("--json", args->json, "write the results as JSON to this file");
-  sub->callback([args] { run_touch_bench(*args); });
+  add_touch_suite_command(app, "touch", "press-hold-lift and grasp-release at 15/30/60 Hz: energy, force after release, error, tick cost", run_touch_bench);
 }
 
 }  // namespace hapticd::bench

@@ -1,6 +1,18 @@
 #include "touch_runs.hpp"
 
+#include <memory>
+#include <utility>
+
 namespace hapticd::bench {
+
+void add_touch_suite_command(CLI::App& app, const char* name, const char* help,
+                             std::function<void(const TouchSuiteArgs&)> run) {
+  auto args = std::make_shared<TouchSuiteArgs>();
+  CLI::App* sub = app.add_subcommand(name, help);
+  sub->add_option("--size", args->size, "tiny (a smoke run) | default")->check(CLI::IsMember({"tiny", "default"}));
+  sub->add_option("--json", args->json, "write the results as JSON to this file");
+  sub->callback([args, run = std::move(run)] { run(*args); });
+}
 
 TouchOutcome bench_press(const world::SceneDesc& scene, offline::OfflineOptions options) {
   const offline::PressSchedule schedule(offline::Press{0.02, 0.02, 0.05});

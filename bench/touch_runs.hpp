@@ -1,9 +1,22 @@
 #pragma once
 // The scripted touches the `touch` and `hands` suites run (server/offline/touch.hpp), with what both
 // report of them.
+#include <CLI/CLI.hpp>
+#include <functional>
+#include <string>
+
 #include "server/offline/touch.hpp"
 
 namespace hapticd::bench {
+
+// Both suites' options: --size tiny (a smoke run) | default, --json FILE.
+struct TouchSuiteArgs {
+  std::string size = "default";
+  std::string json;
+};
+// Registers suite `name` (`help`) with those options; `run` runs it.
+void add_touch_suite_command(CLI::App& app, const char* name, const char* help,
+                             std::function<void(const TouchSuiteArgs&)> run);
 
 struct TouchOutcome {
   offline::TouchRun run;
