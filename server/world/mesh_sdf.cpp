@@ -41,6 +41,7 @@ MeshSdf::MeshSdf(const hand::SurfaceMesh& mesh, double cell, int band) : cell_(c
   origin_ = lo - Eigen::Vector3d::Constant(band * cell);
   for (int d = 0; d < 3; ++d) dims_[d] = static_cast<int>(std::ceil((hi[d] - lo[d]) / cell)) + 2 * band + 2;
   const double far = band * cell;
+  far_ = far;
   values_.assign(static_cast<size_t>(dims_[0]) * dims_[1] * dims_[2], far);
   auto node = [&](int i, int j, int k) -> Eigen::Vector3d { return origin_ + cell * Eigen::Vector3d(i, j, k); };
   auto index = [&](int i, int j, int k) { return i + dims_[0] * (j + dims_[1] * k); };
@@ -110,6 +111,8 @@ bool MeshSdf::query(const Eigen::Vector3d& p, double& distance, Eigen::Vector3d&
     grad.y() += (dj ? 1 : -1) * wx * wz * v;
     grad.z() += (dk ? 1 : -1) * wx * wy * v;
   }
+  // Within half a cell of the clamp the field is mostly clamped nodes: no distance, no normal.
+  if (distance > far_ - 0.5 * cell_) return false;
   const double g = grad.norm();
   normal = g > 0 ? Eigen::Vector3d(grad / g) : Eigen::Vector3d::UnitZ();
   return true;

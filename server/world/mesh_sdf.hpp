@@ -19,14 +19,16 @@ class MeshSdf {
   MeshSdf() = default;
   MeshSdf(const hand::SurfaceMesh& mesh, double cell_m, int band_cells = 3);
 
-  // Signed distance (m) and unit outward normal at p (mesh frame); false outside the grid.
+  // Signed distance (m) and unit outward normal at p (mesh frame); false outside the grid, and outside
+  // the mesh within half a cell of the clamp (band_cells cells), where the interpolant is mostly
+  // clamped nodes and its gradient no normal.
   bool query(const Eigen::Vector3d& p, double& distance, Eigen::Vector3d& normal) const;
   bool empty() const { return values_.empty(); }
 
  private:
   double at(int i, int j, int k) const { return values_[i + dims_[0] * (j + dims_[1] * k)]; }
   Eigen::Vector3d origin_ = Eigen::Vector3d::Zero();
-  double cell_ = 0;
+  double cell_ = 0, far_ = 0;  // far_: the clamp, band_cells cells
   int dims_[3] = {0, 0, 0};
   std::vector<double> values_;
 };

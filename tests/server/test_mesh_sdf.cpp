@@ -57,6 +57,14 @@ TEST(MeshSdf, SignedDistanceAndNormalMatchASphereWithinTheGridError) {
   double d;
   Eigen::Vector3d n;
   EXPECT_FALSE(sdf.query(Eigen::Vector3d(1, 0, 0), d, n));  // outside the grid: no contact
+  // Inside the grid but beyond the exact band (1.8 cm): no answer. The clamped field answered 1.8 cm
+  // with any normal there (-z at points 1.8 cm beside the bunny, which gave the spring hand's stylus
+  // rows pulling it down).
+  const Eigen::Vector3d diagonal = Eigen::Vector3d::Ones().normalized();
+  EXPECT_TRUE(sdf.query((r + 0.012) * diagonal, d, n));
+  EXPECT_NEAR(d, 0.012, 0.5e-3);
+  EXPECT_FALSE(sdf.query((r + 0.019) * diagonal, d, n));
+  EXPECT_FALSE(sdf.query(Eigen::Vector3d(r + 0.019, 0, 0), d, n));
 }
 
 }  // namespace
