@@ -9,6 +9,7 @@
 
 #include "hand_models/contact_pgs.hpp"
 #include "hand_models/rigid_handle.hpp"
+#include "hand_models/shape_probes.hpp"
 
 namespace hapticd::hand::contact_point {
 namespace {
@@ -17,37 +18,6 @@ bool thumb_or_palm(int s) { return s == 0 || (s - 1) / 3 == 0; }
 
 // The pair's Coulomb coefficient: the geometric mean, as the world's other contacts take it.
 double pair(double a, double b) { return std::sqrt(std::max(a, 0.0) * std::max(b, 0.0)); }
-
-// Probe points spread over a shape's surface, shape frame: the capsule's (axis along y from lo to hi,
-// radius r) at three stations by eight around and its two poles; the palm box's faces on 3 x 3 grids.
-std::vector<Eigen::Vector3d> capsule_probes(double lo, double hi, double r) {
-  std::vector<Eigen::Vector3d> out;
-  for (int a = 0; a < 3; ++a) {
-    const double y = lo + 0.5 * a * (hi - lo);
-    for (int k = 0; k < 8; ++k) {
-      const double phi = k * M_PI / 4;
-      out.emplace_back(r * std::cos(phi), y, r * std::sin(phi));
-    }
-  }
-  out.emplace_back(0, lo - r, 0);
-  out.emplace_back(0, hi + r, 0);
-  return out;
-}
-
-std::vector<Eigen::Vector3d> box_probes(const Eigen::Vector3d& half) {
-  std::vector<Eigen::Vector3d> out;
-  for (int axis = 0; axis < 3; ++axis)
-    for (int sign = -1; sign <= 1; sign += 2)
-      for (int i = -1; i <= 1; ++i)
-        for (int j = -1; j <= 1; ++j) {
-          Eigen::Vector3d p;
-          p[axis] = sign * half[axis];
-          p[(axis + 1) % 3] = 0.8 * i * half[(axis + 1) % 3];
-          p[(axis + 2) % 3] = 0.8 * j * half[(axis + 2) % 3];
-          out.push_back(p);
-        }
-  return out;
-}
 
 const Eigen::Vector3d kPalmHalf(kPalmHalfWidth_m, kPalmHalfLength_m, kPalmHalfThickness_m);
 
