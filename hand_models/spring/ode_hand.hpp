@@ -46,6 +46,7 @@ struct OdeHandContact {
   Eigen::Vector3d n_W = Eigen::Vector3d::UnitZ();  // out of the object, toward the hand
   double depth_m = 0;
   double mu = 0.5;  // the pair's Coulomb coefficient in that step
+  int geom = -1;    // the touching geom (OdeHand::geom's index)
 };
 
 // The handles of a rigid hand (seeds 001 and 002) are the tracked frames themselves, with no body of
@@ -99,6 +100,7 @@ class OdeHand : public Hand {
   // handle of its part, with the force on the hand (N) and the object's index.
   struct OwnContact {
     int handle = 0, object = -1;
+    int geom = -1;  // the hand's touching geom (geom's index), -1 for a hand without geoms
     Eigen::Vector3d p_W = Eigen::Vector3d::Zero(), n_W = Eigen::Vector3d::UnitZ(), f_W = Eigen::Vector3d::Zero();
     double depth_m = 0, mu = 0;
   };

@@ -2,12 +2,14 @@
 
 #include <Eigen/Cholesky>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <stdexcept>
 #include <string>
 
 #include "hand_models/contact_pgs.hpp"
 #include "hand_models/hand_model.hpp"
+#include "hand_models/shape_probes.hpp"
 
 namespace hapticd::hand::spring {
 
@@ -21,6 +23,26 @@ SpringHand::SpringHand(dWorldID world, dSpaceID space, const SpringHandConfig& c
         std::to_string(config.handles) + " handles");
   place_handles(p_W, q_W.normalized());
   rig_ = std::make_unique<SpringHandRig>(world, space, config.params, config.left, tracked());
+  // Where the stylus model looks for objects, in each geom's frame: the palm box's faces on 7 x 7 grids
+  // (1 cm apart at most), and spheres of each capsule's radius along its axis (ODE's z) half a radius
+  // apart, whose union leaves at most 3 % of the radius between them.
+  probes_G_.resize(static_cast<std::size_t>(num_geoms()));
+  dVector3 lengths;
+  dGeomBoxGetLengths(geom(0), lengths);
+  palm_half_ = 0.5 * Eigen::Vector3d(lengths[0], lengths[1], lengths[2]);
+  for (const Eigen::Vector3d& q : box_probes(palm_half_, kPalmGrid)) {
+    int face = 0;  // the axis the point lies on a face of, and the side (box_probes' order)
+    for (int a = 0; a < 3; ++a)
+      if (std::abs(std::abs(q[a]) - palm_half_[a]) < 1e-12) face = 2 * a + (q[a] > 0);
+    probes_G_[0].push_back({q, 0.0, face});
+  }
+  for (int g = 1; g < num_geoms(); ++g) {
+    dReal radius, length;
+    dGeomCapsuleGetParams(geom(g), &radius, &length);
+    const int stations = 1 + static_cast<int>(std::ceil(length / (0.5 * radius)));
+    for (int k = 0; k <= stations; ++k)
+      probes_G_[g].push_back({Eigen::Vector3d(0, 0, length * (static_cast<double>(k) / stations - 0.5)), radius, -1});
+  }
 }
 
 void SpringHand::place_handles(const Eigen::Vector3d& p_W, const Eigen::Quaterniond& q_W) {
@@ -59,7 +81,15 @@ bool SpringHand::set_target(int j, const HandleTarget& target) { return tracked_
 
 void SpringHand::place(const Eigen::Vector3d& p_W, const Eigen::Quaterniond& q_W) {
   place_handles(p_W, q_W.normalized());
+  place_rig();
+}
+
+void SpringHand::place_rig() {
   rig_->place(tracked());
+  // Its contacts were where it was.
+  contacts_.clear();
+  contacts_G_.clear();
+  previous_.clear();
 }
 
 void SpringHand::step(HandleLinearization*) {
@@ -70,7 +100,7 @@ void SpringHand::step(HandleLinearization*) {
 void SpringHand::after_ode_steps() {
   if (rig_->sane(config_.max_speed_m_s, config_.max_distance_m)) return;
   ++resets_;
-  rig_->place(tracked());
+  place_rig();
 }
 
 void SpringHand::recover(const Eigen::Vector3d& fallback_p_W, const Eigen::Quaterniond& fallback_q_W) {
@@ -78,7 +108,7 @@ void SpringHand::recover(const Eigen::Vector3d& fallback_p_W, const Eigen::Quate
   bool whole = true;
   for (const HandleState& h : handles_) whole = whole && h.p_WH.allFinite() && h.q_WH.coeffs().allFinite();
   if (whole) {
-    rig_->place(tracked());
+    place_rig();
   } else if (fallback_p_W.allFinite() && fallback_q_W.coeffs().allFinite()) {
     place(fallback_p_W, fallback_q_W);
   } else {
@@ -137,12 +167,40 @@ Eigen::VectorXd SpringHand::reaction(const std::vector<HandleState>& h) const {
 }
 
 void SpringHand::set_contacts(const std::vector<OdeHandContact>& contacts) {
+  // The contacts of the last kHeldSteps steps, each with its point in its geom's frame when ODE found
+  // it (the geoms had not moved since): the last step's, and the older ones that step did not renew.
+  std::vector<Held> held;
+  for (std::size_t k = 0; k < contacts_.size(); ++k)
+    if (contacts_[k].geom >= 0) held.push_back({contacts_[k], contacts_G_[k], 1});
+  const std::size_t renewed = held.size();
+  for (const Held& h : previous_) {
+    if (h.age >= kHeldSteps) continue;
+    const Eigen::Vector3d p = geom_pose(h.contact.geom) * h.p_G;
+    const bool superseded =
+        std::any_of(held.begin(), held.begin() + static_cast<std::ptrdiff_t>(renewed), [&](const Held& o) {
+          return o.contact.geom == h.contact.geom && (o.contact.p_W - p).squaredNorm() < kHeldApart_m * kHeldApart_m;
+        });
+    if (!superseded) held.push_back({h.contact, h.p_G, h.age + 1});
+  }
+  previous_ = std::move(held);
   contacts_ = contacts;
   if (static_cast<int>(contacts_.size()) > kMaxLinearizedContacts) {
     std::partial_sort(contacts_.begin(), contacts_.begin() + kMaxLinearizedContacts, contacts_.end(),
                       [](const OdeHandContact& a, const OdeHandContact& b) { return a.depth_m > b.depth_m; });
     contacts_.resize(kMaxLinearizedContacts);
   }
+  contacts_G_.clear();
+  for (const OdeHandContact& c : contacts_)
+    contacts_G_.push_back(c.geom >= 0 ? geom_pose(c.geom).inverse() * c.p_W : c.p_W);
+}
+
+Eigen::Isometry3d SpringHand::geom_pose(int g) const {
+  const dReal* pos = dGeomGetPosition(geom(g));
+  const dReal* R = dGeomGetRotation(geom(g));
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() << R[0], R[1], R[2], R[4], R[5], R[6], R[8], R[9], R[10];
+  T.translation() << pos[0], pos[1], pos[2];
+  return T;
 }
 
 bool SpringHand::linearize_rigid_body(HandleLinearization& out) const {
@@ -220,6 +278,198 @@ bool SpringHand::linearize_rigid_body(HandleLinearization& out) const {
   return true;
 }
 
+bool SpringHand::deepest_on_face(int face, const Eigen::Vector3d& o, const Eigen::Matrix3d& R_W, int object,
+                                 double reach, Eigen::Vector3d& q, double& depth, Eigen::Vector3d& n) const {
+  // Descent of the object's distance over the face (a flat palm on a round bump touches between the
+  // grid's points, 2 mm from the nearest): step against the normal's part along the face, halved
+  // whenever it does not go deeper.
+  const int axis = face / 2;
+  if (!objects_->surface_near(object, o + R_W * q, reach, depth, n)) return false;
+  double step = palm_half_.maxCoeff() / (kPalmGrid - 1);
+  for (int it = 0; it < 12 && step > 1e-4; ++it) {
+    Eigen::Vector3d along = R_W.transpose() * n;
+    along[axis] = 0;
+    if (along.norm() < 1e-9) break;
+    Eigen::Vector3d next = q - step * along.normalized();
+    for (int a = 0; a < 3; ++a)
+      if (a != axis) next[a] = std::clamp(next[a], -palm_half_[a], palm_half_[a]);
+    double d;
+    Eigen::Vector3d m;
+    if (objects_->surface_near(object, o + R_W * next, reach, d, m) && d > depth) {
+      q = next, depth = d, n = m;
+    } else {
+      step *= 0.5;
+    }
+  }
+  return true;
+}
+
+void SpringHand::probe_rows(double reach, bool touching, std::vector<Row>& rows) const {
+  int g = 0;
+  auto add = [&](int object, const Eigen::Vector3d& p, const Eigen::Vector3d& n, double depth) {
+    if (touching && depth > 0) return;  // ODE's contacts have the touching parts
+    const double mu =
+        std::sqrt(std::max(config_.friction_static, 0.0) * std::max(objects_->object_friction_static(object), 0.0));
+    rows.push_back({p, n, depth, mu, g});
+  };
+  for (; g < num_geoms(); ++g) {
+    const Eigen::Isometry3d T = geom_pose(g);
+    const Eigen::Matrix3d R_W = T.linear();
+    const Eigen::Vector3d o = T.translation();
+    for (int i = 0; i < objects_->object_count(); ++i) {
+      std::array<int, 6> best_on_face;
+      std::array<double, 6> best_depth{};
+      best_on_face.fill(-1);
+      for (std::size_t k = 0; k < probes_G_[g].size(); ++k) {
+        const Probe& probe = probes_G_[g][k];
+        const Eigen::Vector3d centre = o + R_W * probe.q_G;
+        double depth;
+        Eigen::Vector3d n;
+        if (!objects_->surface_near(i, centre, reach + probe.radius, depth, n)) continue;
+        // A sphere's point nearest the surface, and how deep that is.
+        add(i, centre - probe.radius * n, n, depth + probe.radius);
+        if (probe.face >= 0 && (best_on_face[probe.face] < 0 || depth > best_depth[probe.face]))
+          best_on_face[probe.face] = static_cast<int>(k), best_depth[probe.face] = depth;
+      }
+      for (int f = 0; f < 6; ++f) {
+        if (best_on_face[f] < 0) continue;
+        Eigen::Vector3d q = probes_G_[g][best_on_face[f]].q_G, n;
+        double depth;
+        if (deepest_on_face(f, o, R_W, i, reach, q, depth, n)) add(i, o + R_W * q, n, depth);
+      }
+    }
+  }
+}
+
+void SpringHand::finger_joints(const std::vector<Row>& rows, Eigen::MatrixXd& J_q, Eigen::MatrixXd& C_q) const {
+  const int c = static_cast<int>(rows.size());
+  const SpringHandParams& prm = rig_->params();
+  // Per row, its three directions' motion per joint angle of its finger (the joints between the palm
+  // and its phalanx), and per finger the joints' stiffness: their springs and, through the distal's
+  // end, the fingertip's.
+  J_q = Eigen::MatrixXd::Zero(3 * c, kHandJointDofs);
+  std::array<bool, kHandFingers> touched{};
+  for (int i = 0; i < c; ++i) {
+    const Row& r = rows[i];
+    if (r.geom < 1) continue;
+    const int phalanx = r.geom - 1, f = phalanx / 3, segment = phalanx % 3;
+    touched[f] = true;
+    const Eigen::Vector3d t1 = r.n.unitOrthogonal(), t2 = r.n.cross(t1);
+    for (int k = 0; k <= segment + 1; ++k) {  // abduction and flexion at the base, then one per segment
+      const int dof = 4 * f + k;
+      const Eigen::Vector3d u = rig_->joint_axis_W(dof).cross(r.p - rig_->joint_anchor_W(dof));
+      J_q(3 * i, dof) = r.n.dot(u), J_q(3 * i + 1, dof) = t1.dot(u), J_q(3 * i + 2, dof) = t2.dot(u);
+    }
+  }
+  C_q = Eigen::MatrixXd::Zero(kHandJointDofs, kHandJointDofs);
+  for (int f = 0; f < kHandFingers; ++f) {
+    if (!touched[f]) continue;
+    Eigen::Matrix<double, 3, 4> J_tip;
+    for (int k = 0; k < 4; ++k)
+      J_tip.col(k) = rig_->joint_axis_W(4 * f + k).cross(rig_->tip_W(f) - rig_->joint_anchor_W(4 * f + k));
+    const Eigen::Matrix4d K_q = prm.joint.k * Eigen::Matrix4d::Identity() + prm.tip.k * J_tip.transpose() * J_tip;
+    C_q.block<4, 4>(4 * f, 4 * f) = K_q.inverse();
+  }
+}
+
+bool SpringHand::linearize_through_springs(HandleLinearization& out) const {
+  // The springs' stiffness on the hand, K_s = -dF/dx (the palm's and the fingertips'), in the handles'
+  // coordinates (translation, rotation vector about the handle's origin).
+  Eigen::Matrix<double, 6, 6> K_s = -out.K;
+  K_s = 0.5 * (K_s + K_s.transpose()).eval();
+  const Eigen::LLT<Eigen::Matrix<double, 6, 6>> K_llt(K_s);
+  if (K_llt.info() != Eigen::Success) return false;
+  // How far the handle stands from the spring hand, delta: the springs' stretch, F = -K_s delta, with
+  // the handle moving as the hand does (with the dampers' part the rows moved b/k times the hand's
+  // velocity, 3 mm at 0.1 m/s, as the hand rocked on the bunny).
+  const Eigen::Vector3d x0 = handles_[0].p_WH;
+  std::vector<HandleState> moving = handles_;
+  const dReal* v_s = dBodyGetLinearVel(rig_->palm_body());
+  const dReal* w_s = dBodyGetAngularVel(rig_->palm_body());
+  moving[0].w_WH = Eigen::Vector3d(w_s[0], w_s[1], w_s[2]);
+  moving[0].v_WH = Eigen::Vector3d(v_s[0], v_s[1], v_s[2]) + moving[0].w_WH.cross(x0 - rig_->palm_position());
+  const Eigen::Matrix<double, 6, 1> delta = -K_llt.solve(reaction(moving));
+  // The dampers beside the springs, D_s = -dF/dv, and the handle's velocity they see against a hand
+  // the rows hold still.
+  Eigen::Matrix<double, 6, 6> D_s = -out.D;
+  D_s = 0.5 * (D_s + D_s.transpose()).eval();
+  Eigen::Matrix<double, 6, 1> v0;
+  v0 << handles_[0].v_WH, handles_[0].w_WH;
+  const Eigen::Matrix<double, 6, 1> offset = delta + K_llt.solve(D_s * v0);
+  if (!offset.allFinite()) return false;
+  out.F0.setZero();
+  out.K.setZero();
+  out.D.setZero();
+  HandleContactModel& m = out.contacts;
+  m = HandleContactModel{};
+  // The rows: the last ODE step's contacts (once per point and normal: ODE repeats them), the world's
+  // law; then the hand's probes within reach of the handle outside the objects, the nearest first
+  // (probe_rows). The probes alone (the objects' distance fields) missed ODE's contacts by 0.6 mm and
+  // 50 degrees on the bunny, and gave half the law.
+  std::vector<Row> rows;
+  auto add_contact = [&](const OdeHandContact& k, const Eigen::Vector3d& p, double depth, double apart) {
+    const bool repeated = std::any_of(rows.begin(), rows.end(), [&](const Row& r) {
+      return r.geom == std::max(k.geom, 0) && (r.p - p).squaredNorm() < apart * apart && r.n.dot(k.n_W) > 0.99;
+    });
+    if (!repeated) rows.push_back({p, k.n_W, depth, k.mu, std::max(k.geom, 0)});
+  };
+  for (const OdeHandContact& k : contacts_) add_contact(k, k.p_W, k.depth_m, 1e-3);
+  // A contact of the last kHeldSteps steps that this one lacks, carried with its geom (its depth by how
+  // far its point moved along the normal): a hand resting on the bunny loses a contact for a step now
+  // and then, and the probes' rows that took its place there (the distance field's, 0.6 mm and 50
+  // degrees off ODE's) kicked the stylus 0.5 mm each time, +1e-4 J.
+  for (const Held& held : previous_) {
+    const Eigen::Vector3d p = geom_pose(held.contact.geom) * held.p_G;
+    add_contact(held.contact, p, held.contact.depth_m - held.contact.n_W.dot(p - held.contact.p_W), kHeldApart_m);
+  }
+  const std::ptrdiff_t touching =
+      std::min<std::ptrdiff_t>(static_cast<std::ptrdiff_t>(rows.size()), kMaxLinearizedContacts);
+  if (objects_)
+    probe_rows(kLookahead_m + delta.head<3>().norm() + kHandReach_m * delta.tail<3>().norm(), touching > 0, rows);
+  if (rows.size() > static_cast<std::size_t>(kMaxLinearizedContacts)) {
+    std::partial_sort(rows.begin() + touching, rows.begin() + kMaxLinearizedContacts, rows.end(),
+                      [](const Row& a, const Row& b) { return a.depth > b.depth; });
+    rows.resize(kMaxLinearizedContacts);
+  }
+  const int c = static_cast<int>(rows.size());
+  if (c == 0) return true;
+  const double h = dt_s_;
+  Eigen::MatrixXd J(3 * c, 6);
+  m.u0.resize(3 * c);
+  m.bias = Eigen::VectorXd::Zero(c);
+  m.mu.resize(c);
+  for (int i = 0; i < c; ++i) {
+    const Row& r = rows[i];
+    const Eigen::Vector3d t1 = r.n.unitOrthogonal(), t2 = r.n.cross(t1), arm = r.p - x0;
+    const Eigen::Vector3d dirs[3] = {r.n, t1, t2};
+    for (int a = 0; a < 3; ++a) J.row(3 * i + a) << dirs[a].transpose(), arm.cross(dirs[a]).transpose();
+    // The point on the massless hand held at the handle (moved by the offset from the spring hand):
+    // its gap, which the step may close by at most u h.
+    m.u0.segment<3>(3 * i) = J.middleRows<3>(3 * i) * offset / h;
+    m.u0[3 * i] -= r.depth / h;
+    m.mu[i] = r.mu;
+  }
+  // A finger's joints give way too, from where their springs would hold them (the tracked angles).
+  Eigen::MatrixXd J_q, C_q;
+  finger_joints(rows, J_q, C_q);
+  m.u0 += J_q * (tracked_angles(handles_).vector() - rig_->joint_angles().vector()) / h;
+  // Row impulses lambda over the step: the massless hand takes J^T lambda / h and gives way
+  // K_s^-1 J^T lambda / h, and the handle feels what the rows push (G = J^T / h). The dampers add
+  // K_s^-1 D_s (v - v0) to the hand's way in. The small diagonal is the rows' own stiffness, far above
+  // the springs': it keeps W definite with more rows than six.
+  m.G = J.transpose() / h;
+  m.U_K = J / h;
+  m.U_D = J * K_llt.solve(D_s) / h;
+  m.W = J * K_llt.solve(J.transpose()) / (h * h);
+  m.W = 0.5 * (m.W + m.W.transpose());
+  m.W += J_q * C_q * J_q.transpose() / (h * h);
+  m.W.diagonal().array() += 1.0 / (kContactStiffness * h * h);
+  const PgsResult solved = solve_contacts_pgs(ContactProblem{m.W, m.u0, m.bias, m.mu});
+  if (!solved.lambda.allFinite()) return false;
+  m.lambda0 = solved.lambda;
+  return true;
+}
+
 bool SpringHand::linearize_next_step(HandleLinearization& out, ContactLinearization) {
   out = HandleLinearization{};
   out.x0 = handles_;
@@ -251,6 +501,7 @@ bool SpringHand::linearize_next_step(HandleLinearization& out, ContactLinearizat
       ha = hb = x0;
     }
   }
+  if (num_handles() == 1 && !config_.body_step_model) return linearize_through_springs(out);
   if (config_.body_step_model && num_handles() == 1 && !linearize_rigid_body(out)) return false;
   return out.F0.allFinite() && out.K.allFinite() && out.D.allFinite();
 }

@@ -9,19 +9,31 @@
 // fingertips' (4.4), whose tracked ends move with the handle (their moments about it included). The
 // contacts act on the spring hand; the device feels them through the springs, as in the paper.
 //
-// The handle-space model the haptic loop renders (Hand::linearize_next_step) is that reaction
-// linearized in the handles' poses and velocities (central differences) with the spring hand held
-// where the step left it. For a stylus, SpringHandConfig::body_step_model instead takes the hand's
-// motion over the coming step: the hand as one rigid body (its joints held: the composite inertia
-// about the palm) under the springs' reaction, in the world's ODE substeps (semi-implicit Euler),
-// with its contacts of the last ODE step as unilateral rows whose impulses spread over the step;
-// the reaction averaged over the substeps (the impulse a handle held at (x, v) takes, over h) is
+// The handle-space model the haptic loop renders (Hand::linearize_next_step). A glove's is that
+// reaction linearized in the handles' poses and velocities (central differences) with the spring hand
+// held where the step left it (the server renders a glove's frame only where its part touches).
+// A stylus's is the springs and dampers pressing a massless copy of the hand, held at the handle,
+// against the objects (linearize_through_springs): unilateral rows at the last ODE step's contacts
+// and at the hand's probes within reach outside the objects (speculative), each moved from the spring
+// hand to the handle by the springs' stretch, their compliance the springs' seen at the rows. It is
+// the world's law at the world's state (the springs' reaction, when the hand rests on its contacts),
+// it lets go within the step a lift leaves an object and takes a touch the step makes, and it renders
+// nothing in free motion: seed 002 section 4.6.2, "the coupling can result in spring hand mass
+// properties being reflected to the user as force feedback. We adopt the strategy of setting feedback
+// force to zero for any finger that does not collide with an object". The held model instead reflected
+// the 0.65 kg hand through the 2000 N/m palm spring: 2.5-4.6 N of pull after a lift, the same in free
+// space, still ringing 0.36-1.85 N a second later, and 2.8 N of drag at 15 Hz that kept the stylus off
+// the bunny (Issue18KnownFault.SpringHandPressHoldLift, 11 of 36 cases passing; all 36 pass now).
+// SpringHandConfig::body_step_model instead takes the hand's motion over the coming step: the hand as
+// one rigid body (its joints held: the composite inertia about the palm) under the springs' reaction,
+// in the world's ODE substeps (semi-implicit Euler), with its contacts of the last ODE step as
+// unilateral rows whose impulses spread over the step; the reaction averaged over the substeps is
 // linear in the handle's displacement, its velocity and the row impulses. It predicts the world's
-// step far better (WorldSpringHand.ItsBodyStepModelPredicts...: 0.9 against 33 N after a 1 cm jump),
-// but closed loop through the offline runner it put +0.001 to +0.044 J into the device where the
-// held model took energy out (issue 18's note), so it is not the default. (At the step's end alone
-// the force is no rendering model: the palm, still closing in, pulls the handle along through the
-// damper, a stiffness of +80 to +150 N/m at 15-60 Hz, which drove the stylus to its force limit.)
+// step far better than the held model (WorldSpringHand.ItsBodyStepModelPredicts...: 0.9 against 33 N
+// after a 1 cm jump), but it reflects the hand's mass too and put +0.001 to +0.044 J into the device
+// closed loop (issue 18's note). (At the step's end alone the force is no rendering model: the palm,
+// still closing in, pulls the handle along through the damper, a stiffness of +80 to +150 N/m at
+// 15-60 Hz, which drove the stylus to its force limit.)
 //
 // Driven by a stylus (one handle, the palm; the fingers held at the skeleton's rest angles), by a
 // glove's palm and 15 phalanx frames (16 handles, each the tracked segment's frame): its joint angles
@@ -52,7 +64,7 @@ struct SpringHandConfig {
   // The world's gravity on the hand (zero: a weightless hand); params.gravity follows it.
   Eigen::Vector3d gravity_m_s2 = Eigen::Vector3d::Zero();
   // The stylus model over the coming step with the hand as one body (see the file comment); false:
-  // the springs' reaction with the hand held where it is (the default: see there why).
+  // the springs pressing a massless copy of the hand against the objects (the default: see there why).
   bool body_step_model = false;
 };
 
@@ -82,7 +94,10 @@ class SpringHand : public OdeHand {
   Eigen::Vector3d skin_point(int i) const override;
   int skin_handle(int i) const override;
 
-  void before_ode_step(double h, RigidObjects&) override { rig_->apply_springs(h); }
+  void before_ode_step(double h, RigidObjects& objects) override {
+    objects_ = &objects;
+    rig_->apply_springs(h);
+  }
   void set_contacts(const std::vector<OdeHandContact>& contacts) override;
   double max_ode_step_s() const override { return rig_->max_stable_step(); }
   void after_ode_steps() override;
@@ -108,6 +123,8 @@ class SpringHand : public OdeHand {
   // The handles of the hand placed at (p_W, q_W) with the joint angles angles_, at rest.
   void place_handles(const Eigen::Vector3d& p_W, const Eigen::Quaterniond& q_W);
   HandJointAngles tracked_angles(const std::vector<HandleState>& handles) const;
+  // The rig placed on the tracked hand, at rest, its contacts forgotten.
+  void place_rig();
   // The springs' reaction on handles at `h` (per handle force, torque about its origin), the spring
   // hand as it is now.
   Eigen::VectorXd reaction(const std::vector<HandleState>& h) const;
@@ -115,9 +132,53 @@ class SpringHand : public OdeHand {
   // The stylus model: the reaction's derivatives folded into the implicit step of the hand as one
   // body with its contacts as rows (see the file comment).
   bool linearize_rigid_body(HandleLinearization& out) const;
+  // The stylus model (the default; see the file comment): out's springs and dampers (F0, K, D, the
+  // hand held) pressing a massless copy of the hand, held at the handle, against the last ODE step's
+  // contacts and the objects near the hand's shapes, as unilateral rows.
+  bool linearize_through_springs(HandleLinearization& out) const;
+  struct Row {
+    Eigen::Vector3d p, n;  // the hand's point and the object's normal there
+    double depth, mu;      // depth < 0: a gap
+    int geom;              // the hand's geom the point is on (0: the palm)
+  };
+  // The fingers' joints under the rows: J_q (3c x 20), the rows' motion (contact frames) per joint
+  // angle of their finger, and C_q (20 x 20), the joints' compliance: each finger's joint springs and,
+  // through the distal's end, its fingertip's spring (seed 002 sections 4.2 and 4.4, the palm held).
+  void finger_joints(const std::vector<Row>& rows, Eigen::MatrixXd& J_q, Eigen::MatrixXd& C_q) const;
+  // The probes' rows (speculative ones outside the objects, and inside ones unless `touching`) for
+  // objects within `reach` of the shapes, appended to rows.
+  void probe_rows(double reach, bool touching, std::vector<Row>& rows) const;
+  // The deepest point q (box frame, from the grid's deepest) of the palm box's `face` in `object`, its
+  // depth and the object's normal there; the box stands at o, R_W. False when the object is out of reach.
+  bool deepest_on_face(int face, const Eigen::Vector3d& o, const Eigen::Matrix3d& R_W, int object, double reach,
+                       Eigen::Vector3d& q, double& depth, Eigen::Vector3d& n) const;
+  // The rows' own stiffness in that model, N/m (ODE's contacts are all but rigid; it keeps W definite);
+  // how far outside an object a probe takes a (speculative) row, m; how far from the palm a point of
+  // the hand may be (a rotation's reach), m; the palm's faces' probe grids.
+  static constexpr double kContactStiffness = 1e5, kLookahead_m = 0.015, kHandReach_m = 0.2;
+  static constexpr int kPalmGrid = 7;
 
   SpringHandConfig config_;
   std::vector<OdeHandContact> contacts_;  // of the last ODE step, the deepest kMaxLinearizedContacts
+  struct Held {
+    OdeHandContact contact;
+    Eigen::Vector3d p_G;  // its point in its geom's frame
+    int age;              // steps since ODE found it
+  };
+  std::vector<Eigen::Vector3d> contacts_G_;  // contacts_'s points in their geoms' frames
+  std::vector<Held> previous_;               // the contacts of the steps before (set_contacts)
+  // A held contact stands for a lost one for kHeldSteps steps, unless a newer contact lies this close.
+  static constexpr double kHeldApart_m = 0.003;
+  static constexpr int kHeldSteps = 3;
+  Eigen::Isometry3d geom_pose(int g) const;
+  const RigidObjects* objects_ = nullptr;  // the world's, from the last ODE step
+  struct Probe {
+    Eigen::Vector3d q_G;  // in its geom's frame
+    double radius;        // a sphere's about q_G; 0: a point of the surface
+    int face;             // the palm box's face (2 axis + (side > 0)) a point is on; -1: none
+  };
+  std::vector<std::vector<Probe>> probes_G_;             // per geom (the constructor says which)
+  Eigen::Vector3d palm_half_ = Eigen::Vector3d::Zero();  // the palm box's half extents
   std::unique_ptr<SpringHandRig> rig_;
   std::vector<HandleState> handles_;
   HandJointAngles angles_ = rest_joint_angles();

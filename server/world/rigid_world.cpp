@@ -735,6 +735,7 @@ void RigidWorld::collide_hand(dGeomID hand_geom, dGeomID object_geom, bool hand_
     hj.hand_first = hand_first;
     hj.contact.hand = hand_ids_[h];
     hj.contact.handle = geom < hand.num_geoms() ? hand.geom_handle(geom) : -1;
+    hj.contact.geom = geom < hand.num_geoms() ? geom : -1;
     hj.contact.object = g;
     hj.contact.p_W = p;
     // ODE's normal points from the second geom into the first: out of the object toward the hand.

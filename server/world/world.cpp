@@ -186,7 +186,7 @@ void World::finish_ode_hands() {
     if (hand_soft_[h] >= 0) continue;
     mine.clear();
     for (const RigidWorld::HandContact& c : ode_hand_contacts_)
-      if (c.hand == h) mine.push_back({c.handle, c.p_W, c.n_W, c.depth_m, c.mu});
+      if (c.hand == h) mine.push_back({c.handle, c.p_W, c.n_W, c.depth_m, c.mu, c.geom});
     static_cast<hand::OdeHand&>(*hands_[h].model).set_contacts(mine);
     if (!options_.linearize) continue;
     snapshot_.linear_model_valid[h] =

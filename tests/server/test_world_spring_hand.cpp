@@ -95,12 +95,15 @@ Prediction predict_step(World& w, const Eigen::Vector3d& dx) {
   return {(predicted - actual).head<3>().norm(), (held - actual).head<3>().norm(), actual.z()};
 }
 
-TEST(WorldSpringHand, ItsModelIsTheSpringsReactionLinearizedInTheHandle) {
-  World w(floor_scene());
+TEST(WorldSpringHand, AGlovesModelIsTheSpringsReactionLinearizedInItsFrames) {
+  SceneDesc scene = floor_scene();
+  scene.hands[0].handles = HandleSet::phalanges;
+  scene.hands[0].pose.p_W = {0, 0, 0.15};  // in free space
+  World w(scene);
   for (int k = 0; k < 10; ++k) w.step();
   hand::HandleLinearization model;
   ASSERT_TRUE(w.hand(0).linearize_next_step(model, hand::ContactLinearization::unilateral));
-  ASSERT_EQ(model.F0.size(), 6);
+  ASSERT_EQ(model.F0.size(), 6 * 16);
   const hand::HandleState x0 = w.hand(0).handles()[0];
   // Moved and moving: the springs are linear in the handle's position and velocity, so is the model.
   hand::HandleTarget t;
@@ -123,6 +126,76 @@ TEST(WorldSpringHand, ItsModelIsTheSpringsReactionLinearizedInTheHandle) {
   const double e1 = turned_error(0.02), e2 = turned_error(0.01);
   EXPECT_NEAR(e1 / e2, 4.0, 0.2) << e1 << " " << e2;
   EXPECT_GT((w.hand(0).coupling_wrench() - model.F0).norm(), 100 * e2) << "the turn changes the reaction";
+}
+
+// The lowest point of the spring hand's shapes (its palm box and phalanx capsules), from ODE's geoms.
+double lowest_point_z(const hand::spring::SpringHand& hand) {
+  double lowest = INFINITY;
+  for (int g = 0; g < hand.num_geoms(); ++g) {
+    const dReal* p = dGeomGetPosition(hand.geom(g));
+    const dReal* R = dGeomGetRotation(hand.geom(g));
+    if (g == 0) {
+      dVector3 l;
+      dGeomBoxGetLengths(hand.geom(g), l);
+      lowest = std::min(lowest, p[2] - 0.5 * (std::abs(R[8]) * l[0] + std::abs(R[9]) * l[1] + std::abs(R[10]) * l[2]));
+    } else {
+      dReal r, length;
+      dGeomCapsuleGetParams(hand.geom(g), &r, &length);
+      lowest = std::min(lowest, p[2] - 0.5 * length * std::abs(R[10]) - r);  // the axis is the geom's z
+    }
+  }
+  return lowest;
+}
+
+// A stylus's model: the springs pressing a massless copy of the hand, held at the handle, against
+// the objects (seed 002 section 4.6.2: no force in free motion). References: the world's own law, the
+// springs' reaction once the spring hand has come to rest on the floor, and the hand's geometry.
+TEST(WorldSpringHand, AStylussModelPressesAMasslessCopyOfTheHandAgainstTheObjects) {
+  WorldOptions options;
+  options.hand_gravity = false;  // the springs carry nothing but what the floor pushes
+  World w(floor_scene(), options);
+  const hand::spring::SpringHand& hand = spring_of(w);
+  auto settle_at = [&](const Eigen::Vector3d& p) {
+    for (int k = 0; k < 90; ++k) {
+      ASSERT_TRUE(w.hand(0).set_target(0, palm_at(p)));
+      w.step();
+    }
+  };
+  auto model_at = [&](const hand::HandleLinearization& model, const Eigen::Vector3d& p) {
+    EXPECT_TRUE(w.hand(0).set_target(0, palm_at(p)));
+    return Eigen::VectorXd(model.evaluate(w.hand(0).handles()));
+  };
+  // Hovering with the hand's lowest point 6 mm above the floor, within the probes' reach.
+  settle_at({0, 0, 0.05});
+  settle_at({0, 0, 0.05 - lowest_point_z(hand) + 0.006});
+  const double gap = lowest_point_z(hand);
+  ASSERT_NEAR(gap, 0.006, 0.5e-3);
+  const Eigen::Vector3d x0 = w.hand(0).handles()[0].p_WH;
+  hand::HandleLinearization hover;
+  ASSERT_TRUE(w.hand(0).linearize_next_step(hover, hand::ContactLinearization::unilateral));
+  EXPECT_EQ(model_at(hover, x0).norm(), 0.0) << "free motion";
+  EXPECT_EQ(model_at(hover, x0 + Eigen::Vector3d(0.01, 0.01, 0.02)).norm(), 0.0);
+  EXPECT_EQ(model_at(hover, x0 - Eigen::Vector3d(0, 0, gap - 0.001)).norm(), 0.0) << "1 mm short of the floor";
+  // 3 mm past the gap: what the world's spring hand takes once it rests on the floor there.
+  const Eigen::Vector3d pressed = x0 - Eigen::Vector3d(0, 0, gap + 0.003);
+  const double predicted = model_at(hover, pressed).z();
+  settle_at(pressed);
+  const double law = w.hand(0).coupling_wrench().z();
+  std::printf("3 mm past a %.2f mm gap: model %.3f N, the world at rest %.3f N\n", 1e3 * gap, predicted, law);
+  EXPECT_GT(law, 0.1);
+  EXPECT_NEAR(predicted, law, 0.15 * law);
+  // At rest on the floor the model is the law (its rows are ODE's contacts; measured 3 % apart: the
+  // fingertip's spring stiffens both the hand the palm's springs hold and the finger's joints)...
+  hand::HandleLinearization resting;
+  ASSERT_TRUE(w.hand(0).linearize_next_step(resting, hand::ContactLinearization::unilateral));
+  const Eigen::VectorXd at_rest = model_at(resting, pressed), reaction = w.hand(0).coupling_wrench();
+  std::printf("at rest: model %.3f N, the world %.3f N\n", at_rest.z(), reaction.z());
+  EXPECT_LT((at_rest - reaction).norm(), 0.05 * reaction.norm())
+      << at_rest.transpose() << " / " << reaction.transpose();
+  // ...and lifting lets go, where the springs holding the hand down would pull the handle to it.
+  const Eigen::Vector3d lifted = pressed + Eigen::Vector3d(0, 0, 0.01);
+  EXPECT_LT(model_at(resting, lifted).norm(), 1e-9);
+  EXPECT_LT(w.hand(0).coupling_wrench().z(), -10.0);
 }
 
 TEST(WorldSpringHand, ItsBodyStepModelPredictsTheStepsForceInFreeSpacePressingAndLifting) {

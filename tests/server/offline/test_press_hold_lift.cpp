@@ -148,15 +148,14 @@ std::vector<Case> cases() {
   return out;
 }
 
-// Seed 002's spring hand (issue 18) on the rigid objects: the same bounds. A known fault, run by
-// ctest as Issue18KnownFault.SpringHandPressHoldLift (expected to fail; 11 of 36 pass). Measured
-// when it was added: energy -0.037 to -0.116 J (passive) wherever a touch was flagged, but at 15 Hz
-// none is; at 30 and 60 Hz the lift pulls 2.5-4.6 N and a second later the device still rings at
-// 0.36-1.85 N, the same motion in free space as much (3.0-5.5 N, 0.45-1.9 N): the device carries
-// the served spring hand's 0.65 kg through its 2000 N/m palm spring, and the largest force in the
-// press (2.5-4.8 N) is no more than that. The world alone presses the same hand onto the bunny
-// with 76 N at 6 cm; a light served hand (as the FEM stylus hand's 3 %) needs its fingers' springs
-// scaled too, or 20x the ODE steps, and then the fingers give way under the press.
+// Seed 002's spring hand (issue 18) on the rigid objects: the same bounds. When added they failed in 25
+// of 36 cases (run as a known fault): the device carried the served spring hand's 0.65 kg through its
+// 2000 N/m palm spring, with the hand held where each step left it. At 30 and 60 Hz the lift pulled
+// 2.5-4.6 N and a second later the device still rang at 0.36-1.85 N, as much as the same motion in
+// free space; at 15 Hz that drag (2.8 N) kept the stylus from reaching the bunny. The stylus's model
+// is now the springs pressing a massless copy of the hand against the objects (SpringHand's
+// linearize_through_springs): measured, energy -0.0002 to -0.009 J, pulls 0.05-0.16 N (the free
+// space's), nothing a second later.
 std::vector<Case> spring_cases() {
   std::vector<Case> out;
   for (const char* object : {"spring_movable_bunny", "spring_fixed_bunny", "spring_table_edge"})
