@@ -42,7 +42,8 @@
 // its fingertip spring's; or by a glove's palm and 5 distal frames (6 handles): the joint angles from
 // the distal frames (joint_angles_from_distal, each finger's flexion shared 3:3:2), each joint
 // spring's reaction shared between its finger's distal frame and the palm's by the same shares. The
-// section-4.5 finger force (glove_feedback) does not reach the server's glove output yet.
+// server's finger_lines output renders the section-4.5 finger force from the frames' wrenches
+// (haptic::project_onto_finger_lines); glove_feedback gives it from the rig's own springs.
 #include <memory>
 #include <vector>
 

@@ -1,8 +1,10 @@
 #include "server/haptic/device_link.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <stdexcept>
 
+#include "hand_models/spring/spring_law.hpp"
 
 namespace hapticd::haptic {
 
@@ -33,6 +35,7 @@ DeviceLink make_device_link(const world::World& world, const world::DeviceDesc& 
     link.output =
         d.force_output == world::GloveForceOutput::finger_lines ? ForceOutput::finger_lines : ForceOutput::frames;
     link.actuator_line_F = d.actuator_line_F;
+    link.feedback_a = d.feedback_a;
     if (link.output == ForceOutput::finger_lines && link.handles != 6 && link.handles != 16)
       throw std::runtime_error("devices." + d.name + ": finger_lines output needs a hand with fingertip or phalanx "
                                "handles");
@@ -62,7 +65,9 @@ int finger_of_frame(int frames, int j) {
 int distal_frame(int frames, int f) { return frames == 6 ? 1 + f : 3 + 3 * f; }
 
 void project_onto_finger_lines(const DeviceLink& link, const HapticPose* device_W, ReplyWrench* w) {
-  const Eigen::Matrix3d R_DW = link.map.R_WD.toRotationMatrix().transpose();
+  const Eigen::Matrix3d R_WD = link.map.R_WD.toRotationMatrix(), R_DW = R_WD.transpose();
+  const std::array<double, 4>& a = link.feedback_a;
+  const bool torques = link.handles == 1 + hand::kHandPhalanges && (a[0] > 0 || a[1] > 0 || a[2] > 0);
   double along[5] = {0, 0, 0, 0, 0};
   Eigen::Vector3d line_D[5];
   for (int f = 0; f < 5; ++f) {
@@ -72,7 +77,45 @@ void project_onto_finger_lines(const DeviceLink& link, const HapticPose* device_
   }
   for (int j = 0; j < link.handles; ++j) {
     const int f = finger_of_frame(link.handles, j);
-    if (f >= 0) along[f] += w[j].f_D.dot(line_D[f]);
+    if (f >= 0) along[f] += a[3] * w[j].f_D.dot(line_D[f]);
+  }
+  if (torques) {
+    // World frame: the hand's wrenches on the frames (f_D = s R_DW f_W keeps the port's power), the
+    // segment frames (handle poses less their offsets) and, on the skeleton, the flexion joints'
+    // axes and centres and the fingertip.
+    for (int f = 0; f < 5; ++f) {
+      const hand::FingerGeometry& g = hand::finger_geometry()[f];
+      Eigen::Vector3d o[3], x[3], joint[3], force[3], torque[3];
+      for (int k = 0; k < 3; ++k) {
+        const int j = 1 + 3 * f + k;
+        const Eigen::Quaterniond q_frame = device_W[j].q_W * link.map.handle_q_F[j].conjugate();
+        o[k] = device_W[j].p_W;  // the handle's origin: its wrench's torque is about it
+        const Eigen::Vector3d frame_origin = o[k] - q_frame * link.map.handle_p_F[j];
+        // The flexion axis: the segment's side axis before the finger's roll about its bone (the
+        // thumb's pronation; hand_skeleton.cpp), mirrored for a left hand.
+        x[k] = q_frame * Eigen::Vector3d((link.left ? -1.0 : 1.0) * std::cos(g.roll), 0.0, -std::sin(g.roll));
+        joint[k] = frame_origin - 0.5 * g.length[k] * (q_frame * Eigen::Vector3d::UnitY());
+        force[k] = R_WD * w[j].f_D / link.map.scale;
+        torque[k] = R_WD * w[j].tau_D;
+      }
+      const int d = 3 + 3 * f;  // the distal frame
+      const Eigen::Vector3d tip =
+          joint[2] + g.length[2] * ((device_W[d].q_W * link.map.handle_q_F[d].conjugate()) * Eigen::Vector3d::UnitY());
+      std::array<Eigen::Vector3d, 3> f_tau;
+      for (int k = 0; k < 3; ++k) {
+        Eigen::Vector3d beyond = Eigen::Vector3d::Zero();
+        double moment = 0;
+        for (int m = k; m < 3; ++m) {
+          moment += (torque[m] + (o[m] - joint[k]).cross(force[m])).dot(x[k]);
+          beyond += force[m];
+        }
+        const double tau = -moment + (tip - joint[k]).cross(beyond).dot(x[k]);  // on the hand, as the paper's
+        f_tau[k] = hand::spring::flexion_torque_force(x[k], joint[k], tip, tau);
+      }
+      const std::array<double, 4> a_torques{a[0], a[1], a[2], 0.0};
+      const Eigen::Vector3d line_W = R_WD * line_D[f];
+      along[f] += link.map.scale * hand::spring::glove_feedback(a_torques, f_tau, Eigen::Vector3d::Zero(), line_W);
+    }
   }
   for (int j = 0; j < link.handles; ++j) {
     const bool clamped = w[j].clamped;

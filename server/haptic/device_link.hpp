@@ -1,5 +1,6 @@
 #pragma once
 // A scene device bound to its world hand: what the haptic loop needs of it.
+#include <array>
 #include <cstdint>
 #include <span>
 #include <string>
@@ -31,6 +32,7 @@ struct DeviceLink {
   bool contact_gated = false;
   ForceOutput output = ForceOutput::frames;
   Eigen::Vector3d actuator_line_F = Eigen::Vector3d::UnitZ();  // finger_lines: unit, in the distal frame
+  std::array<double, 4> feedback_a{0.0, 0.0, 0.0, 1.0};        // finger_lines: seed 002 section 4.5's a1..a4
 };
 
 // The finger (0 thumb .. 4 little) tracked frame j of a glove with `frames`
@@ -39,12 +41,19 @@ int finger_of_frame(int frames, int j);
 int distal_frame(int frames, int f);
 
 // Actuator-line output (a CyberGrasp-like glove, one cable per finger; seed 002
-// section 4.5 with its fingertip term a4 = 1 and the torque terms a1..a3 = 0):
-// each finger's frame forces, summed, projected on its actuator's line of
-// action n (the distal frame's actuator_line_F), kept only if they pull along
-// it (a cable cannot push) and clamped to the force limit, rendered on the
-// distal frame along n; the other frames get nothing. `device_W` are the
-// frames' handle poses in world (ProxyHand::device). In place on `w`.
+// section 4.5): f = -(a1 f_tau1 + a2 f_tau2 + a3 f_tau3 + a4 f_ls) . n, n the
+// finger's actuator line of action (the distal frame's actuator_line_F), kept
+// only if it pulls along it (a cable cannot push), clamped to the force limit,
+// and rendered on the distal frame along n; the other frames get nothing.
+// Taken from the wrenches the hand's frames get (the hand's on them, f_D and
+// tau_D, opposite to the paper's forces on the simulated hand): f_ls, the
+// finger's frame forces summed; f_tau k, flexion joint k's torque (its child
+// segment's), the moment of everything beyond the joint about its axis (the
+// segment frame's x) less the finger's force taken at the fingertip, as a force
+// at the fingertip (flexion_torque_force). The joints and the fingertip stand
+// on the standard skeleton (the frames are its segments' centres), so a1..a3
+// need a 16-frame glove. `device_W` are the frames' handle poses in world
+// (ProxyHand::device). In place on `w`.
 void project_onto_finger_lines(const DeviceLink& link, const HapticPose* device_W, ReplyWrench* w);
 
 // The link of scene device `d` in `world` at the given haptic rate: its hand's

@@ -5,6 +5,7 @@
 // frame W (z up) unless a field says otherwise; a pose maps a local frame into W.
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <array>
 #include <cstddef>
 #include <string>
 #include <string_view>
@@ -155,6 +156,10 @@ struct DeviceDesc {
   // finger_lines: the actuator's line of action in the distal phalanx frame (y along the bone,
   // z dorsal), unit; default dorsal (the cable pulls the fingertip back, resisting flexion).
   Eigen::Vector3d actuator_line_F = Eigen::Vector3d::UnitZ();
+  // finger_lines: seed 002 section 4.5's coefficients a1, a2, a3 (the finger's joint torques, base to
+  // tip, as forces at the fingertip) and a4 (its fingertip force), each in [0, 10]; a1..a3 need the
+  // phalanx frames of a 16-frame glove. Default 0, 0, 0, 1: the finger's forces alone.
+  std::array<double, 4> feedback_a{0.0, 0.0, 0.0, 1.0};
 };
 
 enum class ContactModel { constraint, penalty };

@@ -185,6 +185,7 @@ constexpr Range kDeviceStiffness{1, 1e5};                         // N/m
 constexpr Range kMaxForce{0.01, protocol::kMaxForceN};
 constexpr Range kMaxTorque{0.001, protocol::kMaxTorqueNm};
 constexpr Range kMaxForceRate{1, protocol::kMaxForceRateNPerS};
+constexpr Range kFeedbackCoefficient{0, 10};  // seed 002 section 4.5's a1..a4
 
 double get_number(const json& value, const std::string& path, const Range& range = kAny) {
   if (!value.is_number()) fail(path, "expected a number, got " + type_name(value));
@@ -653,7 +654,7 @@ HandDesc parse_hand(const Obj& o, Context& ctx) {
 DeviceDesc parse_device(const Obj& o, Context& ctx, const std::vector<HandDesc>& hands,
                         std::map<std::string, std::string, std::less<>>& driver_of_hand) {
   o.allow({"name", "kind", "hand", "workspace", "max_force_n", "max_torque_nm", "max_force_rate_n_s", "stiffness_n_m",
-           "force_output", "actuator_line"});
+           "force_output", "actuator_line", "feedback_a"});
   DeviceDesc d;
   d.name = ctx.register_name(o);
   d.kind = o.choice("kind", kDeviceKindNames, "device kind");
@@ -681,6 +682,17 @@ DeviceDesc parse_device(const Obj& o, Context& ctx, const std::vector<HandDesc>&
     const auto hand = std::find_if(hands.begin(), hands.end(), [&](const HandDesc& h) { return h.name == d.hand; });
     if (hand->handles == HandleSet::palm)
       fail(o.at("force_output"), "finger_lines needs the hand's handles to be fingertips or phalanges");
+    if (const json* a = o.find("feedback_a")) {
+      const std::string path = o.at("feedback_a");
+      if (!a->is_array() || a->size() != 4)
+        fail(path, "expected an array of 4 numbers (a1, a2, a3, a4), got " +
+                       (a->is_array() ? std::to_string(a->size()) + " elements" : type_name(*a)));
+      for (int k = 0; k < 4; ++k) d.feedback_a[k] = get_number((*a)[k], index_path(path, k), kFeedbackCoefficient);
+      if (hand->handles != HandleSet::phalanges && (d.feedback_a[0] > 0 || d.feedback_a[1] > 0 || d.feedback_a[2] > 0))
+        fail(path, "the joint torques' coefficients a1..a3 need a hand with phalanx handles (a 16-frame glove)");
+    }
+  } else if (o.has("feedback_a")) {
+    fail(o.at("feedback_a"), "feedback_a needs \"force_output\": \"finger_lines\"");
   }
   return d;
 }

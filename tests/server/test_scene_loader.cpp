@@ -1,6 +1,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -251,7 +252,7 @@ TEST_F(SceneLoaderTest, ExplicitValuesAreReadAndNormalised) {
     "devices": [{"name": "glove", "kind": "glove", "hand": "lefty",
                  "workspace": {"scale": 2, "offset": [0, 0, 0.5], "orientation": {"w": 1, "x": 1, "y": 0, "z": 0}},
                  "max_force_n": 3, "max_torque_nm": 0.1, "max_force_rate_n_s": 200, "stiffness_n_m": 500,
-                 "force_output": "finger_lines", "actuator_line": [0, -3, 4]}]
+                 "force_output": "finger_lines", "actuator_line": [0, -3, 4], "feedback_a": [1, 0.5, 0.25, 2]}]
   })"));
   EXPECT_EQ(scene.name, "explicit");
   expect_vec(scene.gravity_m_s2, 0, -9.8, 0);
@@ -317,6 +318,7 @@ TEST_F(SceneLoaderTest, ExplicitValuesAreReadAndNormalised) {
   EXPECT_EQ(glove.stiffness_n_m, 500.0);
   EXPECT_EQ(glove.force_output, GloveForceOutput::finger_lines);
   expect_vec(glove.actuator_line_F, 0, -0.6, 0.8);  // normalised
+  EXPECT_EQ(glove.feedback_a, (std::array<double, 4>{1, 0.5, 0.25, 2}));
 }
 
 // ---------------------------------------------------------------------------
@@ -689,6 +691,28 @@ TEST_F(SceneLoaderTest, RejectsFingerOutputsWhereThereAreNoFingers) {
   doc["devices"][0]["force_output"] = "frames";
   doc["devices"][0]["actuator_line"] = {0, 0, 0};
   EXPECT_TRUE(fails_at(doc, "devices[0].actuator_line", "must be a non-zero vector"));
+}
+
+TEST_F(SceneLoaderTest, TakesSeed002sGloveCoefficientsOnlyWhereTheyApply) {
+  json doc = valid();
+  doc["devices"][0]["kind"] = "glove";
+  doc["hands"][0]["handles"] = "fingertips";
+  doc["devices"][0]["feedback_a"] = {0, 0, 0, 1};
+  EXPECT_TRUE(fails_at(doc, "devices[0].feedback_a", "feedback_a needs \"force_output\": \"finger_lines\""));
+  doc["devices"][0]["force_output"] = "finger_lines";
+  EXPECT_EQ(parse(doc).devices[0].feedback_a, (std::array<double, 4>{0, 0, 0, 1}));
+  doc["devices"][0]["feedback_a"] = {0, 0, 0.5, 1};
+  EXPECT_TRUE(fails_at(doc, "devices[0].feedback_a",
+                       "the joint torques' coefficients a1..a3 need a hand with phalanx handles (a 16-frame glove)"));
+  doc["hands"][0]["handles"] = "phalanges";
+  EXPECT_EQ(parse(doc).devices[0].feedback_a, (std::array<double, 4>{0, 0, 0.5, 1}));
+  doc["devices"][0]["feedback_a"] = {0, 0, 0.5};
+  EXPECT_TRUE(
+      fails_at(doc, "devices[0].feedback_a", "expected an array of 4 numbers (a1, a2, a3, a4), got 3 elements"));
+  doc["devices"][0]["feedback_a"] = {0, -1, 0.5, 1};
+  EXPECT_TRUE(fails_at(doc, "devices[0].feedback_a[1]", "must be in [0, 10], got -1"));
+  doc["devices"][0]["feedback_a"] = "all";
+  EXPECT_TRUE(fails_at(doc, "devices[0].feedback_a", "expected an array of 4 numbers (a1, a2, a3, a4), got string"));
 }
 
 TEST_F(SceneLoaderTest, RejectsMissingMeshFile) {

@@ -7,6 +7,7 @@
 
 #include "hand_models/fem_hand.hpp"
 #include "hand_models/skeleton/hand_skeleton.hpp"
+#include "hand_models/spring/spring_law.hpp"
 #include "server/haptic/device_link.hpp"
 #include "server/world/world.hpp"
 
@@ -133,6 +134,73 @@ TEST(DeviceLink, FingerLinesProjectEachFingersForcesOntoItsActuator) {
   EXPECT_NEAR(out[3].f_D.norm(), 5.0, 1e-12);  // clamped
   EXPECT_TRUE(out[3].clamped);
   EXPECT_EQ(out[4].f_D, Eigen::Vector3d::Zero());
+}
+
+// Seed 002 section 4.5 with its joint torques (a 16-frame glove): the spring hand's frames get each
+// flexion joint's torque reversed on its child segment and back on its parent, the abduction's on the
+// proximal one, and the fingertip spring's force at the fingertip on the distal one (SpringHand's
+// reaction). From those wrenches the output rebuilds the torques: against the paper's formula
+// (spring_law's glove_feedback) on the torques they were made of.
+TEST(DeviceLink, FingerLinesWithJointTorqueCoefficientsRenderSeed002sGloveForce) {
+  DeviceLink link;
+  link.handles = 16;
+  link.output = ForceOutput::finger_lines;
+  link.limits.max_force_n = 100.0;
+  link.map.scale = 2.0;
+  link.feedback_a = {0.7, 1.3, 0.5, 0.9};
+  hand::HandJointAngles posture = hand::rest_joint_angles();
+  for (int f = 0; f < hand::kHandFingers; ++f)
+    for (int k = 1; k < 4; ++k) posture.finger[f][k] = 0.15 + 0.1 * k + 0.03 * f;
+  const hand::SkeletonPose pose = hand::skeleton_pose(posture);
+  const Eigen::Vector3d palm(0.1, -0.2, 0.9);
+  const Eigen::Quaterniond q_palm(Eigen::AngleAxisd(0.4, Eigen::Vector3d(1, 2, 3).normalized()));
+  HapticPose device_W[16];
+  ReplyWrench w[16];
+  device_W[0].p_W = palm;
+  device_W[0].q_W = q_palm;
+  for (int i = 0; i < hand::kHandPhalanges; ++i) {
+    device_W[1 + i].p_W = palm + q_palm * pose.centre[i];
+    device_W[1 + i].q_W = q_palm * Eigen::Quaterniond(pose.R[i]);
+  }
+  double expected[5];
+  for (int f = 0; f < hand::kHandFingers; ++f) {
+    // Flexion torques on the spring hand (the tracked frames get them reversed), an abduction torque
+    // and the fingertip spring's force.
+    const int d = 3 + 3 * f;
+    const double tau[3] = {-0.04 - 0.01 * f, -0.03, 0.02};  // the last against the others
+    const Eigen::Vector3d f_tip = device_W[d].q_W * Eigen::Vector3d(0.1, -0.3, -0.8 - 0.1 * f);  // palmar
+    // Each flexion joint's axis: across its bone in the palm's plane (hand_skeleton.hpp: the bone's
+    // pitch turns about it; the thumb's segment frames are rolled about the bone, not its joints).
+    auto x = [&](int k) -> Eigen::Vector3d {
+      const Eigen::Vector3d bone = device_W[1 + 3 * f + k].q_W * Eigen::Vector3d::UnitY();
+      return bone.cross(q_palm * Eigen::Vector3d::UnitZ()).normalized();
+    };
+    auto joint = [&](int k) -> Eigen::Vector3d { return palm + q_palm * pose.joints[f][k]; };
+    const Eigen::Vector3d tip = palm + q_palm * pose.joints[f][3];
+    Eigen::Vector3d T[3] = {Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero()};
+    for (int k = 0; k < 3; ++k) {
+      T[k] -= tau[k] * x(k);
+      if (k > 0) T[k - 1] += tau[k] * x(k);
+    }
+    T[0] += 0.05 * (q_palm * Eigen::Vector3d::UnitZ());  // the abduction's, about the palm's normal
+    T[2] += (tip - device_W[d].p_W).cross(-f_tip);
+    for (int k = 0; k < 3; ++k) w[1 + 3 * f + k].tau_D = T[k];
+    w[d].f_D = link.map.scale * -f_tip;
+    const Eigen::Vector3d n = device_W[d].q_W * link.actuator_line_F;
+    std::array<Eigen::Vector3d, 3> f_tau;
+    for (int k = 0; k < 3; ++k) f_tau[k] = hand::spring::flexion_torque_force(x(k), joint(k), tip, tau[k]);
+    expected[f] = link.map.scale * hand::spring::glove_feedback(link.feedback_a, f_tau, f_tip, n);
+    EXPECT_GT(expected[f], 0.1) << "a pull, for the check to see it";
+  }
+  w[0].f_D = {1, 2, 3};  // the palm's: no actuator
+  project_onto_finger_lines(link, device_W, w);
+  for (int f = 0; f < hand::kHandFingers; ++f) {
+    const int d = 3 + 3 * f;
+    const Eigen::Vector3d n = device_W[d].q_W * link.actuator_line_F;
+    EXPECT_LT((w[d].f_D - expected[f] * n).norm(), 1e-9) << "finger " << f << ": " << w[d].f_D.dot(n) << " N, the "
+                                                         << "formula " << expected[f] << " N";
+    EXPECT_EQ(w[d - 1].f_D, Eigen::Vector3d::Zero());
+  }
 }
 
 }  // namespace
