@@ -13,9 +13,10 @@
 // reaction linearized in the handles' poses and velocities (central differences) with the spring hand
 // held where the step left it (the server renders a glove's frame only where its part touches).
 // A stylus's is the springs and dampers pressing a massless copy of the hand, held at the handle,
-// against the objects (linearize_through_springs): unilateral rows at the last ODE step's contacts
-// and at the hand's probes within reach outside the objects (speculative), each moved from the spring
-// hand to the handle by the springs' stretch, their compliance the springs' seen at the rows. It is
+// against the objects (linearize_through_springs): unilateral rows at the last ODE steps' contacts
+// (one lost for up to kHeldSteps steps carried with its part) and at the hand's probes within reach
+// outside the objects (speculative), each moved from the spring hand to the handle by the springs'
+// stretch, their compliance the palm's springs' and the fingers' joint springs' seen at the rows. It is
 // the world's law at the world's state (the springs' reaction, when the hand rests on its contacts),
 // it lets go within the step a lift leaves an object and takes a touch the step makes, and it renders
 // nothing in free motion: seed 002 section 4.6.2, "the coupling can result in spring hand mass
@@ -126,6 +127,8 @@ class SpringHand : public OdeHand {
   HandJointAngles tracked_angles(const std::vector<HandleState>& handles) const;
   // The rig placed on the tracked hand, at rest, its contacts forgotten.
   void place_rig();
+  // Geom g's pose in the world now (geom(g)).
+  Eigen::Isometry3d geom_pose(int g) const;
   // The springs' reaction on handles at `h` (per handle force, torque about its origin), the spring
   // hand as it is now.
   Eigen::VectorXd reaction(const std::vector<HandleState>& h) const;
@@ -171,7 +174,6 @@ class SpringHand : public OdeHand {
   // A held contact stands for a lost one for kHeldSteps steps, unless a newer contact lies this close.
   static constexpr double kHeldApart_m = 0.003;
   static constexpr int kHeldSteps = 3;
-  Eigen::Isometry3d geom_pose(int g) const;
   const RigidObjects* objects_ = nullptr;  // the world's, from the last ODE step
   struct Probe {
     Eigen::Vector3d q_G;  // in its geom's frame

@@ -5,6 +5,7 @@
 
 #include <Eigen/Geometry>
 
+#include "allocation_counter.hpp"
 #include "hand_models/fem_hand.hpp"
 #include "hand_models/skeleton/hand_skeleton.hpp"
 #include "hand_models/spring/spring_law.hpp"
@@ -193,7 +194,8 @@ TEST(DeviceLink, FingerLinesWithJointTorqueCoefficientsRenderSeed002sGloveForce)
     EXPECT_GT(expected[f], 0.1) << "a pull, for the check to see it";
   }
   w[0].f_D = {1, 2, 3};  // the palm's: no actuator
-  project_onto_finger_lines(link, device_W, w);
+  EXPECT_EQ(testing_util::allocations_in([&] { project_onto_finger_lines(link, device_W, w); }), 0)
+      << "the haptic tick calls it";
   for (int f = 0; f < hand::kHandFingers; ++f) {
     const int d = 3 + 3 * f;
     const Eigen::Vector3d n = device_W[d].q_W * link.actuator_line_F;
