@@ -12,6 +12,20 @@
 #include "hand_models/shape_probes.hpp"
 
 namespace hapticd::hand::spring {
+namespace {
+
+// A contact's rows in its frame (n, t1, t2) at `arm` from an origin: the velocity along each of a point
+// moving with a body's twist (v at the origin, w).
+Eigen::Matrix<double, 3, 6> contact_rows(const Eigen::Vector3d& n, const Eigen::Vector3d& arm) {
+  const Eigen::Vector3d t1 = n.unitOrthogonal(), t2 = n.cross(t1);
+  Eigen::Matrix<double, 3, 6> J;
+  J.row(0) << n.transpose(), arm.cross(n).transpose();
+  J.row(1) << t1.transpose(), arm.cross(t1).transpose();
+  J.row(2) << t2.transpose(), arm.cross(t2).transpose();
+  return J;
+}
+
+}  // namespace
 
 SpringHand::SpringHand(dWorldID world, dSpaceID space, const SpringHandConfig& config, const Eigen::Vector3d& p_W,
                        const Eigen::Quaterniond& q_W)
@@ -230,9 +244,7 @@ bool SpringHand::linearize_rigid_body(HandleLinearization& out) const {
   m.mu.resize(n);
   for (int i = 0; i < n; ++i) {
     const OdeHandContact& k = contacts_[i];
-    const Eigen::Vector3d t1 = k.n_W.unitOrthogonal(), t2 = k.n_W.cross(t1), r = k.p_W - o;
-    const Eigen::Vector3d dirs[3] = {k.n_W, t1, t2};
-    for (int a = 0; a < 3; ++a) J.row(3 * i + a) << dirs[a].transpose(), r.cross(dirs[a]).transpose();
+    J.middleRows<3>(3 * i) = contact_rows(k.n_W, k.p_W - o);
     // A penetrating point is pushed out by a share of its depth per step, as the hands' constraint
     // contacts are (kContactDepthRecovery); ODE reports only touching points, none with a gap.
     m.bias[i] = kContactDepthRecovery * std::max(k.depth_m, 0.0) / h;
@@ -354,11 +366,11 @@ void SpringHand::finger_joints(const std::vector<Row>& rows, Eigen::MatrixXd& J_
     if (r.geom < 1) continue;
     const int phalanx = r.geom - 1, f = phalanx / 3, segment = phalanx % 3;
     touched[f] = true;
-    const Eigen::Vector3d t1 = r.n.unitOrthogonal(), t2 = r.n.cross(t1);
+    const Eigen::Matrix<double, 3, 6> rows_i = contact_rows(r.n, Eigen::Vector3d::Zero());
     for (int k = 0; k <= segment + 1; ++k) {  // abduction and flexion at the base, then one per segment
       const int dof = 4 * f + k;
-      const Eigen::Vector3d u = rig_->joint_axis_W(dof).cross(r.p - rig_->joint_anchor_W(dof));
-      J_q(3 * i, dof) = r.n.dot(u), J_q(3 * i + 1, dof) = t1.dot(u), J_q(3 * i + 2, dof) = t2.dot(u);
+      J_q.block<3, 1>(3 * i, dof) =
+          rows_i.leftCols<3>() * rig_->joint_axis_W(dof).cross(r.p - rig_->joint_anchor_W(dof));
     }
   }
   C_q = Eigen::MatrixXd::Zero(kHandJointDofs, kHandJointDofs);
@@ -440,9 +452,7 @@ bool SpringHand::linearize_through_springs(HandleLinearization& out) const {
   m.mu.resize(c);
   for (int i = 0; i < c; ++i) {
     const Row& r = rows[i];
-    const Eigen::Vector3d t1 = r.n.unitOrthogonal(), t2 = r.n.cross(t1), arm = r.p - x0;
-    const Eigen::Vector3d dirs[3] = {r.n, t1, t2};
-    for (int a = 0; a < 3; ++a) J.row(3 * i + a) << dirs[a].transpose(), arm.cross(dirs[a]).transpose();
+    J.middleRows<3>(3 * i) = contact_rows(r.n, r.p - x0);
     // The point on the massless hand held at the handle (moved by the offset from the spring hand):
     // its gap, which the step may close by at most u h.
     m.u0.segment<3>(3 * i) = J.middleRows<3>(3 * i) * offset / h;
