@@ -33,6 +33,11 @@
 //   lift_mm             number  grasp_box: how high the box rose (the palm rises 50 mm), else 0
 //   hold_slip_mm        number  grasp_box: how far the box moved in the palm's frame while held up, else 0
 //   grasped             bool    grasp_box: the box rose 40 mm or more
+//   squeeze_world_n     number  grasp_box: while the closed hand grips the box before the lift, the
+//                               world's contact forces on the box (sum of magnitudes, mean per tick), N;
+//                               else 0
+//   squeeze_felt_n      number  grasp_box: the same for the forces the glove's frames felt (torques left
+//                               out), N; else 0
 //   reference           bool    the world stepped at every tick
 // and "timing": the contact-point hand's world step with 0, 6, 16 and 32 phalanges in contact (seed
 // 001 section 5.2: 0.6, 0.9 and 1.5 ms for 6, 16 and 32 phalanges, PhysX with the whole scene): one
@@ -129,6 +134,8 @@ nlohmann::json row_json(const Row& r) {
           {"lift_mm", 1e3 * r.lift_m},
           {"hold_slip_mm", 1e3 * r.hold_slip_m},
           {"grasped", r.interaction == "grasp_box" && r.lift_m >= kGraspedM},
+          {"squeeze_world_n", r.squeeze_world_n},
+          {"squeeze_felt_n", r.squeeze_felt_n},
           {"reference", r.reference}};
 }
 

@@ -33,6 +33,8 @@ TouchOutcome bench_grasp(const world::SceneDesc& scene, const offline::OfflineOp
   out.after_n = g.after_n;
   out.lift_m = g.box_top - g.box_z0;
   out.hold_slip_m = g.hold_slip_m;
+  out.squeeze_world_n = g.squeeze_world_n;
+  out.squeeze_felt_n = g.squeeze_felt_n;
   return out;
 }
 

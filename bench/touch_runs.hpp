@@ -24,6 +24,7 @@ struct TouchOutcome {
   double after_n = 0;      // the largest force from one second after the release, N
   double lift_m = 0;       // grasps: how high the box rose
   double hold_slip_m = 0;  // grasps: how far the box moved in the palm's frame while held up
+  double squeeze_world_n = 0, squeeze_felt_n = 0;  // grasps: GraspRun's
 };
 
 // The benches' press: 2 cm (device) at 2 cm/s, held 0.5 s, lifted at 5 cm/s; the scene settles 0.5 s

@@ -190,6 +190,7 @@ GraspRun run_grasp_release(const world::SceneDesc& scene, const OfflineOptions& 
   const double T = options.haptic_period_s;
   const long lift_tick = std::lround(G::kLiftAt / T), open_tick = std::lround(G::kOpenAt / T);
   const long held_tick = std::lround((G::kLiftAt + 1.0) / T);  // the lift's end
+  const long grip_tick = std::lround((G::kCloseAt + 0.5) / T);  // the closing's end
   auto probe = penetration_probe(loops, run.penetration_max_m);
   auto box_in_palm = [&] {
     const world::WorldSnapshot& s = loops.world().snapshot();
@@ -199,6 +200,9 @@ GraspRun run_grasp_release(const world::SceneDesc& scene, const OfflineOptions& 
   Eigen::Vector3d held_at = Eigen::Vector3d::Zero();
   run.trace = run_offline(loops, glove, std::lround(G::kEnd / T), [&](long tick) {
     probe(tick);
+    if (tick >= grip_tick && tick < lift_tick)
+      for (const world::ContactRecord& c : loops.world().snapshot().contacts)
+        if (c.hand == 0 && c.object == box) run.squeeze_world_n += c.f_W.norm();
     run.box_top = std::max(run.box_top, loops.world().snapshot().bodies[box].p_WO.z());
     if (tick == lift_tick) run.energy_at_lift_j = glove.simulation().passivity_energy_j();
     if (tick == held_tick) held_at = box_in_palm();
@@ -210,12 +214,16 @@ GraspRun run_grasp_release(const world::SceneDesc& scene, const OfflineOptions& 
   const double released_from = G::kOpenedAt + T + options.visual_every_ticks * T;
   for (std::size_t k = 0; k < run.trace.replies.size(); ++k) {
     const double t = static_cast<double>(k) * T;
+    const bool gripping = static_cast<long>(k) >= grip_tick && static_cast<long>(k) < lift_tick;
     for (int j = 0; j < run.trace.replies[k].frames; ++j) {
       const double f = run.trace.replies[k].wrench[j].f_D.norm();
+      if (gripping) run.squeeze_felt_n += f;
       if (t > released_from) run.release_n = std::max(run.release_n, f);
       if (t > G::kOpenedAt + 1.0) run.after_n = std::max(run.after_n, f);
     }
   }
+  run.squeeze_world_n /= static_cast<double>(lift_tick - grip_tick);
+  run.squeeze_felt_n /= static_cast<double>(lift_tick - grip_tick);
   run.energy_j = glove.simulation().passivity_energy_j();
   for (int j = 0; j < loops.proxy().handles(); ++j) run.observed_j += loops.proxy().energy_in(j);
   run.box_end = loops.world().snapshot().bodies[box];

@@ -85,6 +85,10 @@ struct GraspRun : TouchRun {
   // How far the box moved in the palm's frame while held up (from the lift's end to the opening), m.
   double hold_slip_m = 0;
   world::RigidBodyState box_end;
+  // While the closed hand grips the box on the table (from the closing's end to the lift), per tick on
+  // average: the magnitudes of the world's contact forces on the box, summed, and of the forces on the
+  // glove's frames, summed (their torques left out), N. Transparent rendering has them alike.
+  double squeeze_world_n = 0, squeeze_felt_n = 0;
   double release_n = 0;  // the largest frame force once the hand is open, after one haptic and one visual period
   double after_n = 0;    // the largest frame force from a second after the hand has opened
 };
