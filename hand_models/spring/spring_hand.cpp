@@ -317,18 +317,16 @@ bool SpringHand::deepest_on_face(int face, const Eigen::Vector3d& o, const Eigen
 }
 
 void SpringHand::probe_rows(double reach, bool touching, std::vector<Row>& rows) const {
-  int g = 0;
-  auto add = [&](int object, const Eigen::Vector3d& p, const Eigen::Vector3d& n, double depth) {
-    if (touching && depth > 0) return;  // ODE's contacts have the touching parts
-    const double mu =
-        std::sqrt(std::max(config_.friction_static, 0.0) * std::max(objects_->object_friction_static(object), 0.0));
-    rows.push_back({p, n, depth, mu, g});
-  };
-  for (; g < num_geoms(); ++g) {
+  for (int g = 0; g < num_geoms(); ++g) {
     const Eigen::Isometry3d T = geom_pose(g);
     const Eigen::Matrix3d R_W = T.linear();
     const Eigen::Vector3d o = T.translation();
     for (int i = 0; i < objects_->object_count(); ++i) {
+      const double mu =
+          std::sqrt(std::max(config_.friction_static, 0.0) * std::max(objects_->object_friction_static(i), 0.0));
+      auto add = [&](const Eigen::Vector3d& p, const Eigen::Vector3d& n, double depth) {
+        if (!(touching && depth > 0)) rows.push_back({p, n, depth, mu, g});  // ODE's contacts have the touching parts
+      };
       std::array<int, 6> best_on_face;
       std::array<double, 6> best_depth{};
       best_on_face.fill(-1);
@@ -339,7 +337,7 @@ void SpringHand::probe_rows(double reach, bool touching, std::vector<Row>& rows)
         Eigen::Vector3d n;
         if (!objects_->surface_near(i, centre, reach + probe.radius, depth, n)) continue;
         // A sphere's point nearest the surface, and how deep that is.
-        add(i, centre - probe.radius * n, n, depth + probe.radius);
+        add(centre - probe.radius * n, n, depth + probe.radius);
         if (probe.face >= 0 && (best_on_face[probe.face] < 0 || depth > best_depth[probe.face]))
           best_on_face[probe.face] = static_cast<int>(k), best_depth[probe.face] = depth;
       }
@@ -347,7 +345,7 @@ void SpringHand::probe_rows(double reach, bool touching, std::vector<Row>& rows)
         if (best_on_face[f] < 0) continue;
         Eigen::Vector3d q = probes_G_[g][best_on_face[f]].q_G, n;
         double depth;
-        if (deepest_on_face(f, o, R_W, i, reach, q, depth, n)) add(i, o + R_W * q, n, depth);
+        if (deepest_on_face(f, o, R_W, i, reach, q, depth, n)) add(o + R_W * q, n, depth);
       }
     }
   }
