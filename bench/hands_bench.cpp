@@ -7,7 +7,10 @@
 //                half the palm over the edge) at 2 cm/s, holds 0.5 s, lifts at 5 cm/s;
 //   bunny_press  the same on the movable bunny;
 //   grasp_box    the simulated 16-frame glove lowers its palm over the 5 cm box of glove_grasp.json,
-//                closes in a tripod grasp, lifts it 5 cm, opens.
+//                closes in a tripod grasp, lifts it 5 cm, opens;
+//   grasp_ball   the same with a power grasp of the scene's 6 cm, 50 g rubber ball;
+//   pinch_plate  the glove comes along the table to a thin plate (10 x 8 cm, 4 mm, 34 g, 4 cm over the
+//                table's edge), pinches its edge between the thumb's tip and the index, lifts it 5 cm, opens.
 // Models: "fem" (seed 004, the scenes' hands), "spring" (seed 002), "contact_point" (seed 001), each
 // at a 30 Hz visual step and once with the world stepped at every haptic tick. That run is the
 // reference for "what the hand should feel", the same for every model: the model's own world without
@@ -16,7 +19,7 @@
 //
 // JSON (--json FILE): {"suite": "hands", "size", "haptic_hz": 1000, "method", "rows": [...], "wall_s",
 // "threads": 1, "machine": {...}}. One row per (interaction, model, visual rate):
-//   interaction         string  "table_press" | "bunny_press" | "grasp_box"
+//   interaction         string  "table_press" | "bunny_press" | "grasp_box" | "grasp_ball" | "pinch_plate"
 //   model               string  "fem" | "spring" | "contact_point"
 //   visual_hz           number  30, or 1000 for the reference
 //   energy_j            number  work of the rendered forces on the device over the run (> 0: put in)
@@ -30,13 +33,12 @@
 //   tick_us_median, tick_us_p99       one haptic tick's wall time, us
 //   visual_ms_median, visual_ms_p99   one visual step's wall time (world step and model), ms
 //   resets              number  proxy and world resets
-//   lift_mm             number  grasp_box: how high the box rose (the palm rises 50 mm), else 0
-//   hold_slip_mm        number  grasp_box: how far the box moved in the palm's frame while held up, else 0
-//   grasped             bool    grasp_box: the box rose 40 mm or more
-//   squeeze_world_n     number  grasp_box: while the closed hand grips the box before the lift, the
-//                               world's contact forces on the box (sum of magnitudes, mean per tick), N;
-//                               else 0
-//   squeeze_felt_n      number  grasp_box: the same for the forces the glove's frames felt (torques left
+//   lift_mm             number  the grasps: how high the object's centre rose (the palm rises 50 mm), else 0
+//   hold_slip_mm        number  the grasps: how far the object moved in the palm's frame while held up, else 0
+//   grasped             bool    the grasps: the object's centre rose 40 mm or more
+//   squeeze_world_n     number  the grasps: while the closed hand grips the object before the lift, the
+//                               world's contact forces on it (sum of magnitudes, mean per tick), N; else 0
+//   squeeze_felt_n      number  the grasps: the same for the forces the glove's frames felt (torques left
 //                               out), N; else 0
 //   reference           bool    the world stepped at every tick
 // and "timing": the contact-point hand's world step with 0, 6, 16 and 32 phalanges in contact (seed
@@ -80,6 +82,7 @@ constexpr Model kModels[] = {{"fem", world::HandModelKind::fem, ""},
 
 struct Row : TouchOutcome {
   std::string interaction, model;
+  bool grasp = false;  // a glove's grasp (lift_m, hold_slip_m and the squeezes are its), not a press
   int every = kVisualEveryTicks;
   offline::ForceError error;
   bool reference = false;
@@ -103,8 +106,8 @@ Row press_row(const world::SceneDesc& scene, int every) {
   return row_of(bench_press(scene, options_for(every)), every);
 }
 
-Row grasp_row(const world::SceneDesc& scene, int every) {
-  return row_of(bench_grasp(scene, options_for(every)), every);
+Row grasp_row(const world::SceneDesc& scene, int every, offline::GraspKind kind) {
+  return row_of(bench_grasp(scene, options_for(every), kind), every);
 }
 
 world::SceneDesc with_model(world::SceneDesc scene, world::HandModelKind kind, int fem_tets) {
@@ -133,7 +136,7 @@ nlohmann::json row_json(const Row& r) {
           {"resets", r.run.trace.resets},
           {"lift_mm", 1e3 * r.lift_m},
           {"hold_slip_mm", 1e3 * r.hold_slip_m},
-          {"grasped", r.interaction == "grasp_box" && r.lift_m >= kGraspedM},
+          {"grasped", r.grasp && r.lift_m >= kGraspedM},
           {"squeeze_world_n", r.squeeze_world_n},
           {"squeeze_felt_n", r.squeeze_felt_n},
           {"reference", r.reference}};
@@ -209,24 +212,33 @@ void run_hands_bench(const TouchSuiteArgs& a) {
   const int fem_tets = tiny ? 400 : 0;
   const Machine machine = describe_machine();
   const auto t0 = std::chrono::steady_clock::now();
-  const world::SceneDesc glove =
-      offline::grasp_scene(world::load_scene(std::string(HAPTICD_SCENES_DIR) + "/glove_grasp.json"));
+  const world::SceneDesc glove = world::load_scene(std::string(HAPTICD_SCENES_DIR) + "/glove_grasp.json");
+  using offline::GraspKind;
+  struct Interaction {
+    const char* name;
+    const char* press_place;  // a press: offline::press_scene's place; a grasp: nullptr
+    GraspKind grasp = GraspKind::tripod_box;
+  };
+  const Interaction interactions[] = {{"table_press", "table_edge"},
+                                      {"bunny_press", "movable_bunny"},
+                                      {offline::grasp_name(GraspKind::tripod_box), nullptr, GraspKind::tripod_box},
+                                      {offline::grasp_name(GraspKind::power_ball), nullptr, GraspKind::power_ball},
+                                      {offline::grasp_name(GraspKind::pinch_plate), nullptr, GraspKind::pinch_plate}};
   std::vector<Row> rows;
-  for (const char* interaction : {"table_press", "bunny_press", "grasp_box"}) {
-    const std::string name = interaction;
+  for (const Interaction& in : interactions) {
+    const std::string name = in.name;
     if (tiny && name != "table_press") continue;
     for (const Model& m : kModels) {
       auto run = [&](int every) {
         spdlog::info("hands: {} with the {} hand at {} ticks", name, m.name, every);
-        Row r =
-            name == "grasp_box"
-                ? grasp_row(with_model(glove, m.kind, fem_tets), every)
-                : press_row(with_model(offline::press_scene(std::string(m.press_prefix) +
-                                                            (name == "table_press" ? "table_edge" : "movable_bunny")),
-                                       m.kind, fem_tets),
-                            every);
+        Row r = in.press_place == nullptr
+                    ? grasp_row(with_model(offline::grasp_scene(glove, in.grasp), m.kind, fem_tets), every, in.grasp)
+                    : press_row(with_model(offline::press_scene(std::string(m.press_prefix) + in.press_place), m.kind,
+                                           fem_tets),
+                                every);
         r.interaction = name;
         r.model = m.name;
+        r.grasp = in.press_place == nullptr;
         return r;
       };
       Row reference = run(1);
@@ -246,8 +258,9 @@ void run_hands_bench(const TouchSuiteArgs& a) {
 
   std::printf(
       "Hand models on the same interactions, closed loop at 1 kHz, passivity controller on: table_press / "
-      "bunny_press = the stylus 2 cm into the table's edge / the movable bunny and lifted; grasp_box = the 16-frame "
-      "glove lifting the 5 cm box 5 cm and opening. Error against the same model's world stepped every tick.\n");
+      "bunny_press = the stylus 2 cm into the table's edge / the movable bunny and lifted; grasp_box / grasp_ball / "
+      "pinch_plate = the 16-frame glove's tripod of the 5 cm box, power grasp of the 6 cm ball, pinch of a 4 mm "
+      "plate's edge, each lifted 5 cm and let go. Error against the same model's world stepped every tick.\n");
   std::printf("%-12s %-14s %7s %10s %9s %9s %9s %9s %8s %8s %8s %8s %8s %6s %7s %7s\n", "interaction", "model",
               "visual", "energy_J", "release_N", "after_N", "rms_err_N", "max_err_N", "pen_mm", "tick_med", "tick_p99",
               "vis_med", "vis_p99", "resets", "lift_mm", "slip_mm");
@@ -284,8 +297,9 @@ void run_hands_bench(const TouchSuiteArgs& a) {
                 {"method",
                  "closed loop through the lockstep runner, passivity controller on, 30 Hz visual step; "
                  "table_press and bunny_press: the stylus 2 cm (device) into the table's edge or the movable "
-                 "bunny at 2 cm/s, held 0.5 s, lifted at 5 cm/s; grasp_box: the 16-frame glove lowers its "
-                 "palm over the box, closes in a tripod grasp, lifts it 5 cm, opens (server/offline/touch.hpp); "
+                 "bunny at 2 cm/s, held 0.5 s, lifted at 5 cm/s; grasp_box, grasp_ball, pinch_plate: the 16-frame "
+                 "glove moves its palm in to the box / the ball / a thin plate over the table's edge, closes in a "
+                 "tripod / power grasp / pinch, lifts it 5 cm, opens (server/offline/touch.hpp); "
                  "reference, for every model alike: the same model's world stepped at every haptic tick; "
                  "force error per tick = sqrt(sum over frames |f_D - f_D,ref|^2)"},
                 {"rows", json_rows},
@@ -298,7 +312,9 @@ void run_hands_bench(const TouchSuiteArgs& a) {
 }  // namespace
 
 void add_hands_suite(CLI::App& app) {
-  add_touch_suite_command(app, "hands", "every hand model (fem, spring, contact_point) on the same presses and grasp: cost, energy, error", run_hands_bench);
+  add_touch_suite_command(
+      app, "hands", "every hand model (fem, spring, contact_point) on the same presses and grasps: cost, energy, error",
+      run_hands_bench);
 }
 
 }  // namespace hapticd::bench

@@ -25,13 +25,14 @@ TouchOutcome bench_press(const world::SceneDesc& scene, offline::OfflineOptions 
   return out;
 }
 
-TouchOutcome bench_grasp(const world::SceneDesc& scene, const offline::OfflineOptions& options) {
-  const offline::GraspRun g = offline::run_grasp_release(scene, options);
+TouchOutcome bench_grasp(const world::SceneDesc& scene, const offline::OfflineOptions& options,
+                         offline::GraspKind kind) {
+  const offline::GraspRun g = offline::run_grasp_release(scene, options, kind);
   TouchOutcome out;
   out.run = g;
   out.release_n = g.release_n;
   out.after_n = g.after_n;
-  out.lift_m = g.box_top - g.box_z0;
+  out.lift_m = g.object_top - g.object_z0;
   out.hold_slip_m = g.hold_slip_m;
   out.squeeze_world_n = g.squeeze_world_n;
   out.squeeze_felt_n = g.squeeze_felt_n;

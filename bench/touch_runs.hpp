@@ -30,7 +30,8 @@ struct TouchOutcome {
 // The benches' press: 2 cm (device) at 2 cm/s, held 0.5 s, lifted at 5 cm/s; the scene settles 0.5 s
 // first (the bunny on the table, at every rate alike).
 TouchOutcome bench_press(const world::SceneDesc& scene, offline::OfflineOptions options);
-// The glove's grasp, lift and release of the box (offline::run_grasp_release).
-TouchOutcome bench_grasp(const world::SceneDesc& scene, const offline::OfflineOptions& options);
+// The glove's grasp, lift and release (offline::run_grasp_release; the box's tripod unless told).
+TouchOutcome bench_grasp(const world::SceneDesc& scene, const offline::OfflineOptions& options,
+                         offline::GraspKind kind = offline::GraspKind::tripod_box);
 
 }  // namespace hapticd::bench

@@ -38,6 +38,86 @@ constexpr double kBoxYaw = -30 * kDeg;
 const Eigen::Vector3d kBoxInHand(-0.040, 0.050, -0.052);
 constexpr double kClosedDeg[hand::kHandJointDofs] = {-30, 30, 20, 60, -4, 5, 70, 65, 0, 15,
                                                      95,  40, 8,  0,  6,  6, 16, 0,  6, 6};
+// The ball's power grasp, fitted on the skeleton's capsules (hand_skeleton.hpp's geometry, the
+// rigid hands' phalanges): the ball 2.5 mm under the palm; each finger, at its abduction, curled with
+// its flexions in the ratio 60 : 70 : 40 (the thumb's 30 : 30 : 40) until a phalanx touches the ball;
+// the ball's place and the abductions chosen so the contacts push it back from every horizontal
+// direction with every fingertip below its centre. The commanded grasp curls each finger
+// kBallSqueeze times as far, into the ball, so the hand grips it.
+const Eigen::Vector3d kBallInHand(-0.015, 0.035, -0.045);
+constexpr double kBallTouchDeg[hand::kHandJointDofs] = {-30,  24.5, 24.5, 32.6, -21,  43.5, 50.8, 29.0, -3,   45.9,
+                                                        53.6, 30.6, 15,   49.8, 58.1, 33.2, 33,   60.3, 70.4, 40.2};
+constexpr double kBallSqueeze = 1.2;
+// The plate of the pinch: 10 x 8 cm, 4 mm thick, 4 cm over the table's +x edge (its centre 1 cm in);
+// the pads 1.2 cm in from its edge.
+constexpr double kPlateLength = 0.10, kPlateWidth = 0.08, kPlateThickness = 0.004;  // along x, y, z
+constexpr double kPlateOverhang = 0.04, kPadInside = 0.012;
+
+sim::JointVector joint_vector_deg(const double (&deg)[hand::kHandJointDofs]) {
+  sim::JointVector q;
+  for (int i = 0; i < q.size(); ++i) q[i] = deg[i] * kDeg;
+  return q;
+}
+
+// How a grasp is held: the object's centre in the palm frame when held, the palm's orientation in the
+// world, the way the palm moves in over the approach (world, unit), and the open and closed postures.
+struct GraspPlan {
+  Eigen::Vector3d object_in_hand;
+  Eigen::Quaterniond q_WH = Eigen::Quaterniond::Identity();
+  Eigen::Vector3d approach_W{0, 0, -1};
+  sim::JointVector open = hand::rest_joint_angles().vector(), closed;
+};
+
+// The pinch, from the glove's pinch posture on the skeleton: the thumb's fingertip against the
+// index's distal phalanx. The plate lies between their pads, its normal d from the thumb's pad to the
+// index's; it extends away from the hand along e (the pads' direction from the palm, across d). The
+// palm turns so that d is world +z (the thumb under the plate) and e world -x (toward the table).
+GraspPlan pinch_plan() {
+  const hand::HandJointAngles closed = sim::pinch_posture();
+  const hand::SkeletonPose s = hand::skeleton_pose(closed);
+  const auto& thumb = hand::finger_geometry()[0];
+  const auto& index = hand::finger_geometry()[1];
+  const Eigen::Vector3d tip = s.joints[0][3], a = s.joints[1][2], b = s.joints[1][3];
+  const double along = std::clamp((tip - a).dot(b - a) / (b - a).squaredNorm(), 0.0, 1.0);
+  const Eigen::Vector3d on_index = a + along * (b - a);
+  const double r_index = index.radius[2] + along * (index.radius[3] - index.radius[2]);
+  const Eigen::Vector3d d = (on_index - tip).normalized();
+  const Eigen::Vector3d pinch = 0.5 * ((tip + thumb.radius[3] * d) + (on_index - r_index * d));
+  const Eigen::Vector3d e = (pinch - pinch.dot(d) * d).normalized();
+  Eigen::Matrix3d hand_axes, world_axes;
+  hand_axes << d, e, d.cross(e);
+  world_axes << Eigen::Vector3d::UnitZ(), -Eigen::Vector3d::UnitX(), -Eigen::Vector3d::UnitY();
+  GraspPlan plan;
+  plan.object_in_hand = pinch + (0.5 * kPlateLength - kPadInside) * e;
+  plan.q_WH = Eigen::Quaterniond(Eigen::Matrix3d(world_axes * hand_axes.transpose()));
+  plan.approach_W = -Eigen::Vector3d::UnitX();
+  // Open: the index turned away from the thumb (its rest abduction reaches the plate's plane).
+  hand::HandJointAngles open = hand::rest_joint_angles();
+  open.finger[1][0] = 4 * kDeg;
+  plan.open = open.vector();
+  plan.closed = closed.vector();
+  return plan;
+}
+
+GraspPlan grasp_plan(GraspKind kind) {
+  GraspPlan plan;
+  switch (kind) {
+    case GraspKind::tripod_box:
+      plan.object_in_hand = kBoxInHand;
+      plan.closed = joint_vector_deg(kClosedDeg);
+      return plan;
+    case GraspKind::power_ball: {
+      plan.object_in_hand = kBallInHand;
+      plan.closed = joint_vector_deg(kBallTouchDeg);
+      for (int f = 0; f < hand::kHandFingers; ++f)
+        for (int k = 1; k < 4; ++k) plan.closed[4 * f + k] *= kBallSqueeze;
+      return plan;
+    }
+    case GraspKind::pinch_plate:
+      return pinch_plan();
+  }
+  throw std::invalid_argument("grasp_plan: no such grasp");
+}
 
 // A half-cosine from 0 at `from` to 1 at `to`.
 double ease(double t, double from, double to) {
@@ -146,51 +226,97 @@ AfterLift after_lift(const OfflineTrace& trace, const PressSchedule& schedule, c
   return a;
 }
 
-world::SceneDesc grasp_scene(world::SceneDesc s) {
-  if (s.hands.empty() || s.devices.empty()) throw std::invalid_argument("grasp_scene: " + s.name + " has no hand");
-  for (world::ObjectDesc& o : s.objects) {
-    if (o.name != "box") continue;
-    o.pose.q_W = Eigen::Quaterniond(Eigen::AngleAxisd(kBoxYaw, Eigen::Vector3d::UnitZ()));
-    move_hand(s, o.pose.p_W - kBoxInHand + Eigen::Vector3d(0, 0, GraspSchedule::kAboveM));
-    return s;
+const char* grasp_name(GraspKind kind) {
+  switch (kind) {
+    case GraspKind::tripod_box:
+      return "grasp_box";
+    case GraspKind::power_ball:
+      return "grasp_ball";
+    case GraspKind::pinch_plate:
+      return "pinch_plate";
   }
-  throw std::invalid_argument("grasp_scene: " + s.name + " has no object named box");
+  return "?";
 }
 
-sim::GloveTrajectory grasp_release_trajectory(const Eigen::Vector3d& palm_D, const Eigen::Quaterniond& q_D) {
+const char* grasp_object(GraspKind kind) {
+  switch (kind) {
+    case GraspKind::tripod_box:
+      return "box";
+    case GraspKind::power_ball:
+      return "ball";
+    case GraspKind::pinch_plate:
+      return "plate";
+  }
+  return "?";
+}
+
+world::SceneDesc grasp_scene(world::SceneDesc s, GraspKind kind) {
+  if (s.hands.empty() || s.devices.empty()) throw std::invalid_argument("grasp_scene: " + s.name + " has no hand");
+  const auto named = [&s](const std::string& name) -> world::ObjectDesc* {
+    for (world::ObjectDesc& o : s.objects)
+      if (o.name == name) return &o;
+    throw std::invalid_argument("grasp_scene: " + s.name + " has no object named " + name);
+  };
+  if (kind == GraspKind::pinch_plate) {
+    const world::ObjectDesc* table = named("table");
+    if (table->shape.type != world::ShapeType::box || !table->pose.q_W.matrix().isIdentity(1e-12))
+      throw std::invalid_argument("grasp_scene: " + s.name + "'s table is not an unturned box");
+    const Eigen::Vector3d top = table->pose.p_W + 0.5 * table->shape.size;  // its +x edge and top
+    world::ObjectDesc plate;
+    plate.name = "plate";
+    plate.shape.type = world::ShapeType::box;
+    plate.shape.size = Eigen::Vector3d(kPlateLength, kPlateWidth, kPlateThickness);
+    plate.pose.p_W = Eigen::Vector3d(top.x() + kPlateOverhang - 0.5 * kPlateLength, table->pose.p_W.y() - 0.2,
+                                     top.z() + 0.5 * kPlateThickness);
+    plate.material = table->material;
+    plate.material.density_kg_m3 = 1050;  // 34 g
+    s.objects.push_back(plate);
+  }
+  world::ObjectDesc* o = named(grasp_object(kind));
+  if (kind == GraspKind::tripod_box)
+    o->pose.q_W = Eigen::Quaterniond(Eigen::AngleAxisd(kBoxYaw, Eigen::Vector3d::UnitZ()));
+  const GraspPlan plan = grasp_plan(kind);
+  s.hands[0].pose.q_W = plan.q_WH;
+  move_hand(s, o->pose.p_W - plan.q_WH * plan.object_in_hand - GraspSchedule::kAboveM * plan.approach_W);
+  return s;
+}
+
+sim::GloveTrajectory grasp_release_trajectory(const Eigen::Vector3d& palm_D, const Eigen::Quaterniond& q_D,
+                                              GraspKind kind) {
   using G = GraspSchedule;
-  const sim::JointVector open = sim::GloveTrajectory::grasp().angles(0);  // the rest posture
-  sim::JointVector closed;
-  for (int i = 0; i < closed.size(); ++i) closed[i] = kClosedDeg[i] * kDeg;
+  const GraspPlan plan = grasp_plan(kind);
   std::vector<sim::GloveTrajectory::Sample> samples;
   for (int k = 0; k * 0.01 <= G::kEnd + 1e-9; ++k) {  // every 10 ms, interpolated linearly between
     const double t = k * 0.01;
-    const double close = ease(t, G::kCloseAt, G::kCloseAt + 0.5) - ease(t, G::kOpenAt, G::kOpenedAt);
-    const double z = -G::kAboveM * ease(t, G::kDownAt, G::kCloseAt) + G::kLiftM * ease(t, G::kLiftAt, G::kLiftAt + 1.0);
-    samples.push_back({t, (1 - close) * open + close * closed, {0, 0, z}});
+    const double close = ease(t, G::kCloseAt, G::kGrippedAt) - ease(t, G::kOpenAt, G::kOpenedAt);
+    const Eigen::Vector3d p =
+        G::kAboveM * (ease(t, G::kDownAt, G::kCloseAt) - ease(t, G::kOpenedAt, G::kWithdrawnAt)) * plan.approach_W +
+        G::kLiftM * ease(t, G::kLiftAt, G::kHeldAt) * Eigen::Vector3d::UnitZ();
+    samples.push_back({t, (1 - close) * plan.open + close * plan.closed, {p.x(), p.y(), p.z()}});
   }
   sim::GloveTrajectory motion =
-      sim::GloveTrajectory::from_samples("grasp_release", samples, {palm_D.x(), palm_D.y(), palm_D.z()});
+      sim::GloveTrajectory::from_samples(grasp_name(kind), samples, {palm_D.x(), palm_D.y(), palm_D.z()});
   motion.set_palm_orientation(q_D);
   return motion;
 }
 
-GraspRun run_grasp_release(const world::SceneDesc& scene, const OfflineOptions& options) {
+GraspRun run_grasp_release(const world::SceneDesc& scene, const OfflineOptions& options, GraspKind kind) {
   using G = GraspSchedule;
   OfflineLoops loops(scene, options);
-  const int box = loops.world().rigid() ? loops.world().rigid()->find("box") : -1;
-  if (box < 0) throw std::invalid_argument("run_grasp_release: " + scene.name + " has no rigid box");
+  const int box = loops.world().rigid() ? loops.world().rigid()->find(grasp_object(kind)) : -1;
+  if (box < 0) throw std::invalid_argument("run_grasp_release: " + scene.name + " has no rigid " + grasp_object(kind));
   GraspRun run;
-  run.box_z0 = run.box_top = loops.world().snapshot().bodies[box].p_WO.z();
+  run.object_z0 = run.object_top = loops.world().snapshot().bodies[box].p_WO.z();
   Eigen::Vector3d palm_D;
   Eigen::Quaterniond q_D;
   loops.frame_pose_at_handle(0, palm_D, q_D);
   const bool left = scene.hands[0].side == world::HandSide::left;
-  SimulatedGlove glove(grasp_release_trajectory(palm_D, q_D), sim::kGloveFramesAll, left, options.haptic_period_s);
+  SimulatedGlove glove(grasp_release_trajectory(palm_D, q_D, kind), sim::kGloveFramesAll, left,
+                       options.haptic_period_s);
   const double T = options.haptic_period_s;
-  const long lift_tick = std::lround(G::kLiftAt / T), open_tick = std::lround(G::kOpenAt / T);
-  const long held_tick = std::lround((G::kLiftAt + 1.0) / T);  // the lift's end
-  const long grip_tick = std::lround((G::kCloseAt + 0.5) / T);  // the closing's end
+  const long lift_tick = std::lround(G::kLiftAt / T), held_tick = std::lround(G::kHeldAt / T);
+  const long open_tick = std::lround(G::kOpenAt / T);
+  const long grip_tick = std::lround(G::kGrippedAt / T);
   auto probe = penetration_probe(loops, run.penetration_max_m);
   auto box_in_palm = [&] {
     const world::WorldSnapshot& s = loops.world().snapshot();
@@ -203,7 +329,7 @@ GraspRun run_grasp_release(const world::SceneDesc& scene, const OfflineOptions& 
     if (tick >= grip_tick && tick < lift_tick)
       for (const world::ContactRecord& c : loops.world().snapshot().contacts)
         if (c.hand == 0 && c.object == box) run.squeeze_world_n += c.f_W.norm();
-    run.box_top = std::max(run.box_top, loops.world().snapshot().bodies[box].p_WO.z());
+    run.object_top = std::max(run.object_top, loops.world().snapshot().bodies[box].p_WO.z());
     if (tick == lift_tick) run.energy_at_lift_j = glove.simulation().passivity_energy_j();
     if (tick == held_tick) held_at = box_in_palm();
     if (tick == open_tick) {
@@ -226,7 +352,7 @@ GraspRun run_grasp_release(const world::SceneDesc& scene, const OfflineOptions& 
   run.squeeze_felt_n /= static_cast<double>(lift_tick - grip_tick);
   run.energy_j = glove.simulation().passivity_energy_j();
   for (int j = 0; j < loops.proxy().handles(); ++j) run.observed_j += loops.proxy().energy_in(j);
-  run.box_end = loops.world().snapshot().bodies[box];
+  run.object_end = loops.world().snapshot().bodies[box];
   return run;
 }
 

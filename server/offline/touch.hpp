@@ -61,39 +61,62 @@ AfterLift after_lift(const OfflineTrace& trace, const PressSchedule& schedule, c
 
 // --- Grasp, lift, release (the simulated glove, 16 frames) -------------------------------------------
 
-// The motion, in seconds from the start: open 4 cm above the box, down over it, closed in a tripod
-// grasp (the world tests' box_grasp: thumb on the box's near face, index and middle on its far
-// face), held, lifted 5 cm, held up, opened, then open until the end.
+// What the glove grasps and how (issue 18's comparison: the same three grasps for every hand model).
+enum class GraspKind {
+  // The world tests' tripod of the 5 cm box (test_world_glove.cpp's box_grasp: the box turned -30
+  // degrees about z, the thumb on its near face, index and middle on its far face), from above.
+  tripod_box,
+  // A power grasp of the 6 cm rubber ball from above: the palm on its top, the four fingers spread
+  // and curled around its far side and under its equator, the thumb on its near side.
+  power_ball,
+  // A two-finger pinch of a thin plate (10 x 8 cm, 4 mm, 34 g, the table's material) lying on the
+  // table with 4 cm over its +x edge: the glove's pinch posture (the thumb's tip under the plate, the index's distal
+  // phalanx
+  // on it), the hand turned so the pinch closes vertically, approached along the table from +x.
+  pinch_plate,
+};
+const char* grasp_name(GraspKind kind);  // "grasp_box", "grasp_ball", "pinch_plate"
+// The object a grasp holds: "box", "ball" or "plate".
+const char* grasp_object(GraspKind kind);
+
+// The motion, in seconds from the start: open 4 cm away from the grasp (above it; the pinch: beside
+// the plate, along the table), moving in to it, closed, held, lifted 5 cm, held up, opened, withdrawn
+// 4 cm the way it came in, then still until the end.
 struct GraspSchedule {
-  static constexpr double kDownAt = 0.3, kCloseAt = 0.8, kLiftAt = 1.55, kOpenAt = 3.05, kOpenedAt = 3.55;
-  static constexpr double kEnd = 5.55;
+  static constexpr double kDownAt = 0.3, kCloseAt = 0.8, kGrippedAt = 1.3, kLiftAt = 1.55, kHeldAt = 2.55;
+  static constexpr double kOpenAt = 3.05, kOpenedAt = 3.55, kWithdrawnAt = 4.05, kEnd = 5.55;
   static constexpr double kAboveM = 0.04, kLiftM = 0.05;
 };
 
-// `scene` (glove_grasp.json or two_hands.json: a rigid object named "box", 5 cm) with the box turned
-// -30 degrees about z, as the grasp wants it, and the first hand and its device's workspace 4 cm above
-// where the grasp holds it. Throws std::invalid_argument when the scene has no box or no hand.
-world::SceneDesc grasp_scene(world::SceneDesc scene);
+// `scene` (glove_grasp.json or two_hands.json: a rigid "box" (5 cm) and "ball" (6 cm) on a static
+// "table" box) prepared for `kind`: the box turned as the tripod wants it, or a plate added on the
+// table's +x edge; the first hand, its orientation and its device's workspace placed where the
+// grasp starts. Throws std::invalid_argument when the scene has no such object, table or hand.
+world::SceneDesc grasp_scene(world::SceneDesc scene, GraspKind kind = GraspKind::tripod_box);
 
-// The glove motion of GraspSchedule for a palm starting at `palm_D` with orientation `q_D` (device).
-sim::GloveTrajectory grasp_release_trajectory(const Eigen::Vector3d& palm_D, const Eigen::Quaterniond& q_D);
+// The glove motion of GraspSchedule for `kind` with a palm starting at `palm_D` with orientation
+// `q_D` (device).
+sim::GloveTrajectory grasp_release_trajectory(const Eigen::Vector3d& palm_D, const Eigen::Quaterniond& q_D,
+                                              GraspKind kind = GraspKind::tripod_box);
 
 struct GraspRun : TouchRun {
   double energy_at_lift_j = 0, energy_at_open_j = 0;  // the glove's energy so far when lifting and opening begin
   double observed_j = 0;           // the server's passivity observer: work the frames did on the rendering, J
-  double box_z0 = 0, box_top = 0;  // the box's height at the start and its highest, m
-  // How far the box moved in the palm's frame while held up (from the lift's end to the opening), m.
+  double object_z0 = 0, object_top = 0;  // the grasped object's height at the start and its highest, m
+  // How far it moved in the palm's frame while held up (from the lift's end to the opening), m.
   double hold_slip_m = 0;
-  world::RigidBodyState box_end;
-  // While the closed hand grips the box on the table (from the closing's end to the lift), per tick on
-  // average: the magnitudes of the world's contact forces on the box, summed, and of the forces on the
+  world::RigidBodyState object_end;  // its state at the end
+  // While the closed hand grips it on the table (from the closing's end to the lift), per tick on
+  // average: the magnitudes of the world's contact forces on it, summed, and of the forces on the
   // glove's frames, summed (their torques left out), N. Transparent rendering has them alike.
   double squeeze_world_n = 0, squeeze_felt_n = 0;
   double release_n = 0;  // the largest frame force once the hand is open, after one haptic and one visual period
   double after_n = 0;    // the largest frame force from a second after the hand has opened
 };
 
-// The grasp, lift and release on `scene` (as grasp_scene makes it) with the 16-frame simulated glove.
-GraspRun run_grasp_release(const world::SceneDesc& scene, const OfflineOptions& options);
+// The grasp, lift and release of `kind` on `scene` (as grasp_scene makes it for `kind`) with the
+// 16-frame simulated glove.
+GraspRun run_grasp_release(const world::SceneDesc& scene, const OfflineOptions& options,
+                           GraspKind kind = GraspKind::tripod_box);
 
 }  // namespace hapticd::offline
