@@ -727,7 +727,18 @@ SceneDesc parse_document(const json& doc, const fs::path& base_dir, const std::s
   }
   top.for_each("objects", [&](const Obj& o) { scene.objects.push_back(parse_object(o, ctx)); });
   top.for_each("joints", [&](const Obj& o) { scene.joints.push_back(parse_joint(o, ctx, scene.objects)); });
-  top.for_each("hands", [&](const Obj& o) { scene.hands.push_back(parse_hand(o, ctx)); });
+  top.for_each("hands", [&](const Obj& o) {
+    scene.hands.push_back(parse_hand(o, ctx));
+    // The rigid hands' ODE segments collide with rigid and static objects only: a deformable object
+    // would pass through them unseen.
+    const HandDesc& h = scene.hands.back();
+    const auto deformable = std::find_if(scene.objects.begin(), scene.objects.end(),
+                                         [](const ObjectDesc& d) { return d.kind == BodyKind::deformable; });
+    const bool rigid_hand = h.model == HandModelKind::spring || h.model == HandModelKind::contact_point;
+    if (rigid_hand && deformable != scene.objects.end())
+      fail(o.at("model"), "the " + std::string(to_string(h.model)) + " hand does not touch deformable objects, and " +
+                              in_quotes(deformable->name) + " is one (use \"fem\", or make it rigid)");
+  });
   std::map<std::string, std::string, std::less<>> driver_of_hand;
   top.for_each("devices",
                [&](const Obj& o) { scene.devices.push_back(parse_device(o, ctx, scene.hands, driver_of_hand)); });

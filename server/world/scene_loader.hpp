@@ -40,7 +40,8 @@
 //  - Unknown and duplicate keys are errors, as are wrong types, non-finite numbers and
 //    out-of-range values. Every number has a range, stated with its field in scene.hpp: what
 //    loads builds a World that steps and serves its devices (their force, torque and slew
-//    limits are bounded by the wire's, protocol/limits.hpp, so the Welcome carrying them encodes). Names ("name" keys and material keys) are 1-64 letters, digits,
+//    limits are bounded by the wire's, protocol/limits.hpp, so the Welcome carrying them encodes). Names ("name" keys
+//    and material keys) are 1-64 letters, digits,
 //    '_' or '-', unique across objects, joints, hands and devices; "world" is reserved.
 //  - "material" is the name of a "materials" entry or an inline <material>; an inline
 //    material starts from the owner's defaults (MaterialDesc, or HandDesc's for hands).
@@ -54,9 +55,10 @@
 //  - Joints: "name", "type", "body_a", "body_b" required; body_a an object, body_b an
 //    object or "world"; "anchor" required for hinge and ball, "axis" required for hinge
 //    and slider and rejected otherwise, "limits" for hinge (rad) and slider (m) only.
-//  - Hands: only "name" is required. Devices: "name", "kind", "hand" required; each hand
-//    is driven by at most one device; the workspace maps device coordinates to world:
-//    x_W = offset + scale * (orientation * x_D).
+//  - Hands: only "name" is required; a "spring" or "contact_point" hand (rigid ODE segments)
+//    does not touch deformable objects and is refused in a scene with one. Devices: "name", "kind", "hand" required;
+//    each hand is driven by at most one device; the workspace maps device coordinates to world: x_W = offset + scale *
+//    (orientation * x_D).
 //  - Materials: friction_static, when given, is >= friction. A named material's density
 //    is only a default, so "mass_kg" with a named material is fine.
 #include <nlohmann/json_fwd.hpp>

@@ -246,7 +246,7 @@ TEST_F(SceneLoaderTest, ExplicitValuesAreReadAndNormalised) {
       {"name": "rail", "type": "slider", "body_a": "pill", "body_b": "can", "axis": [1, 0, 0], "limits": [0, 0.2]},
       {"name": "socket", "type": "ball", "body_a": "ball", "body_b": "world", "anchor": [0, 0, 1]}
     ],
-    "hands": [{"name": "lefty", "model": "spring", "side": "left", "resolution_tets": 5000, "handles": "phalanges",
+    "hands": [{"name": "lefty", "model": "soft_pad", "side": "left", "resolution_tets": 5000, "handles": "phalanges",
                "material": {"youngs_modulus_pa": 80000}, "pose": {"position": [0, 0, 1]},
                "coupling_stiffness_n_m": 3000, "coupling_damping_ns_m": 0}],
     "devices": [{"name": "glove", "kind": "glove", "hand": "lefty",
@@ -297,7 +297,7 @@ TEST_F(SceneLoaderTest, ExplicitValuesAreReadAndNormalised) {
   EXPECT_EQ(scene.joints[2].body_b, "world");
 
   const HandDesc& lefty = scene.hands[0];
-  EXPECT_EQ(lefty.model, HandModelKind::spring);
+  EXPECT_EQ(lefty.model, HandModelKind::soft_pad);
   EXPECT_EQ(lefty.side, HandSide::left);
   EXPECT_EQ(lefty.resolution_tets, 5000);
   EXPECT_EQ(lefty.handles, HandleSet::phalanges);
@@ -691,6 +691,23 @@ TEST_F(SceneLoaderTest, RejectsFingerOutputsWhereThereAreNoFingers) {
   doc["devices"][0]["force_output"] = "frames";
   doc["devices"][0]["actuator_line"] = {0, 0, 0};
   EXPECT_TRUE(fails_at(doc, "devices[0].actuator_line", "must be a non-zero vector"));
+}
+
+// A rigid hand (seeds 002 and 001) collides with rigid and static objects only: with a deformable object
+// in the scene it is refused at its model, naming the object; the FEM hand takes it.
+TEST_F(SceneLoaderTest, RefusesARigidHandInASceneWithADeformableObject) {
+  json doc = valid();
+  doc["objects"].push_back(
+      json::parse(R"({"name": "cushion", "kind": "deformable", "shape": {"type": "box", "size": [0.1, 0.1, 0.05]}})"));
+  EXPECT_NO_THROW(parse(doc.dump()));
+  for (const char* model : {"spring", "contact_point"}) {
+    doc["hands"][0]["model"] = model;
+    EXPECT_TRUE(fails_at(doc, "hands[0].model",
+                         std::string("the ") + model +
+                             " hand does not touch deformable objects, and 'cushion' is one (use \"fem\", or make "
+                             "it rigid)"))
+        << model;
+  }
 }
 
 TEST_F(SceneLoaderTest, TakesSeed002sGloveCoefficientsOnlyWhereTheyApply) {
