@@ -67,7 +67,10 @@ nlohmann::json to_json(const protocol::Stats& s) {
           {"visual_step_median_ms", s.visual_step_median_ms},
           {"haptic_rate_hz", s.haptic_rate_hz},
           {"visual_rate_hz", s.visual_rate_hz},
-          {"sessions_active", s.sessions_active}};
+          {"sessions_active", s.sessions_active},
+          {"passivity_energy_j", s.passivity_energy_j},
+          {"passivity_damped_j", s.passivity_damped_j},
+          {"passivity_actions", s.passivity_actions}};
 }
 
 }  // namespace hapticd::sim

@@ -49,11 +49,15 @@ OfflineLoops::OfflineLoops(world::SceneDesc scene, const OfflineOptions& options
       targets_(std::make_unique<haptic::TripleBuffer<haptic::ProxyTargets>>()),
       wire_(std::make_unique<Wire>()),
       pose_(std::make_unique<protocol::Message>()),
-      received_(std::make_unique<protocol::Message>()) {
+      received_(std::make_unique<protocol::Message>()),
+      late_draws_(options.late_model_seed) {
   if (options_.visual_every_ticks < 1 || options_.model_delay_ticks < 0 ||
-      options_.model_delay_ticks >= options_.visual_every_ticks || !(options_.haptic_period_s > 0))
+      options_.model_delay_ticks >= options_.visual_every_ticks || options_.late_model_max_ticks < 0 ||
+      options_.model_delay_ticks + options_.late_model_max_ticks > options_.visual_every_ticks ||
+      !(options_.haptic_period_s > 0))
     throw std::invalid_argument(
-        "offline run: visual_every_ticks >= 1, 0 <= model_delay_ticks < visual_every_ticks, haptic_period_s > 0");
+        "offline run: visual_every_ticks >= 1, 0 <= model_delay_ticks < visual_every_ticks, late_model_max_ticks >= 0 "
+        "with model_delay_ticks + late_model_max_ticks <= visual_every_ticks, haptic_period_s > 0");
   if (options_.device < 0 || options_.device >= static_cast<int>(scene.devices.size()))
     throw std::runtime_error(scene.name + ": no device " + std::to_string(options_.device) + " to serve");
   period_ns_ = static_cast<std::uint64_t>(std::llround(1e9 * options_.haptic_period_s));
@@ -192,6 +196,10 @@ void OfflineLoops::visual_step() {
   visual_->prepare_tick_solvers();
   pending_ = true;
   publish_at_ = ticks_ + options_.model_delay_ticks;
+  if (options_.late_model_max_ticks > 0) {
+    late_draws_ = late_draws_ * 6364136223846793005ull + 1442695040888963407ull;
+    publish_at_ += static_cast<long>((late_draws_ >> 33) % static_cast<std::uint64_t>(options_.late_model_max_ticks));
+  }
   visual_ms_.push_back(1e-3 * elapsed_us(c0, Clock::now()));
 }
 

@@ -34,6 +34,13 @@ struct OfflineOptions {
   // compute time); the world then simulates up to that publication, as VisualLoop does.
   // Less than visual_every_ticks.
   int model_delay_ticks = 0;
+  // A machine under load deschedules the visual thread mid-step: its model then reaches the haptic
+  // loop later than the world planned (the world simulated up to the planned publication). With this
+  // > 0, each step's model comes a further 0 .. late_model_max_ticks - 1 ticks late, drawn per step
+  // by a generator seeded with late_model_seed (the same run every time). model_delay_ticks +
+  // late_model_max_ticks <= visual_every_ticks.
+  int late_model_max_ticks = 0;
+  std::uint64_t late_model_seed = 12345;
   haptic::HandleModelKind model = haptic::HandleModelKind::linearized;
   int device = 0;  // the scene device served
   // Before the first tick, the scene's rigid bodies (ODE alone) settle this long
@@ -137,6 +144,7 @@ class OfflineLoops {
   std::uint64_t session_ = 0;
   bool pending_ = false;
   long publish_at_ = 0, ticks_ = 0;
+  std::uint64_t late_draws_;  // the late models' generator (a 64-bit LCG), from late_model_seed
   std::vector<double> haptic_us_, visual_ms_;
 };
 

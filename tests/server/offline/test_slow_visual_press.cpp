@@ -28,14 +28,12 @@ namespace {
 
 constexpr double kPeriod = 1e-3;
 
-class SlowVisualPress : public ::testing::TestWithParam<int> {};
+struct PressRun {
+  double end_j = 0, most_j = -1e9, most_at_s = 0, largest_n = 0;
+  long resets = 0;
+};
 
-TEST_P(SlowVisualPress, NeverGivesTheStylusMoreEnergyThanItTook) {
-  const int every = GetParam();
-  OfflineOptions options;
-  options.haptic_period_s = kPeriod;
-  options.visual_every_ticks = every;
-  options.passivity_control = false;
+PressRun slow_visual_press(const OfflineOptions& options) {
   OfflineLoops loops(world::load_scene(std::string(HAPTICD_E2E_DIR) + "/stylus_static_bunny.json"), options);
   const sim::Trajectory press = sim::Trajectory::press_stroke();
   SimulatedStylus stylus(
@@ -45,23 +43,75 @@ TEST_P(SlowVisualPress, NeverGivesTheStylusMoreEnergyThanItTook) {
         return Eigen::Vector3d(p.x, p.y, p.z);
       },
       kPeriod);
-  double most = -1e9, at = 0;
+  PressRun r;
   const OfflineTrace trace = run_offline(loops, stylus, 4500, [&](long tick) {
-    if (stylus.energy_j() > most) most = stylus.energy_j(), at = tick * kPeriod;
+    if (stylus.energy_j() > r.most_j) r.most_j = stylus.energy_j(), r.most_at_s = tick * kPeriod;
   });
-  double largest = 0;
-  for (const DeviceReply& r : trace.replies) largest = std::max(largest, r.wrench[0].f_D.norm());
-  std::printf("%.1f Hz: energy %+.3e J at the end, at most %+.3e J (at %.3f s); largest force %.2f N, resets %ld\n",
-              1.0 / (every * kPeriod), stylus.energy_j(), most, at, largest, trace.resets);
-  EXPECT_LE(most, 1e-9) << "the rendering gave the stylus more energy than it took";
-  EXPECT_GT(largest, 1.0) << "the press did not reach the bunny";
-  EXPECT_EQ(trace.resets, 0);
+  for (const DeviceReply& reply : trace.replies) r.largest_n = std::max(r.largest_n, reply.wrench[0].f_D.norm());
+  r.end_j = stylus.energy_j();
+  r.resets = trace.resets;
+  std::printf(
+      "%.1f Hz, models %d + up to %d ticks late: energy %+.3e J at the end, at most %+.3e J (at %.3f s); largest "
+      "force %.2f N, resets %ld\n",
+      1.0 / (options.visual_every_ticks * kPeriod), options.model_delay_ticks, options.late_model_max_ticks, r.end_j,
+      r.most_j, r.most_at_s, r.largest_n, r.resets);
+  return r;
+}
+
+void expect_passive(const PressRun& r) {
+  EXPECT_LE(r.most_j, 1e-9) << "the rendering gave the stylus more energy than it took";
+  EXPECT_GT(r.largest_n, 1.0) << "the press did not reach the bunny";
+  EXPECT_EQ(r.resets, 0);
+}
+
+class SlowVisualPress : public ::testing::TestWithParam<int> {};
+
+TEST_P(SlowVisualPress, NeverGivesTheStylusMoreEnergyThanItTook) {
+  OfflineOptions options;
+  options.haptic_period_s = kPeriod;
+  options.visual_every_ticks = GetParam();
+  options.passivity_control = false;
+  expect_passive(slow_visual_press(options));
 }
 
 // 60, 30, 20, 15, 12, 10, 8 and 6.7 Hz.
 INSTANTIATE_TEST_SUITE_P(Touch, SlowVisualPress, ::testing::Values(17, 33, 50, 67, 83, 100, 125, 150),
                          [](const ::testing::TestParamInfo<int>& info) {
                            return std::to_string(info.param) + "ticks";
+                         });
+
+// A known fault of issue 17 (tests/CMakeLists.txt runs it as one ctest expected to fail): the same
+// press with the models late, as a loaded machine makes them (the world simulated up to the planned
+// publication, the model reaching the haptic loop up to tens of ticks after it), the passivity
+// controller on as in hapticd, the lateness drawn with OfflineOptions' default seed. Measured: at most
+// +1.5e-4 J (9 Hz, models 50 + up to 59 ticks late), +7.8e-4 J (9 Hz, 20 + up to 90), +6.7e-4 J (8 Hz,
+// 40 + up to 84); with seeds 1-6, 9 of the 18 runs active, up to +1.0e-3 J: which steps come late
+// decides it. hapticd with four CPU-bound competitors at
+// a higher priority (its visual loop at 7.4-9.2 Hz, the simulated device at real-time priority missing
+// no tick): +0.7 to +3.1 mJ, the server's own observer agreeing; the capped damping took back 0.04-0.14
+// mJ of it. With the visual loop merely slow (--visual-rate 9, or this test without late models) the
+// press stays passive.
+struct LateCase {
+  int every, delay, late;
+};
+
+class LateModels : public ::testing::TestWithParam<LateCase> {};
+
+TEST_P(LateModels, NeverGiveTheStylusMoreEnergyThanItTook) {
+  const LateCase c = GetParam();
+  OfflineOptions options;
+  options.haptic_period_s = kPeriod;
+  options.visual_every_ticks = c.every;
+  options.model_delay_ticks = c.delay;
+  options.late_model_max_ticks = c.late;
+  expect_passive(slow_visual_press(options));
+}
+
+INSTANTIATE_TEST_SUITE_P(Issue17KnownFault, LateModels,
+                         ::testing::Values(LateCase{111, 50, 60}, LateCase{111, 20, 91}, LateCase{125, 40, 85}),
+                         [](const ::testing::TestParamInfo<LateCase>& info) {
+                           return std::to_string(info.param.every) + "ticks_" + std::to_string(info.param.delay) +
+                                  "plus" + std::to_string(info.param.late) + "late";
                          });
 
 }  // namespace
