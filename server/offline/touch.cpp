@@ -226,29 +226,23 @@ AfterLift after_lift(const OfflineTrace& trace, const PressSchedule& schedule, c
   return a;
 }
 
-const char* grasp_name(GraspKind kind) {
-  switch (kind) {
-    case GraspKind::tripod_box:
-      return "grasp_box";
-    case GraspKind::power_ball:
-      return "grasp_ball";
-    case GraspKind::pinch_plate:
-      return "pinch_plate";
-  }
-  return "?";
+namespace {
+struct GraspNames {
+  GraspKind kind;
+  const char *name, *object;
+};
+constexpr GraspNames kGraspNames[] = {{GraspKind::tripod_box, "grasp_box", "box"},
+                                      {GraspKind::power_ball, "grasp_ball", "ball"},
+                                      {GraspKind::pinch_plate, "pinch_plate", "plate"}};
+const GraspNames& names_of(GraspKind kind) {
+  for (const GraspNames& n : kGraspNames)
+    if (n.kind == kind) return n;
+  throw std::invalid_argument("no such grasp");
 }
+}  // namespace
 
-const char* grasp_object(GraspKind kind) {
-  switch (kind) {
-    case GraspKind::tripod_box:
-      return "box";
-    case GraspKind::power_ball:
-      return "ball";
-    case GraspKind::pinch_plate:
-      return "plate";
-  }
-  return "?";
-}
+const char* grasp_name(GraspKind kind) { return names_of(kind).name; }
+const char* grasp_object(GraspKind kind) { return names_of(kind).object; }
 
 world::SceneDesc grasp_scene(world::SceneDesc s, GraspKind kind) {
   if (s.hands.empty() || s.devices.empty()) throw std::invalid_argument("grasp_scene: " + s.name + " has no hand");
