@@ -185,13 +185,13 @@ void World::collide(SoftBody& b) {
   // carries it deep (a slow visual loop: gravity alone moves 4.4 cm in a 67 ms step) pushes it back
   // out that face, not through a thin plate; constraint contacts also make it a speculative row if
   // it closes the gap within the step (penalty contacts act once it is inside). A hand's points,
-  // driven by their handles, look as far ahead without gravity (with constraint contact): at a
-  // fixed 2 mm, a stylus at workspace scale 2 moving the hand 4 mm a 15 Hz step reached the bunny
-  // in a step that held no contact, ended it 0.5 mm deeper than its pressed pose, and pushing it
-  // back out put +6.6e-4 J into the stylus (Touch/SlowVisualPress). Rows for every point within
-  // 2 mm + the step's motion of any point, moving or not, had slowed the contact solve of a finger
-  // driven into the table to a few millimetres' penetration (WorldGloveHardCases): a point beyond
-  // 2 mm is a row only if its approach closes the gap within the step.
+  // driven by their handles, are rows within 2 mm, or farther if their approach closes the gap
+  // within the step (no gravity; constraint contact). At 2 mm alone, a stylus at workspace scale 2
+  // moving the hand 4 mm a 15 Hz step reached the bunny in a step that held no contact, ended it
+  // 0.5 mm deeper than its pressed pose, and pushing it back out put +6.6e-4 J into the stylus
+  // (Touch/SlowVisualPress). Rows for every point within 2 mm plus its step's motion raised the
+  // stylus bunny's model error (p99 3.8 -> 4.8 N, scripts/bench-world), and more rows had slowed the
+  // contact solve of a finger driven into the table (WorldGloveHardCases).
   const bool free_body = b.hand < 0;
   const double h = step_dt_, fall = 0.5 * gravity_m_s2_.norm() * h;
   // A hand's points farther than their reach are still measured up to kClearanceLook_m: the smallest
@@ -222,10 +222,10 @@ void World::collide(SoftBody& b) {
       const Eigen::Vector3d &p = points_p[v], &p_v = points_v[v];
       const Eigen::Vector4d& w = point_bary[v];
       const double reach =
-          free_body
-              ? std::min(kSpeculativeMargin_m + (p_v.norm() + object_speed + fall) * h, kMaxReach_m)
-              : (constraint_contact_ ? std::min(kSpeculativeMargin_m + (p_v.norm() + object_speed) * h, kMaxReach_m)
-                                     : 0.0);
+          free_body ? std::min(kSpeculativeMargin_m + (p_v.norm() + object_speed + fall) * h, kMaxReach_m)
+                    : (constraint_contact_
+                           ? std::min(std::max(kSpeculativeMargin_m, (p_v.norm() + object_speed) * h), kMaxReach_m)
+                           : 0.0);
       const double look = world_hand ? kClearanceLook_m : reach;
       LastContact& last = b.last[v];
       // The point's distance to the object's box (0 inside it), a lower bound of its distance to
@@ -259,12 +259,19 @@ void World::collide(SoftBody& b) {
       }
       last = LastContact{g, n};
       const Eigen::Vector3d v_other = rigid_->point_velocity(g, p);
-      // Outside: a contact only if it closes the gap within the step (its mean velocity toward the
-      // surface over the step, under gravity, times the step; 2 mm more for what the step adds).
-      const Eigen::Vector3d g_free = free_body ? Eigen::Vector3d(0.5 * h * gravity_m_s2_) : Eigen::Vector3d::Zero();
-      if (depth <= 0 &&
-          (!constraint_contact_ || -depth > kSpeculativeMargin_m + std::max(0.0, -(p_v - v_other + g_free).dot(n)) * h))
-        continue;
+      // Outside, with constraint contact: a deformable object's point is a row if it closes the gap
+      // within the step (its mean velocity toward the surface over the step, under gravity, times
+      // the step) but 2 mm, for what the step adds; a hand's point if it is within 2 mm or closes
+      // the gap within the step.
+      if (depth <= 0) {
+        // How far it approaches the surface over the step (a free body's gravity counted).
+        const Eigen::Vector3d v_rel =
+            p_v - v_other + (free_body ? Eigen::Vector3d(0.5 * h * gravity_m_s2_) : Eigen::Vector3d::Zero());
+        const double closes = std::max(0.0, -v_rel.dot(n)) * h;
+        const bool row = constraint_contact_ && (free_body ? -depth <= kSpeculativeMargin_m + closes
+                                                           : -depth <= std::max(kSpeculativeMargin_m, closes));
+        if (!row) continue;
+      }
       hand::PointContact c;
       c.tet = point_tet[v];
       c.bary = w;
