@@ -332,11 +332,13 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
   // seed 004 section 3: F* is taken at the pose extrapolated to the model's step end, x + tau v'
   // (tau >= h), no further than the model's contact rows stay monotone (TickContacts::max_lookahead_s).
   const double tau = std::max(std::min(lookahead_s, contacts_on ? model.contacts.max_lookahead_s : lookahead_s), dt);
-  // A model that arrives after its step's end (the visual step took longer than
-  // the step it simulated) has its anchor carried along by the handle's
-  // velocity for the time since: the flesh kept moving meanwhile.
-  const double late = std::max(0.0, -lookahead_s);
-  TickSolve solve = solve_velocities(model, dt, tau, late, weight);
+  // A model that arrives after its step's end (the visual step took longer than the step it
+  // simulated) keeps its anchor where the world left the hand: the world has not moved it since.
+  // Carried along by the handle's velocity for the time since (as if the flesh kept moving), the
+  // anchor of a press went on into the object while the model was late, the late model then pushed
+  // the stylus back out harder than it had pressed in, and a press under four CPU-bound competitors
+  // (models up to ~90 ms late at 8-9 Hz) gave the stylus +0.7 to +3.1 mJ (Touch/LateModels).
+  TickSolve solve = solve_velocities(model, dt, tau, weight);
   if (solve != TickSolve::solved && contacts_on && tau > dt) {
     // The tick's contact operator W + (tau U_K + U_D) h A(tau)^-1 G is not symmetric: the
     // flesh's response to a handle's displacement and a contact's pull on the handles differ by
@@ -349,7 +351,7 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
     // motion toward the step end is not anticipated.
     ++lookahead_fallbacks_;
     warm_start_valid_ = false;
-    solve = solve_velocities(model, dt, dt, late, weight);
+    solve = solve_velocities(model, dt, dt, weight);
   }
   if (solve == TickSolve::too_fast && contacts_on) {
     // A proxy centimetres from its model's anchor (the device moved on while the whole server
@@ -381,8 +383,7 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
   }
 }
 
-ProxyHand::TickSolve ProxyHand::solve_velocities(const HapticModel& model, double dt, double tau, double late,
-                                                 double weight) {
+ProxyHand::TickSolve ProxyHand::solve_velocities(const HapticModel& model, double dt, double tau, double weight) {
   // The model's contacts and clearance planes hold at any weight: they are where the world's
   // surfaces are, and the world, which follows the proxies, must not be driven into them by a proxy
   // that the safe model carried through (a stalled or failed world resumes there). The device does
@@ -428,8 +429,8 @@ ProxyHand::TickSolve ProxyHand::solve_velocities(const HapticModel& model, doubl
     b_.segment<3>(6 * j) = mass_[j] * v_[j] + dt * (sat * f_c + (gains_.b_ns_m + b) * v_[j]);
     b_.segment<3>(6 * j + 3) = I_W * w_[j] + dt * (sat_rot * tau_c + (gains_.b_nms_rad + b_rot) * w_[j]);
     if (has_model) {
-      x_rel_.segment<3>(6 * j) = proxy_[j].p_W - model.x0[j].p_W - late * model.v0[j];
-      x_rel_.segment<3>(6 * j + 3) = hand::rotation_difference(proxy_[j].q_W, model.x0[j].q_W) - late * model.w0[j];
+      x_rel_.segment<3>(6 * j) = proxy_[j].p_W - model.x0[j].p_W;
+      x_rel_.segment<3>(6 * j + 3) = hand::rotation_difference(proxy_[j].q_W, model.x0[j].q_W);
       v0_.segment<3>(6 * j) = model.v0[j];
       v0_.segment<3>(6 * j + 3) = model.w0[j];
     }

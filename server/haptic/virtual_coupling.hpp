@@ -208,9 +208,8 @@ constexpr double kSafeStiffness = 4.0;
 // closer together than that, with no interval of the device's own, still give a finite velocity.
 constexpr double kMinSampleInterval_s = 1e-4;
 
-// How far ahead of the tick (or, for a late model, behind it) a model's step end may lie for the
-// proxy's extrapolation to it, s: 100 ms (six visual steps at 60 Hz) bounds x + tau v and the late
-// anchor's drift when a model's time stamp is far off the haptic clock.
+// How far ahead of the tick a model's step end may lie for the proxy's extrapolation to it, s: 100 ms
+// (six visual steps at 60 Hz) bounds x + tau v when a model's time stamp is far off the haptic clock.
 constexpr double kMaxModelLookahead_s = 0.1;
 
 struct ReplyWrench {
@@ -250,8 +249,8 @@ class ProxyHand {
   // force at that time from the handle's state then, so it is evaluated at the
   // proxy's pose extrapolated to it (x + lookahead v): evaluated at the current
   // pose, a moving hand's momentum would push the proxy along (an active force).
-  // Negative: the model's step ended that long ago; its anchor moves on with
-  // the handle's velocity.
+  // Negative: the model's step ended that long ago (a late model); it is evaluated at the
+  // proxy's pose, its anchor where the world left the hand.
   // `model_weight` in [0, 1] blends the model with the safe model (the haptic loop fades a stale
   // model so): the model's influence (F0, K, D) is scaled by it, and the safe model's by
   // 1 - weight. The safe model holds the proxy on its device: a spring (kSafeStiffness times the
@@ -366,7 +365,7 @@ class ProxyHand {
   bool solve_contacts(const HapticModel& model, double dt, double tau, bool dense);
   // integrate()'s implicit step into v_next_ with lookahead tau.
   enum class TickSolve { solved, too_fast, failed };  // too_fast: a proxy past kMaxProxySpeed_m_s
-  TickSolve solve_velocities(const HapticModel& model, double dt, double tau, double late, double weight);
+  TickSolve solve_velocities(const HapticModel& model, double dt, double tau, double weight);
   // The active set of the sweeps' answer solved exactly, kept if it is a solution (solve_contacts):
   // true then.
   bool polish_contacts(const TickContacts& c);
