@@ -260,6 +260,7 @@ world::SceneDesc grasp_scene(world::SceneDesc s, GraspKind kind) {
     plate.name = "plate";
     plate.shape.type = world::ShapeType::box;
     plate.shape.size = Eigen::Vector3d(kPlateLength, kPlateWidth, kPlateThickness);
+    // 20 cm toward -y from the table's middle: clear of the scenes' box, ball and bunny.
     plate.pose.p_W = Eigen::Vector3d(top.x() + kPlateOverhang - 0.5 * kPlateLength, table->pose.p_W.y() - 0.2,
                                      top.z() + 0.5 * kPlateThickness);
     plate.material = table->material;
@@ -297,10 +298,10 @@ sim::GloveTrajectory grasp_release_trajectory(const Eigen::Vector3d& palm_D, con
 GraspRun run_grasp_release(const world::SceneDesc& scene, const OfflineOptions& options, GraspKind kind) {
   using G = GraspSchedule;
   OfflineLoops loops(scene, options);
-  const int box = loops.world().rigid() ? loops.world().rigid()->find(grasp_object(kind)) : -1;
-  if (box < 0) throw std::invalid_argument("run_grasp_release: " + scene.name + " has no rigid " + grasp_object(kind));
+  const int held = loops.world().rigid() ? loops.world().rigid()->find(grasp_object(kind)) : -1;
+  if (held < 0) throw std::invalid_argument("run_grasp_release: " + scene.name + " has no rigid " + grasp_object(kind));
   GraspRun run;
-  run.object_z0 = run.object_top = loops.world().snapshot().bodies[box].p_WO.z();
+  run.object_z0 = run.object_top = loops.world().snapshot().bodies[held].p_WO.z();
   Eigen::Vector3d palm_D;
   Eigen::Quaterniond q_D;
   loops.frame_pose_at_handle(0, palm_D, q_D);
@@ -312,23 +313,23 @@ GraspRun run_grasp_release(const world::SceneDesc& scene, const OfflineOptions& 
   const long open_tick = std::lround(G::kOpenAt / T);
   const long grip_tick = std::lround(G::kGrippedAt / T);
   auto probe = penetration_probe(loops, run.penetration_max_m);
-  auto box_in_palm = [&] {
+  auto held_in_palm = [&] {
     const world::WorldSnapshot& s = loops.world().snapshot();
     const hand::HandleState& palm = s.handles[0][0];
-    return Eigen::Vector3d(palm.q_WH.conjugate() * (s.bodies[box].p_WO - palm.p_WH));
+    return Eigen::Vector3d(palm.q_WH.conjugate() * (s.bodies[held].p_WO - palm.p_WH));
   };
   Eigen::Vector3d held_at = Eigen::Vector3d::Zero();
   run.trace = run_offline(loops, glove, std::lround(G::kEnd / T), [&](long tick) {
     probe(tick);
     if (tick >= grip_tick && tick < lift_tick)
       for (const world::ContactRecord& c : loops.world().snapshot().contacts)
-        if (c.hand == 0 && c.object == box) run.squeeze_world_n += c.f_W.norm();
-    run.object_top = std::max(run.object_top, loops.world().snapshot().bodies[box].p_WO.z());
+        if (c.hand == 0 && c.object == held) run.squeeze_world_n += c.f_W.norm();
+    run.object_top = std::max(run.object_top, loops.world().snapshot().bodies[held].p_WO.z());
     if (tick == lift_tick) run.energy_at_lift_j = glove.simulation().passivity_energy_j();
-    if (tick == held_tick) held_at = box_in_palm();
+    if (tick == held_tick) held_at = held_in_palm();
     if (tick == open_tick) {
       run.energy_at_open_j = glove.simulation().passivity_energy_j();
-      run.hold_slip_m = (box_in_palm() - held_at).norm();
+      run.hold_slip_m = (held_in_palm() - held_at).norm();
     }
   });
   const double released_from = G::kOpenedAt + T + options.visual_every_ticks * T;
@@ -346,7 +347,7 @@ GraspRun run_grasp_release(const world::SceneDesc& scene, const OfflineOptions& 
   run.squeeze_felt_n /= static_cast<double>(lift_tick - grip_tick);
   run.energy_j = glove.simulation().passivity_energy_j();
   for (int j = 0; j < loops.proxy().handles(); ++j) run.observed_j += loops.proxy().energy_in(j);
-  run.object_end = loops.world().snapshot().bodies[box];
+  run.object_end = loops.world().snapshot().bodies[held];
   return run;
 }
 
