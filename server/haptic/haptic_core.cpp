@@ -185,6 +185,7 @@ void HapticCore::tick(std::uint64_t now) {
     const double lookahead = 1e-9 * (static_cast<double>(model.t_end_ns) - static_cast<double>(now));
     const double lookahead_s =
         model.t_end_ns ? std::clamp(lookahead, -kMaxModelLookahead_s, kMaxModelLookahead_s) : 0.0;
+    s.proxy.predict_device(1e-9 * static_cast<double>(now - start_ns_));
     s.proxy.integrate(model, dt, lookahead_s, model_weight(link.hand));
     if (s.follower || !s.proxy.has_device_pose()) continue;
     out.driven[link.hand] = true;

@@ -276,7 +276,7 @@ void ProxyHand::reset() {
 void ProxyHand::resync() {
   resync_following_ = true;
   for (int j = 0; j < handles_; ++j) {
-    proxy_[j] = device_[j];
+    proxy_[j] = predicted_[j] = device_[j];
     v_[j].setZero(), w_[j].setZero(), v_dev_[j].setZero(), w_dev_[j].setZero();
     moved_p_W_[j].setZero(), moved_theta_W_[j].setZero();
   }
@@ -307,8 +307,13 @@ bool ProxyHand::commit_sample(double t_s, double resync_gap_s, double sample_int
       moved_theta_W_[j] += turned;
     }
     device_[j] = pending_[j];
+    predicted_[j] = device_[j];
   }
   t_dev_ = t_s;
+  // The device's pace: the shorter of its last two intervals, so that the sample after a gap does not
+  // make the gap its pace.
+  sample_interval_s_ = std::min(dt_v, last_interval_s_);
+  last_interval_s_ = dt_v;
   have_device_ = true;
   // Samples read faster than the device took them (under half its interval, or kMinSampleInterval_s
   // without one) come from a queue: after a re-sync they re-sync the proxies onto themselves too,
@@ -323,6 +328,18 @@ bool ProxyHand::commit_sample(double t_s, double resync_gap_s, double sample_int
   else
     resync_following_ = false;
   return resync_now;
+}
+
+void ProxyHand::predict_device(double t_s) {
+  if (!have_device_) return;
+  // The samples the device's pace would have brought by now, each its interval's motion on.
+  const double age = t_s - t_dev_;
+  const double missed = age >= sample_interval_s_ ? std::floor(age / sample_interval_s_) * sample_interval_s_ : 0.0;
+  const double overdue = std::clamp(missed, 0.0, kMaxDevicePrediction_s);
+  for (int j = 0; j < handles_; ++j) {
+    predicted_[j].p_W = device_[j].p_W + overdue * v_dev_[j];
+    predicted_[j].q_W = hand::rotate_by(device_[j].q_W, overdue * w_dev_[j]);
+  }
 }
 
 void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_s, double model_weight) {
@@ -419,8 +436,8 @@ ProxyHand::TickSolve ProxyHand::solve_velocities(const HapticModel& model, doubl
     const double k_rot = safe * safe_k_nm_rad_, b_rot = safe * safe_b_nms_rad_[j];
     a_lin_[j] += dt * b + dt * dt * k;
     a_rot_[j].diagonal().array() += dt * b_rot + dt * dt * k_rot;
-    const Eigen::Vector3d dp = device_[j].p_W - proxy_[j].p_W;
-    const Eigen::Vector3d dq = hand::rotation_difference(device_[j].q_W, proxy_[j].q_W);
+    const Eigen::Vector3d dp = predicted_[j].p_W - proxy_[j].p_W;
+    const Eigen::Vector3d dq = hand::rotation_difference(predicted_[j].q_W, proxy_[j].q_W);
     const Eigen::Vector3d f_c = (gains_.k_n_m + k) * dp + (gains_.b_ns_m + b) * (v_dev_[j] - v_[j]);
     const Eigen::Vector3d tau_c = (gains_.k_nm_rad + k_rot) * dq + (gains_.b_nms_rad + b_rot) * (w_dev_[j] - w_[j]);
     const double f_max = limits_.max_force_n / map_.scale;

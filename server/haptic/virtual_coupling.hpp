@@ -212,6 +212,11 @@ constexpr double kMinSampleInterval_s = 1e-4;
 // (six visual steps at 60 Hz) bounds x + tau v when a model's time stamp is far off the haptic clock.
 constexpr double kMaxModelLookahead_s = 0.1;
 
+// How long ProxyHand::predict_device carries an overdue device, s: 20 ms, twenty samples of a 1 kHz
+// device. A device that really stopped while its samples were missing is then met at most its speed
+// times this off (the error that holding it makes, the other way, for one that moved on).
+constexpr double kMaxDevicePrediction_s = 0.02;
+
 struct ReplyWrench {
   Eigen::Vector3d f_D = Eigen::Vector3d::Zero(), tau_D = Eigen::Vector3d::Zero();  // on the device, device frame
   bool clamped = false;
@@ -243,6 +248,16 @@ class ProxyHand {
   void set_device_pose(int j, const Eigen::Vector3d& p_D, const Eigen::Quaterniond& q_D);
   bool commit_sample(double t_s, double resync_gap_s,
                      double sample_interval_s = std::numeric_limits<double>::quiet_NaN());
+  // Where the device is taken to be at `t_s` (commit_sample's clock) for the next integrate(). While
+  // its samples come at its own pace, its last sample. A sample that is overdue (read more than the
+  // device's own interval ago) is carried along by the device's filtered velocity for the time it is
+  // overdue, at most kMaxDevicePrediction_s: the proxy goes on following the device as it did while
+  // the samples came, one interval behind it. A device whose samples stop for a few milliseconds (its
+  // own servo loop or its link stalled) goes on moving; held at its last sample, the proxy stopped
+  // under it, and the sample after the gap found the device a gap's motion away from the proxy: a
+  // jolt against the motion of the coupling stiffness times that distance (0.5 N after 9 missed ticks
+  // of a stylus lifting at 8 cm/s). The replies are always computed at the sample (reply()).
+  void predict_device(double t_s);
 
   // Advances the proxies by dt under `model` and the coupling (the 1 kHz tick).
   // `lookahead_s`: time left until the model's step ends. The model gives the
@@ -332,9 +347,12 @@ class ProxyHand {
   double safe_k_n_m_ = 0, safe_k_nm_rad_ = 0;
   double safe_b_ns_m_[kMaxHapticHandles]{}, safe_b_nms_rad_[kMaxHapticHandles]{};
   HapticPose proxy_[kMaxHapticHandles], device_[kMaxHapticHandles], pending_[kMaxHapticHandles];
+  HapticPose predicted_[kMaxHapticHandles];  // the device where the coupling pulls the proxy (predict_device)
   Eigen::Vector3d v_[kMaxHapticHandles], w_[kMaxHapticHandles];
   Eigen::Vector3d v_dev_[kMaxHapticHandles], w_dev_[kMaxHapticHandles];  // filtered device velocity
   double t_dev_ = 0;
+  // The device's pace (predict_device) and its own interval at its last sample (commit_sample's dt_v).
+  double sample_interval_s_ = 0, last_interval_s_ = std::numeric_limits<double>::infinity();
   bool have_device_ = false;
   bool resync_following_ = false;  // re-synced, and every sample since came from a queue
   Eigen::Vector3d last_f_D_[kMaxHapticHandles], last_tau_D_[kMaxHapticHandles];

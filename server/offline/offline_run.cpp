@@ -58,6 +58,9 @@ OfflineLoops::OfflineLoops(world::SceneDesc scene, const OfflineOptions& options
     throw std::invalid_argument(
         "offline run: visual_every_ticks >= 1, 0 <= model_delay_ticks < visual_every_ticks, late_model_max_ticks >= 0 "
         "with model_delay_ticks + late_model_max_ticks <= visual_every_ticks, haptic_period_s > 0");
+  for (const auto& [from, to] : options_.withheld_samples_s)
+    if (!(std::isfinite(from) && std::isfinite(to) && from < to))
+      throw std::invalid_argument("offline run: a withheld-samples window needs finite from < to");
   if (options_.device < 0 || options_.device >= static_cast<int>(scene.devices.size()))
     throw std::runtime_error(scene.name + ": no device " + std::to_string(options_.device) + " to serve");
   period_ns_ = static_cast<std::uint64_t>(std::llround(1e9 * options_.haptic_period_s));
@@ -146,6 +149,19 @@ void OfflineLoops::tick(const DeviceFrames& sample, DeviceReply& reply) {
   const Clock::time_point c0 = Clock::now();
   // The model of the last visual step reaches the haptic side `model_delay_ticks` after its step.
   if (pending_ && ticks_ >= publish_at_) visual_->publish(), pending_ = false;
+  reply = DeviceReply{};
+  const double t_s = time_s();
+  const bool withheld = ticks_ > 0 && std::any_of(options_.withheld_samples_s.begin(), options_.withheld_samples_s.end(),
+                                                  [t_s](const auto& w) { return t_s >= w.first && t_s < w.second; });
+  if (!withheld) answer(sample, now, reply);
+  // The haptic tick: the proxies integrated over [now, now + T] under the newest model.
+  core_->tick(now);
+  haptic_us_.push_back(elapsed_us(c0, Clock::now()));
+  if (ticks_ % options_.visual_every_ticks == 0) visual_step();
+  ++ticks_;
+}
+
+void OfflineLoops::answer(const DeviceFrames& sample, std::uint64_t now, DeviceReply& reply) {
   // The device's sample, answered at once from the proxies (HapticCore::handle).
   protocol::PoseSample& p = pose_->pose_sample;
   p.sequence = static_cast<std::uint64_t>(ticks_) + 1;
@@ -163,7 +179,6 @@ void OfflineLoops::tick(const DeviceFrames& sample, DeviceReply& reply) {
   }
   wire_->now_ns = now;
   send(encoder_.encode(p));
-  reply = DeviceReply{};
   if (wire_->reply_bytes > 0 && protocol::decode({wire_->reply.bytes.data(), wire_->reply_bytes}, *received_).ok() &&
       received_->type == protocol::MessageType::kForceSample) {
     const protocol::ForceSample& f = received_->force_sample;
@@ -176,11 +191,6 @@ void OfflineLoops::tick(const DeviceFrames& sample, DeviceReply& reply) {
       reply.in_contact[j] = f.wrenches[j].flags & protocol::ForceFlags::kInContact;
     }
   }
-  // The haptic tick: the proxies integrated over [now, now + T] under the newest model.
-  core_->tick(now);
-  haptic_us_.push_back(elapsed_us(c0, Clock::now()));
-  if (ticks_ % options_.visual_every_ticks == 0) visual_step();
-  ++ticks_;
 }
 
 void OfflineLoops::visual_step() {
@@ -222,7 +232,9 @@ void SimulatedStylus::advance(long tick, double t_s, DeviceFrames& out) {
   out.q_D[0].setIdentity();
 }
 
-void SimulatedStylus::receive(const DeviceReply& reply) { f_D_ = reply.wrench[0].f_D; }
+void SimulatedStylus::receive(const DeviceReply& reply) {
+  if (reply.frames > 0) f_D_ = reply.wrench[0].f_D;  // no reply: the DAC holds its command
+}
 
 SimulatedGlove::SimulatedGlove(sim::GloveTrajectory trajectory, int frames, bool left, double period_s,
                                const sim::GloveParams& params)

@@ -12,6 +12,7 @@
 #include <functional>
 #include <memory>
 #include <optional>
+#include <utility>
 #include <vector>
 
 #include "clients/sim/device_model.hpp"
@@ -41,6 +42,10 @@ struct OfflineOptions {
   // late_model_max_ticks <= visual_every_ticks.
   int late_model_max_ticks = 0;
   std::uint64_t late_model_seed = 12345;
+  // Windows [from, to) of simulated time, s, in which the device's samples never reach the server (a
+  // device whose servo loop or link stalled): the core ticks on without them, and the device, sent
+  // no reply, holds the last one it received. The first tick's sample always arrives.
+  std::vector<std::pair<double, double>> withheld_samples_s;
   haptic::HandleModelKind model = haptic::HandleModelKind::linearized;
   int device = 0;  // the scene device served
   // Before the first tick, the scene's rigid bodies (ODE alone) settle this long
@@ -106,8 +111,9 @@ class OfflineLoops {
   void frame_pose_at_handle(int j, Eigen::Vector3d& p_D, Eigen::Quaterniond& q_D) const;
 
   // One haptic tick at t = ticks() T with the device's poses of this tick: a model due now is
-  // handed over, the sample is sent and answered (a first one re-syncs the proxies), the haptic
-  // tick integrates the proxies, and the visual step runs when one is due.
+  // handed over, the sample is sent and answered (a first one re-syncs the proxies; a withheld one,
+  // OfflineOptions::withheld_samples_s, is neither, and `reply` has no frames), the haptic tick
+  // integrates the proxies, and the visual step runs when one is due.
   void tick(const DeviceFrames& sample, DeviceReply& reply);
 
   long ticks() const { return ticks_; }
@@ -127,6 +133,8 @@ class OfflineLoops {
   struct Wire;
   std::uint64_t now_ns() const;
   void visual_step();
+  // tick()'s sample sent at `now` and the core's reply decoded into `reply`.
+  void answer(const DeviceFrames& sample, std::uint64_t now, DeviceReply& reply);
   void send(const protocol::EncodeResult& encoded);
 
   OfflineOptions options_;

@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdio>
 #include <numbers>
 #include <random>
 #include <vector>
@@ -125,6 +126,49 @@ TEST(VirtualCoupling, AResyncFollowsTheSamplesOfAQueue) {
   EXPECT_TRUE(sample(0.004, t));
   EXPECT_FALSE(sample(0.005, t + 1e-3));
   EXPECT_EQ(p.proxy(0).p_W.x(), 0.004);
+}
+
+TEST(VirtualCoupling, AnOverdueDeviceIsFollowedAlongItsVelocityForAtMostTwentyMilliseconds) {
+  // A device moving along x at 5 cm/s, sampled every 1 ms, its proxy free. `followed` is told the
+  // tick's time before each integration (predict_device), `held` is not. While the samples come on
+  // time the two are the same proxy, bit for bit. Then the device's samples stop for 10 ms while it
+  // moves on: the first sample after the gap finds `held`'s proxy stopped a gap's motion behind, and
+  // its device feels the coupling stiffness times that; `followed`'s device feels what it felt before.
+  const double v = 0.05, T = kPeriod;
+  ProxyHand followed = make_proxy(), held = make_proxy();
+  const auto sample = [&](ProxyHand& p, double t, double interval) {
+    p.set_device_pose(0, Eigen::Vector3d(v * t, 0, 0), Eigen::Quaterniond::Identity());
+    p.commit_sample(t, 1.0, interval);
+  };
+  const auto tick = [&](ProxyHand& p, double t, bool predict) {
+    if (predict) p.predict_device(t);
+    p.integrate(HapticModel{}, T);
+  };
+  double t = 0;
+  ReplyWrench before;
+  for (int k = 0; k < 300; ++k, t += T) {
+    for (ProxyHand* p : {&followed, &held}) sample(*p, t, T);
+    before = followed.reply(0, 1.0, T);
+    held.reply(0, 1.0, T);
+    tick(followed, t, true), tick(held, t, false);
+    ASSERT_EQ(followed.proxy(0).p_W, held.proxy(0).p_W) << k;
+  }
+  // The samples of the next 10 ticks never come; the proxies tick on.
+  for (int k = 0; k < 10; ++k, t += T) tick(followed, t, true), tick(held, t, false);
+  for (ProxyHand* p : {&followed, &held}) sample(*p, t, 11 * T);
+  const double k_c = followed.gains().k_n_m;
+  const double f_followed = followed.reply(0, 1.0, 1.0).f_D.x(), f_held = held.reply(0, 1.0, 1.0).f_D.x();
+  std::printf("before the gap %.4f N, after it: followed %.4f N, held %.4f N\n", before.f_D.x(), f_followed, f_held);
+  EXPECT_NEAR(f_followed, before.f_D.x(), 0.01 * std::abs(before.f_D.x()));
+  EXPECT_LT(f_held - before.f_D.x(), -3 * k_c * v * T);
+
+  // Then silent for 3 s (only a sample re-syncs): the followed proxy comes to rest where its device
+  // would be kMaxDevicePrediction_s on, plus the coupling damper's offset b v / k (the device's
+  // velocity is held while it is silent).
+  const double last = v * t;
+  for (int k = 1; k <= 3000; ++k) followed.predict_device(t + k * T), followed.integrate(HapticModel{}, T);
+  const double b_c = followed.gains().b_ns_m;
+  EXPECT_NEAR(followed.proxy(0).p_W.x(), last + v * kMaxDevicePrediction_s + b_c * v / k_c, 1e-6);
 }
 
 TEST(VirtualCoupling, SteadyPressOnAWallGivesTheSeriesStiffnessTimesPenetration) {

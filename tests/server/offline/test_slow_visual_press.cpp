@@ -79,8 +79,8 @@ TEST_P(SlowVisualPress, NeverGivesTheStylusMoreEnergyThanItTook) {
 
 // 60, 30, 20, 15, 12, 10, 8 and 6.7 Hz.
 INSTANTIATE_TEST_SUITE_P(Touch, SlowVisualPress, ::testing::Values(17, 33, 50, 67, 83, 100, 125, 150),
-                         [](const ::testing::TestParamInfo<int>& info) {
-                           return std::to_string(info.param) + "ticks";
+                         [](const ::testing::TestParamInfo<int>& param_info) {
+                           return std::to_string(param_info.param) + "ticks";
                          });
 
 // The same press with the models late, as a loaded machine makes them (the world simulated up to the
@@ -124,8 +124,8 @@ std::vector<LateCase> late_cases() {
 }
 
 INSTANTIATE_TEST_SUITE_P(Touch, LateModels, ::testing::ValuesIn(late_cases()),
-                         [](const ::testing::TestParamInfo<LateCase>& info) {
-                           const LateCase& c = info.param;
+                         [](const ::testing::TestParamInfo<LateCase>& param_info) {
+                           const LateCase& c = param_info.param;
                            return std::to_string(c.every) + "ticks_" + std::to_string(c.delay) + "plus" +
                                   std::to_string(c.late) + "late_seed" + std::to_string(c.seed);
                          });
