@@ -205,6 +205,7 @@ int main(int argc, char** argv) {
           {"lookahead_fallbacks", st.lookahead_fallbacks},
           {"contact_holds", st.contact_holds},
           {"contact_unconverged", st.contact_unconverged},
+          {"overdue_device_ticks", st.overdue_device_ticks},
           {"model_watchdog",
            {{"stale_after_s", options.model_stale_after_s},
             {"fade_s", options.model_fade_s},

@@ -103,6 +103,8 @@ struct ServerStats {
   std::uint64_t lookahead_fallbacks = 0, contact_holds = 0;
   // Ticks whose contact solve stopped at its sweep limit without an exact answer (ProxyHand::contact_unconverged).
   std::uint64_t contact_unconverged = 0;
+  // Ticks at which a session's device was overdue and followed along its velocity (ProxyHand::predict_device).
+  std::uint64_t overdue_device_ticks = 0;
   std::uint64_t sessions_opened = 0, sessions_closed = 0, sessions_timed_out = 0, send_errors = 0;
   // Sessions replaced by the same peer's newer one; pending sessions never confirmed (a key only).
   std::uint64_t sessions_replaced = 0, pending_expired = 0;

@@ -336,6 +336,7 @@ void ProxyHand::predict_device(double t_s) {
   const double age = t_s - t_dev_;
   const double missed = age >= sample_interval_s_ ? std::floor(age / sample_interval_s_) * sample_interval_s_ : 0.0;
   const double overdue = std::clamp(missed, 0.0, kMaxDevicePrediction_s);
+  if (overdue > 0) ++overdue_device_ticks_;
   for (int j = 0; j < handles_; ++j) {
     predicted_[j].p_W = device_[j].p_W + overdue * v_dev_[j];
     predicted_[j].q_W = hand::rotate_by(device_[j].q_W, overdue * w_dev_[j]);

@@ -324,6 +324,8 @@ class ProxyHand {
   // lookahead to the model's step end and were solved again without it, and ticks at which the
   // proxies then held still instead, too fast still (integrate()).
   long lookahead_fallbacks() const { return lookahead_fallbacks_; }
+  // Ticks at which predict_device carried an overdue device on.
+  long overdue_device_ticks() const { return overdue_device_ticks_; }
   long contact_holds() const { return contact_holds_; }
   // Replies the passivity controller added damping to.
   long passivity_actions() const { return passivity_actions_; }
@@ -406,7 +408,7 @@ class ProxyHand {
   std::uint32_t lambda_resyncs_ = 0;
   bool warm_start_valid_ = false;  // lambda_ may start the next tick under the same model
   int contact_sweeps_ = 0;
-  long contact_unconverged_ = 0, lookahead_fallbacks_ = 0, contact_holds_ = 0;
+  long contact_unconverged_ = 0, lookahead_fallbacks_ = 0, contact_holds_ = 0, overdue_device_ticks_ = 0;
   // Workspace of the implicit step, sized once. The block diagonal part of A per handle:
   // translational (a multiple of the identity) and rotational.
   double a_lin_[kMaxHapticHandles]{};
