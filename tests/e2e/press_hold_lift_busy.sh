@@ -9,10 +9,11 @@
 # after the lift, nothing flagged InContact and no force above 0.3 N (the glue was 7.35 N); no proxy
 # or hand resets; the stylus touched. The simulated device runs its servo loop at real-time priority
 # where that is permitted, as a real device's driver does: the competitor is the server's. Starved by
-# the competitor instead, it skipped poses while its arm carried the tip up, and the pull while lifting
-# was 0.71-0.75 N (0.12-0.20 N at real-time priority or with no competitor, the same motion in the
-# lockstep runner 0.11 N); without the priority the pull is printed, not asserted.
-# Usage: press_hold_lift_busy.sh BIN_DIR SCENE [hapticd options, e.g. --no-passivity-control]
+# the competitor instead (DEVICE_REALTIME=0, or where the priority is not permitted), it skips poses
+# while its arm carries the tip up: the pull while lifting was 0.71-0.75 N while the proxy stopped
+# under an overdue device (before 8996729), and is 0.13-0.23 N now with 32-808 ticks missed (6 runs;
+# 0.12-0.20 N at real-time priority, the same motion in the lockstep runner 0.11 N). Asserted either way.
+# Usage: [DEVICE_REALTIME=0] press_hold_lift_busy.sh BIN_DIR SCENE [hapticd options, e.g. --no-passivity-control]
 set -euo pipefail
 bin=$1
 scene=$2
@@ -29,7 +30,7 @@ trajectory="$(dirname "$0")/../../scenes/trajectories/stylus_press_hold_lift.csv
 lift_end=4.0
 
 device_priority=()
-if chrt -f 20 true 2>/dev/null; then device_priority=(chrt -f 20); fi
+if [ "${DEVICE_REALTIME:-1}" != 0 ] && chrt -f 20 true 2>/dev/null; then device_priority=(chrt -f 20); fi
 bash -c 'while :; do :; done' &
 busy_pid=$!
 start_hapticd "$bin" "$scene" "$seconds" "$work" "${@:3}"
@@ -59,13 +60,13 @@ after_force = max(((r["f_x_n"] ** 2 + r["f_y_n"] ** 2 + r["f_z_n"] ** 2) ** 0.5 
 after_flagged = sum(1 for r in after if r["in_contact"])
 print(f"visual {s['visual']['rate_hz_achieved']:.1f} Hz with one core busy; energy {d['passivity_energy_j']:+.2e} J; "
       f"first contact at {1e3 * first_contact_z if first_contact_z is not None else float('nan'):.1f} mm; "
-      f"largest pull while lifting {max(pull, 0.0):.3f} N{'' if device_realtime else ' (device not real-time: not asserted)'}; "
+      f"largest pull while lifting {max(pull, 0.0):.3f} N{'' if device_realtime else ' (device not real-time)'}; "
       f"a second after the lift {after_force:.3f} N, "
       f"{after_flagged} ticks InContact; resets proxy {s['proxy_resets']} hand {s['visual']['hand_resets']}")
 failures = []
 if not touched: failures.append("the stylus never touched the bunny")
 if not d["passivity_energy_j"] <= 0: failures.append(f"the rendering put {d['passivity_energy_j']} J into the device")
-if device_realtime and not pull <= 0.3: failures.append(f"pulled {pull} N toward the bunny while lifting")
+if not pull <= 0.3: failures.append(f"pulled {pull} N toward the bunny while lifting")
 if not after: failures.append("the run ended before a second after the lift")
 if not after_force <= 0.3: failures.append(f"{after_force} N a second after the lift (glued)")
 if after_flagged: failures.append(f"InContact for {after_flagged} ticks a second after the lift")
