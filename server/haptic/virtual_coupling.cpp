@@ -257,6 +257,7 @@ void ProxyHand::configure(int handles, const double* mass_kg, const Eigen::Matri
 
   lu_ = Eigen::PartialPivLU<HapticMatrix>(n);
   have_device_ = false;
+  last_interval_s_ = std::numeric_limits<double>::infinity();
   for (int j = 0; j < kMaxHapticHandles; ++j) {
     v_[j].setZero(), w_[j].setZero(), v_dev_[j].setZero(), w_dev_[j].setZero();
     last_f_D_[j].setZero(), last_tau_D_[j].setZero(), last_r_D_[j].setZero();

@@ -249,10 +249,11 @@ class ProxyHand {
   bool commit_sample(double t_s, double resync_gap_s,
                      double sample_interval_s = std::numeric_limits<double>::quiet_NaN());
   // Where the device is taken to be at `t_s` (commit_sample's clock) for the next integrate(). While
-  // its samples come at its own pace, its last sample. A sample that is overdue (read more than the
-  // device's own interval ago) is carried along by the device's filtered velocity for the time it is
-  // overdue, at most kMaxDevicePrediction_s: the proxy goes on following the device as it did while
-  // the samples came, one interval behind it. A device whose samples stop for a few milliseconds (its
+  // its samples come at its own pace, its last sample. Once the last sample is overdue (read at least
+  // the device's own interval ago), it is carried along the device's filtered velocity by one
+  // interval's motion for each sample that pace would have brought since, at most
+  // kMaxDevicePrediction_s in all: the proxy follows the device as if its samples had kept coming.
+  // Counted (overdue_device_ticks). A device whose samples stop for a few milliseconds (its
   // own servo loop or its link stalled) goes on moving; held at its last sample, the proxy stopped
   // under it, and the sample after the gap found the device a gap's motion away from the proxy: a
   // jolt against the motion of the coupling stiffness times that distance (0.5 N after 9 missed ticks
