@@ -254,8 +254,7 @@ int main(int argc, char** argv) {
           {"pending_expired", st.pending_expired},
           {"max", haptic::kMaxSessions}}},
         {"memory",
-         {{"session_bytes", haptic::HapticServer::session_bytes()},
-          {"server_bytes", server.memory_bytes()}}}};
+         {{"session_bytes", haptic::HapticServer::session_bytes()}, {"server_bytes", server.memory_bytes()}}}};
     if (!stats_path.empty()) {
       std::ofstream out(stats_path);
       if (!out) throw std::runtime_error("--stats " + stats_path + ": cannot write");

@@ -151,8 +151,9 @@ void OfflineLoops::tick(const DeviceFrames& sample, DeviceReply& reply) {
   if (pending_ && ticks_ >= publish_at_) visual_->publish(), pending_ = false;
   reply = DeviceReply{};
   const double t_s = time_s();
-  const bool withheld = ticks_ > 0 && std::any_of(options_.withheld_samples_s.begin(), options_.withheld_samples_s.end(),
-                                                  [t_s](const auto& w) { return t_s >= w.first && t_s < w.second; });
+  const bool withheld =
+      ticks_ > 0 && std::any_of(options_.withheld_samples_s.begin(), options_.withheld_samples_s.end(),
+                                [t_s](const auto& w) { return t_s >= w.first && t_s < w.second; });
   if (!withheld) answer(sample, now, reply);
   // The haptic tick: the proxies integrated over [now, now + T] under the newest model.
   core_->tick(now);

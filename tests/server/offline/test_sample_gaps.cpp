@@ -25,7 +25,7 @@ namespace hapticd::offline {
 namespace {
 
 constexpr double kPeriod = 1e-3;
-constexpr double kAfterGap_s = 0.1;     // how long after each gap the forces are compared
+constexpr double kAfterGap_s = 0.1;      // how long after each gap the forces are compared
 constexpr double kMaxDepartureN = 0.15;  // the largest departure from the reference allowed
 
 struct Gap {
@@ -57,7 +57,9 @@ TEST(SampleGaps, ADeviceWhoseSamplesStopForAFewMillisecondsFeelsWhatItWouldHaveF
                                             (first_after(g) - 0.5) * kPeriod);
   const TouchRun gapped = run_press_hold_lift(scene, schedule, options);
 
-  const auto f_at = [](const TouchRun& r, long k) { return r.trace.replies[static_cast<std::size_t>(k)].wrench[0].f_D; };
+  const auto f_at = [](const TouchRun& r, long k) {
+    return r.trace.replies[static_cast<std::size_t>(k)].wrench[0].f_D;
+  };
   const long ticks = static_cast<long>(reference.trace.replies.size());
   ASSERT_EQ(static_cast<long>(gapped.trace.replies.size()), ticks);
   for (const Gap& g : gaps) {
