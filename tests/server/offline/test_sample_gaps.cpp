@@ -99,7 +99,7 @@ TEST(SampleGaps, ADeviceWhoseSamplesStopForAFewMillisecondsFeelsWhatItWouldHaveF
 // The same for the 16-frame glove's grasp of the box on glove_grasp.json at 30 Hz: its samples (all
 // frames at once) withheld while the hand closes, grips, lifts, holds, opens and withdraws. The energy
 // is printed, not asserted: without the controller this grasp puts +0.025 J into the glove with every
-// sample delivered (README, "Not yet"). With the controller on, the two runs' controllers act at other
+// sample delivered (the known fault Issue17KnownFault.TheBoxGraspPutsNoEnergyIntoTheGloveWithoutThePassivityController). With the controller on, the two runs' controllers act at other
 // times and the comparison measures them (0.18 and 0.45 N after the gaps holding up and opening).
 TEST(SampleGaps, AGloveWhoseSamplesStopForAFewMillisecondsFeelsWhatItWouldHaveFeltWithThem) {
   const std::vector<Gap> gaps = {
