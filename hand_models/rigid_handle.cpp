@@ -130,6 +130,17 @@ double clearance_share(const ClearancePlane* planes, int count, const Eigen::Vec
   return share;
 }
 
+double free_travel_share(const Eigen::Vector3d& dx, const Eigen::Vector3d& dtheta, const Eigen::Vector3d& move,
+                         const Eigen::Vector3d& turn, double radius_m) {
+  const double used = dx.norm() + radius_m * dtheta.norm();
+  const double after = (dx + move).norm() + radius_m * (dtheta + turn).norm();
+  if (after <= kClearanceLook_m || after <= used) return 1.0;  // within reach, or coming back
+  // |dx + s move| + radius |dtheta + s turn| <= used + s (|move| + radius |turn|) (the triangle
+  // inequality): the largest s that keeps that bound within reach.
+  const double room = kClearanceLook_m - used, rate = move.norm() + radius_m * turn.norm();
+  return room > 0 && rate > 0 ? std::min(1.0, room / rate) : 0.0;
+}
+
 Eigen::Quaterniond rotate_by(const Eigen::Quaterniond& q, const Eigen::Vector3d& theta) {
   const double angle = theta.norm();
   Eigen::Quaterniond dq = Eigen::Quaterniond::Identity();

@@ -93,6 +93,18 @@ constexpr double kClearanceSpread = 0.87;
 // plane may only move back from it).
 double clearance_share(const ClearancePlane* planes, int count, const Eigen::Vector3d& dx,
                        const Eigen::Vector3d& dtheta, const Eigen::Vector3d& move, const Eigen::Vector3d& turn);
+// How far ahead of a surface a hand's skin points are measured for their handles' clearance planes
+// (World::clearance): a surface farther than this from every skin point of a handle is not among its
+// planes, so a handle whose skin points move farther than this within one visual step may meet a
+// surface nothing told the tick or the step about.
+constexpr double kClearanceLook_m = 0.10;
+// The share in [0, 1] of a further motion (move, turn) that a handle displaced by (dx, dtheta) from
+// where its planes were measured can make while none of its skin points, at most radius_m from the
+// handle, goes farther than kClearanceLook_m: |dx| + radius_m |dtheta| stays within it (a bound of
+// each point's displacement dx + dtheta x r, exact for a pure move). A handle already beyond it may
+// only move back toward where it was measured.
+double free_travel_share(const Eigen::Vector3d& dx, const Eigen::Vector3d& dtheta, const Eigen::Vector3d& move,
+                         const Eigen::Vector3d& turn, double radius_m);
 
 // q advanced by a world-frame rotation vector: exp(theta) q, renormalised.
 Eigen::Quaterniond rotate_by(const Eigen::Quaterniond& q, const Eigen::Vector3d& theta);

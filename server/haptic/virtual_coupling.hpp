@@ -121,6 +121,11 @@ struct HapticModel {
   // carries the handle from x0 no closer to them than their gaps.
   hand::ClearancePlane clearance[kMaxHapticHandles][hand::kClearancePlanes];
   int clearance_count[kMaxHapticHandles]{};
+  // Per handle, the farthest of its skin points from it, m (when skin_known: the world's models).
+  // Beyond hand::kClearanceLook_m the planes above say nothing: the tick carries no skin point
+  // farther than that from where they were measured (hand::free_travel_share).
+  bool skin_known = false;
+  double skin_radius_m[kMaxHapticHandles]{};
   // The hand's re-sync count the visual loop had applied (ProxyTargets::resyncs):
   // a model from before a re-sync describes the hand where it no longer is.
   std::uint32_t resyncs = 0;
@@ -332,6 +337,8 @@ class ProxyHand {
   long passivity_actions() const { return passivity_actions_; }
   // Ticks at which a handle was held at its model's clearance (HapticModel::clearance).
   long clearance_limits() const { return clearance_limits_; }
+  // Of those, the ticks at which the skin's travel bound (HapticModel::skin_radius_m) held it.
+  long travel_limits() const { return travel_limits_; }
   // The passivity observer's energy of frame j: the work its device has done on the rendering, J.
   double energy_in(int j) const { return energy_in_[j]; }
   // The energy the controller's damping took back at frame j, J.
@@ -370,7 +377,7 @@ class ProxyHand {
   bool passivity_control_ = true;
   bool fingers_on_palm_ = false;
   long resets_ = 0, clamps_ = 0, passivity_actions_ = 0, solver_fallbacks_ = 0, solver_refinements_ = 0;
-  long clearance_limits_ = 0;
+  long clearance_limits_ = 0, travel_limits_ = 0;
   // The prepared solve of A(tau) v = b (TickSolver), refined against the exact matrix; false
   // when it does not converge (v_next_ is then to be recomputed).
   bool solve_prepared(const HapticModel& model, double h, double tau);

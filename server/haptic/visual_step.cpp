@@ -53,6 +53,18 @@ void fill_contact_flags(const world::World& world, int h, HapticModel& out) {
     for (int k = 0; k < n; ++k) out.clearance[j][k] = clearance[j][k];
     out.clearance_count[j] = n;
   }
+  skin_radii(hand, out.skin_radius_m);
+  out.skin_known = true;
+}
+
+void skin_radii(const hand::Hand& hand, double* radius_m) {
+  const std::vector<hand::HandleState>& handles = hand.handles();
+  const int m = std::min(static_cast<int>(handles.size()), kMaxHapticHandles);
+  std::fill(radius_m, radius_m + kMaxHapticHandles, 0.0);
+  for (int i = 0; i < hand.num_skin_points(); ++i) {
+    const int j = hand.skin_handle(i);
+    if (j >= 0 && j < m) radius_m[j] = std::max(radius_m[j], (hand.skin_point(i) - handles[j].p_WH).norm());
+  }
 }
 
 static_assert(kMaxTickContacts == hand::kMaxLinearizedContacts, "the tick holds every row a model carries");
@@ -127,15 +139,18 @@ void fill_held_model(world::World& world, int h, HapticModel& out) {
 }  // namespace
 
 hand::HandleTarget proxy_target(const ProxyTargets& targets, int h, int j, std::uint64_t until_ns,
-                                const hand::HandleState* from, const hand::ClearancePlane* planes, int planes_count) {
+                                const hand::HandleState* from, const hand::ClearancePlane* planes, int planes_count,
+                                double skin_radius_m) {
   const double ahead = std::clamp(1e-9 * (static_cast<double>(until_ns) - static_cast<double>(targets.t_ns)),
                                   -kMaxProxyExtrapolation_s, kMaxProxyExtrapolation_s);
   const HapticPose& p = targets.pose[h][j];
   double share = 1.0;
-  if (from && planes && planes_count > 0)
-    share =
-        hand::clearance_share(planes, planes_count, p.p_W - from->p_WH, hand::rotation_difference(p.q_W, from->q_WH),
-                              ahead * targets.v_W[h][j], ahead * targets.w_W[h][j]);
+  if (from) {
+    const Eigen::Vector3d dx = p.p_W - from->p_WH, dtheta = hand::rotation_difference(p.q_W, from->q_WH);
+    const Eigen::Vector3d move = ahead * targets.v_W[h][j], turn = ahead * targets.w_W[h][j];
+    if (planes && planes_count > 0) share = hand::clearance_share(planes, planes_count, dx, dtheta, move, turn);
+    if (skin_radius_m >= 0) share = std::min(share, hand::free_travel_share(dx, dtheta, move, turn, skin_radius_m));
+  }
   const Eigen::Vector3d v = share * targets.v_W[h][j], w = share * targets.w_W[h][j];
   return {p.p_W + ahead * v,        hand::rotate_by(p.q_W, ahead * w), v, w,
           targets.v_device_W[h][j], targets.w_device_W[h][j]};
@@ -156,11 +171,14 @@ void VisualStep::advance_world(std::uint64_t publish_ns, double dt_s) {
       hand.place(targets.pose[h][0].p_W, targets.pose[h][0].q_W);
     }
     const std::vector<std::vector<hand::ClearancePlane>>& clearance = world_.clearance(h);
+    double radius_m[kMaxHapticHandles];
+    skin_radii(hand, radius_m);
     for (int j = 0; j < std::min(hand.num_handles(), kMaxHapticHandles); ++j) {
       const bool planes = j < static_cast<int>(clearance.size()) && !clearance[j].empty();
       hand.set_target(
           j, proxy_target(targets, h, j, publish_ns, &hand.handles()[j], planes ? clearance[j].data() : nullptr,
-                          planes ? std::min(static_cast<int>(clearance[j].size()), hand::kClearancePlanes) : 0));
+                          planes ? std::min(static_cast<int>(clearance[j].size()), hand::kClearancePlanes) : 0,
+                          radius_m[j]));
     }
   }
   if (inject_) inject_();

@@ -64,7 +64,7 @@ void fill_haptic_model(world::World& world, int h, hand::HandleLinearization& li
 bool set_tick_contacts(const hand::HandleContactModel& in, int handles, TickContacts& out);
 // Only its contact flags (in_contact: a contact of the last step inside or carrying force;
 // handle_in_contact: inside) from the world's last contacts, and each
-// handle's clearance planes (World::clearance) from its last collision.
+// handle's clearance planes (World::clearance) from its last collision, and its skin radius.
 void fill_contact_flags(const world::World& world, int h, HapticModel& out);
 
 // Handle j of hand h's target for a world that simulates up to `until_ns`: the proxy extrapolated
@@ -74,10 +74,15 @@ void fill_contact_flags(const world::World& world, int h, HapticModel& out);
 // one of their gaps, its velocity scaled alike: the tick holds the proxy itself to them
 // (ProxyHand::limit_to_clearance), but a proxy rushing after a device that jumped (4 m/s after a
 // stall) extrapolated over a late 100 ms step put the hand's target 9 cm on, through the bunny.
+// With the handle's skin radius (skin_radii) as well, it also stops where a skin point would go
+// farther from `from` than the planes were looked for (hand::free_travel_share).
 constexpr double kMaxProxyExtrapolation_s = 0.1;
 hand::HandleTarget proxy_target(const ProxyTargets& targets, int h, int j, std::uint64_t until_ns,
                                 const hand::HandleState* from = nullptr, const hand::ClearancePlane* planes = nullptr,
-                                int planes_count = 0);
+                                int planes_count = 0, double skin_radius_m = -1);
+
+// Per handle of `hand` (at most kMaxHapticHandles), the farthest of its skin points from it, m.
+void skin_radii(const hand::Hand& hand, double* radius_m);
 
 class VisualStep {
  public:

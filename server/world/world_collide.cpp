@@ -15,13 +15,12 @@ constexpr double kSpeculativeMargin_m = 0.002;
 // The farthest a point is looked for ahead of a surface, whatever its speed (a teleport would
 // otherwise make every point near every object a contact of the step).
 constexpr double kMaxReach_m = 0.05;
-// How far ahead of a surface a hand's points are measured for their handles' clearance planes
-// (World::clearance): a handle farther than this from every surface has none, and nothing bounds the
-// tick or the step's target there. 5 cm let a stylus that jumped 5 cm during a stall (10 cm in the
-// world) through the bunny (StalledServer). Measured against 5 cm (haptic-bench world, 150 steps,
-// three runs each, a temporary switch): collision 1.49 -> 1.61 ms on the glove grasp, unchanged on the
-// stylus bunny (2.45 ms).
-constexpr double kClearanceLook_m = 0.10;
+// hand::kClearanceLook_m, how far ahead of a surface a hand's points are measured for their handles'
+// clearance planes: 5 cm let a stylus that jumped 5 cm during a stall (10 cm in the world) through the
+// bunny (StalledServer). Measured against 5 cm (haptic-bench world, 150 steps, three runs each, a
+// temporary switch): collision 1.49 -> 1.61 ms on the glove grasp, unchanged on the stylus bunny
+// (2.45 ms).
+using hand::kClearanceLook_m;
 // The least a clearance plane lets a handle come toward a surface within one visual step: thinner
 // than any object it guards against passing through, more than the speculative margin.
 constexpr double kClearanceFloor_m = 0.005;

@@ -497,6 +497,58 @@ TEST(VirtualCoupling, AClearancePlaneStopsTheProxyAtItsGapAndLetsItGoBack) {
   EXPECT_GT(0.1 * widest, 0.0045) << "it turns up to the plane";
 }
 
+// A world's model (skin_known) bounds the proxy's travel from its anchor where no plane does: the
+// planes hold only surfaces within hand::kClearanceLook_m (10 cm) of the skin, so the skin goes no
+// farther than that within one model. The device pulled 30 cm away, the proxy of a point-like skin
+// stops 10 cm from x0 and comes back at once; a skin reaching 5 cm from its handle turns at most
+// 0.10 / 0.05 = 2 rad of the device's 2.5. A model without the skin's extent (a test's own, as above)
+// lets the proxy follow all the way.
+TEST(VirtualCoupling, TheProxysSkinGoesNoFartherFromTheAnchorThanTheClearancePlanesLook) {
+  HapticModel free_space = wall_model(0.0);
+  free_space.in_contact = false;
+  free_space.skin_known = true;
+  ProxyHand p = make_proxy();
+  double t = 0;
+  hold(p, free_space, Eigen::Vector3d::Zero(), 0.1, t);
+  double farthest = 0;
+  for (int k = 0; k < 1000; ++k) {
+    hold(p, free_space, Eigen::Vector3d(0.3, 0, 0), kPeriod, t);
+    farthest = std::max(farthest, p.proxy(0).p_W.norm());
+  }
+  std::printf("farthest %.6f m from the anchor, %ld ticks held\n", farthest, p.travel_limits());
+  EXPECT_LE(farthest, hand::kClearanceLook_m + 1e-12);
+  EXPECT_NEAR(p.proxy(0).p_W.x(), hand::kClearanceLook_m, 1e-6);
+  EXPECT_GT(p.travel_limits(), 0);
+  hold(p, free_space, Eigen::Vector3d(0.05, 0, 0), 1.0, t);
+  EXPECT_NEAR(p.proxy(0).p_W.x(), 0.05, 1e-4) << "coming back is free";
+
+  free_space.skin_radius_m[0] = 0.05;
+  ProxyHand q = make_proxy();
+  t = 0;
+  hold(q, free_space, Eigen::Vector3d::Zero(), 0.1, t);
+  const Eigen::Quaterniond turned(Eigen::AngleAxisd(2.5, Eigen::Vector3d::UnitY()));
+  double widest = 0;
+  for (int k = 0; k < 3000; ++k) {
+    t += kPeriod;
+    q.set_device_pose(0, Eigen::Vector3d::Zero(), turned);
+    q.commit_sample(t, 0.05);
+    q.reply(0, 1.0, kPeriod);
+    q.integrate(free_space, kPeriod);
+    widest = std::max(widest, hand::rotation_difference(q.proxy(0).q_W, Eigen::Quaterniond::Identity()).norm());
+  }
+  std::printf("turned at most %.5f rad of the device's 2.5\n", widest);
+  EXPECT_LE(0.05 * widest, hand::kClearanceLook_m + 1e-9);
+  EXPECT_GT(widest, 1.95) << "it turns up to the bound";
+
+  HapticModel unknown = free_space;
+  unknown.skin_known = false;
+  ProxyHand u = make_proxy();
+  t = 0;
+  hold(u, unknown, Eigen::Vector3d::Zero(), 0.1, t);
+  hold(u, unknown, Eigen::Vector3d(0.3, 0, 0), 1.0, t);
+  EXPECT_NEAR(u.proxy(0).p_W.x(), 0.3, 1e-3);
+}
+
 TEST(VirtualCoupling, ForceNeverExceedsTheLimitAndItsRateOfChangeIsBounded) {
   DeviceLimits limits{3.0, 0.2, 500.0};
   ProxyHand p = make_proxy({}, 1000.0, limits);

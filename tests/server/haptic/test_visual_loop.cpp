@@ -79,6 +79,30 @@ TEST(VisualLoopTargets, TheExtrapolationStopsAtTheHandlesClearancePlanes) {
   EXPECT_NEAR((h.p_W - targets.pose[0][1].p_W).norm(), 0.0, 1e-12);
 }
 
+TEST(VisualLoopTargets, TheExtrapolationStopsWhereTheSkinWouldLeaveWhereThePlanesLooked) {
+  const std::uint64_t t = 5'000'000'000ull;
+  const ProxyTargets targets = moving_proxy(t);
+  // The proxy 9 cm along x from the handle, unturned, its skin reaching 2 cm: 1 cm of the 10 cm
+  // (hand::kClearanceLook_m) left. 100 ms ahead it would move (1, 0, -2) cm and turn 0.2 rad, which
+  // uses sqrt(5) cm + 2 cm x 0.2 of it (the bound's rate): a share of 1 / (sqrt(5) + 0.4).
+  hand::HandleState from;
+  from.p_WH = {0.01, 0.2, 0.3};
+  hand::HandleTarget h = proxy_target(targets, 0, 1, t + 100'000'000, &from, nullptr, 0, 0.02);
+  const double share = 1.0 / (std::sqrt(5.0) + 0.4);
+  EXPECT_NEAR((h.p_W - Eigen::Vector3d(0.1 + share * 0.01, 0.2, 0.3 - share * 0.02)).norm(), 0.0, 1e-12);
+  EXPECT_NEAR((h.w_W - share * targets.w_W[0][1]).norm(), 0.0, 1e-12);
+  // With 5 cm of it left the whole extrapolation fits; without the skin's extent nothing is bounded.
+  from.p_WH = {0.05, 0.2, 0.3};
+  h = proxy_target(targets, 0, 1, t + 100'000'000, &from, nullptr, 0, 0.02);
+  EXPECT_NEAR((h.p_W - Eigen::Vector3d(0.11, 0.2, 0.28)).norm(), 0.0, 1e-12);
+  from.p_WH = {-0.2, 0.2, 0.3};
+  h = proxy_target(targets, 0, 1, t + 100'000'000, &from);
+  EXPECT_NEAR((h.p_W - Eigen::Vector3d(0.11, 0.2, 0.28)).norm(), 0.0, 1e-12);
+  // A proxy already beyond the bound only comes back toward the handle.
+  h = proxy_target(targets, 0, 1, t + 100'000'000, &from, nullptr, 0, 0.02);
+  EXPECT_NEAR((h.p_W - targets.pose[0][1].p_W).norm(), 0.0, 1e-12);
+}
+
 TEST(VisualLoopTargets, TheServerStampsItsProxiesWithTheEndOfTheTickThatWroteThem) {
   test::RunningServer s(ServerOptions{}, false);
   test::TestClient c(s.server.port());

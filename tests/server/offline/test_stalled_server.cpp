@@ -20,10 +20,15 @@
 // rate limit. CI's make test failed on proxy resets through hapticd (haptic-bench soak: 2 in a window
 // of 28 overruns); here the tick's contact solve threw the proxy past kMaxProxySpeed_m_s and reset it
 // 259 times on the fixed bunny (none on the movable one), the force dropping at 8000 N/s. Fixed by
-// solving again without the lookahead, then holding the proxy still (ProxyHand::integrate).
-// Issue17KnownFault.StalledServerEightCentimetreJumpsKeepTheHandOutOfTheBunny: the hand goes in there,
-// 29 mm into the movable bunny and 2.4 m through the fixed one (world resets): 16 cm in the world is
-// beyond the clearance planes' reach.
+// solving again without the lookahead, then holding the proxy still (ProxyHand::integrate): 79 and
+// 134 such solves, 134 holds. Since the skin's travel within one model is bounded too (below), the
+// proxy no longer gets far enough from its anchor for either here: the precondition is that bound.
+// Issue17KnownFault.StalledServerEightCentimetreJumpsKeepTheHandOutOfTheBunny: 16 cm in the world
+// is beyond the 10 cm the clearance planes look ahead. The hand went 19.5 mm into the movable bunny
+// and 2.9 m through the fixed one (2 world resets). With the proxy and the step's target carrying no
+// skin point farther than that from where the planes were measured (hand::free_travel_share), it
+// goes 11.8 and 12.6 mm in, at the first step after a jump down, and nothing resets: still past
+// the 5 mm.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -42,7 +47,7 @@ namespace {
 constexpr double kPeriod = 1e-3;
 
 struct StallRun {
-  long proxy_resets = 0, world_resets = 0, fallbacks = 0, holds = 0, contact_ticks = 0;
+  long proxy_resets = 0, world_resets = 0, fallbacks = 0, holds = 0, contact_ticks = 0, bounded = 0;
   double max_force_n = 0, max_rate_n_s = 0;
   double deepest_m = 0;  // the deepest skin point of the world's contacts
 };
@@ -83,12 +88,13 @@ StallRun run_stalls(const world::SceneDesc& scene, double jump_m, int model_dela
   out.world_resets = loops.resets() - proxy.resets();
   out.fallbacks = proxy.lookahead_fallbacks();
   out.holds = proxy.contact_holds();
+  out.bounded = proxy.travel_limits();
   std::printf(
       "%s, %.0f cm jumps, models %d ms late: proxy resets %ld, world resets %ld, contact solves without the "
-      "lookahead %ld, holds %ld, contact ticks %ld, largest force %.2f N, fastest change %.0f N/s, deepest skin point "
-      "%.1f mm\n",
+      "lookahead %ld, holds %ld, ticks held by the travel bound %ld, contact ticks %ld, largest force "
+      "%.2f N, fastest change %.0f N/s, deepest skin point %.1f mm\n",
       scene.name.c_str(), 100 * jump_m, model_delay_ticks, out.proxy_resets, out.world_resets, out.fallbacks, out.holds,
-      out.contact_ticks, out.max_force_n, out.max_rate_n_s, 1e3 * out.deepest_m);
+      out.bounded, out.contact_ticks, out.max_force_n, out.max_rate_n_s, 1e3 * out.deepest_m);
   return out;
 }
 
@@ -126,15 +132,13 @@ TEST(StalledServer, ThreeAndFiveCentimetreJumpsResetNothingAndKeepTheHandOutOfTh
 }
 
 TEST(StalledServer, EightCentimetreJumpsResetNoProxyAndKeepTheForceWithinTheDevicesLimits) {
-  long fallbacks = 0;
   for (bool movable : {true, false}) {
     const world::SceneDesc scene = bunny_scene(movable);
     const StallRun r = run_stalls(scene, 0.08, 90);
     EXPECT_GT(r.contact_ticks, 1000) << scene.name << ": the stylus pressed on the bunny";
+    EXPECT_GT(r.bounded, 0) << scene.name << ": the stalls did not reach the case this test is about";
     expect_safe_force(scene, r);
-    fallbacks += r.fallbacks;
   }
-  EXPECT_GT(fallbacks, 0) << "the stalls did not reach the case this test is about";
 }
 
 TEST(Issue17KnownFault, StalledServerEightCentimetreJumpsKeepTheHandOutOfTheBunny) {
