@@ -370,5 +370,44 @@ TEST(TickContacts, ATickPastTheBoundSolvesAtIt) {
   EXPECT_EQ(p.proxy_velocity(0), q.proxy_velocity(0));
 }
 
+// The tick's last guards (ProxyHand::integrate) on a model the tick cannot follow, a proxy held by
+// one falling row with the lookahead's bound left unprepared (max_lookahead_s infinite):
+// - the row's operator w (1 - tau / tau*) nearly vanishing at the tick's lookahead (tau = 0.03 s,
+//   tau* a millionth further): its impulse throws the proxy at about 200 m/s. The tick solves again at
+//   tau = h, where the operator is 0.97 w, and gives the impulse of that solve: 0.01 / 0.97 N s;
+// - a row closing at 10 km/s (a model far outside its linearization): too fast at either
+//   lookahead, the proxy holds still for the tick. Neither resets.
+TEST(TickContacts, ARowTheTickCannotFollowIsSolvedWithoutTheLookaheadThenHeld) {
+  const double mass = kMass, w = 1.0, tau = 0.03;
+  const CouplingGains gains = coupling_gains_for(1000.0, 1.0, kPeriod);
+  const double a = mass + kPeriod * gains.b_ns_m + kPeriod * kPeriod * gains.k_n_m;
+  HapticModel near_singular = falling_rows_model(w, w * a / (kPeriod * tau * (1 + 1e-6)), 0.1);
+  near_singular.contacts.u0 = TickRowVector::Constant(3, -0.01);  // closing at 1 cm/s
+  ProxyHand p = make_proxy(1);
+  double t = 0;
+  rest_on_device(p, {Eigen::Vector3d::Zero()}, t);
+  p.integrate(near_singular, kPeriod, tau);
+  EXPECT_EQ(p.lookahead_fallbacks(), 1);
+  EXPECT_EQ(p.contact_holds(), 0);
+  EXPECT_EQ(p.resets(), 0);
+  // At tau = h the row's operator is w (1 - h / tau*) and its impulse closes the 1 cm/s.
+  const double operator_at_h = w * (1 - kPeriod / (tau * (1 + 1e-6)));
+  EXPECT_NEAR(p.contact_impulses()[0], 0.01 / operator_at_h, 1e-9);
+  EXPECT_LT(p.proxy_velocity(0).norm(), 1.0);
+
+  HapticModel far = falling_rows_model(w, w * a / (kPeriod * 0.2), 0.1);
+  far.contacts.u0 = TickRowVector::Constant(3, -1e4);
+  ProxyHand q = make_proxy(1);
+  t = 0;
+  rest_on_device(q, {Eigen::Vector3d::Zero()}, t);
+  const Eigen::Vector3d before = q.proxy(0).p_W;
+  q.integrate(far, kPeriod, tau);
+  EXPECT_EQ(q.lookahead_fallbacks(), 1);
+  EXPECT_EQ(q.contact_holds(), 1);
+  EXPECT_EQ(q.resets(), 0);
+  EXPECT_EQ(q.proxy_velocity(0), Eigen::Vector3d::Zero());
+  EXPECT_EQ(q.proxy(0).p_W, before);
+}
+
 }  // namespace
 }  // namespace hapticd::haptic
