@@ -520,8 +520,8 @@ void ProxyHand::limit_to_clearance(const HapticModel& model, double dt) {
   // rotational inertia is tiny, when a turn closes the gap). The planes hold only surfaces within
   // hand::kClearanceLook_m of the skin: the handle's skin goes no farther from x0 than that either
   // (a stylus that jumped 8 cm during a stall, 16 cm in the world, went 19.5 mm into the movable
-  // bunny and 2.9 m through the fixed one past planes that did not reach that far; 11.8 and 12.6 mm
-  // with this bound: StalledServer).
+  // bunny and 2.9 m through the fixed one past planes that did not reach that far; with this bound
+  // nothing resets: StalledServer).
   for (int j = 0; j < handles_; ++j) {
     const int planes = std::min(model.clearance_count[j], hand::kClearancePlanes);
     if (planes <= 0 && !model.skin_known) continue;

@@ -26,9 +26,10 @@
 // Issue17KnownFault.StalledServerEightCentimetreJumpsKeepTheHandOutOfTheBunny: 16 cm in the world
 // is beyond the 10 cm the clearance planes look ahead. The hand went 19.5 mm into the movable bunny
 // and 2.9 m through the fixed one (2 world resets). With the proxy and the step's target carrying no
-// skin point farther than that from where the planes were measured (hand::free_travel_share), it
-// goes 11.8 and 12.6 mm in, at the first step after a jump down, and nothing resets: still past
-// the 5 mm.
+// skin point farther than that from where the planes were measured (hand::free_travel_share),
+// nothing resets, and what goes in is the bunny's mesh vertices, 11.8 and 12.6 mm into the stylus's
+// flesh at the first step after a jump down (the world finds a vertex within 2 mm of the flesh
+// only, World::collide_mesh_vertices): still past the 5 mm.
 #include <gtest/gtest.h>
 
 #include <algorithm>
