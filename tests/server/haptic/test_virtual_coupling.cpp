@@ -454,6 +454,25 @@ TEST(VirtualCoupling, TheCouplingPullsTheProxyNoHarderThanTheDeviceCanPushBack) 
   EXPECT_NEAR(wall_force_W, limits.max_force_n / map.scale, 0.01 * limits.max_force_n / map.scale);
 }
 
+// A fresh proxy at rest on its device under `model`, then the device turned by `angle` about y and
+// held there for `seconds`: the proxy's widest turn about y, rad.
+double widest_turn_about_y(const HapticModel& model, double angle, double seconds) {
+  ProxyHand q = make_proxy();
+  double t = 0;
+  hold(q, model, Eigen::Vector3d::Zero(), 0.1, t);
+  const Eigen::Quaterniond turned(Eigen::AngleAxisd(angle, Eigen::Vector3d::UnitY()));
+  double widest = 0;
+  for (int k = 0; k < static_cast<int>(std::lround(seconds / kPeriod)); ++k) {
+    t += kPeriod;
+    q.set_device_pose(0, Eigen::Vector3d::Zero(), turned);
+    q.commit_sample(t, 0.05);
+    q.reply(0, 1.0, kPeriod);
+    q.integrate(model, kPeriod);
+    widest = std::max(widest, hand::rotation_difference(q.proxy(0).q_W, Eigen::Quaterniond::Identity()).y());
+  }
+  return widest;
+}
+
 // A clearance plane (HapticModel::clearance: the nearest surface the model does not hold) 5 mm below
 // the anchor: the device pulled 10 cm under it, the proxy stops on it; pulled back up, it follows at
 // once. A plane 10 cm off the handle bounds its turn too: a turn by theta about y closes that gap by
@@ -479,19 +498,7 @@ TEST(VirtualCoupling, AClearancePlaneStopsTheProxyAtItsGapAndLetsItGoBack) {
 
   HapticModel turning = free_space;
   turning.clearance[0][0].r_W = Eigen::Vector3d(0.1, 0, 0);
-  ProxyHand q = make_proxy();
-  t = 0;
-  hold(q, turning, Eigen::Vector3d::Zero(), 0.1, t);
-  const Eigen::Quaterniond turned(Eigen::AngleAxisd(0.2, Eigen::Vector3d::UnitY()));
-  double widest = 0;
-  for (int k = 0; k < 2000; ++k) {
-    t += kPeriod;
-    q.set_device_pose(0, Eigen::Vector3d::Zero(), turned);
-    q.commit_sample(t, 0.05);
-    q.reply(0, 1.0, kPeriod);
-    q.integrate(turning, kPeriod);
-    widest = std::max(widest, hand::rotation_difference(q.proxy(0).q_W, Eigen::Quaterniond::Identity()).y());
-  }
+  const double widest = widest_turn_about_y(turning, 0.2, 2.0);
   std::printf("turned at most %.5f rad of the device's 0.2\n", widest);
   EXPECT_LE(0.1 * widest, 0.005 + 1e-6);
   EXPECT_GT(0.1 * widest, 0.0045) << "it turns up to the plane";
@@ -523,19 +530,7 @@ TEST(VirtualCoupling, TheProxysSkinGoesNoFartherFromTheAnchorThanTheClearancePla
   EXPECT_NEAR(p.proxy(0).p_W.x(), 0.05, 1e-4) << "coming back is free";
 
   free_space.skin_radius_m[0] = 0.05;
-  ProxyHand q = make_proxy();
-  t = 0;
-  hold(q, free_space, Eigen::Vector3d::Zero(), 0.1, t);
-  const Eigen::Quaterniond turned(Eigen::AngleAxisd(2.5, Eigen::Vector3d::UnitY()));
-  double widest = 0;
-  for (int k = 0; k < 3000; ++k) {
-    t += kPeriod;
-    q.set_device_pose(0, Eigen::Vector3d::Zero(), turned);
-    q.commit_sample(t, 0.05);
-    q.reply(0, 1.0, kPeriod);
-    q.integrate(free_space, kPeriod);
-    widest = std::max(widest, hand::rotation_difference(q.proxy(0).q_W, Eigen::Quaterniond::Identity()).norm());
-  }
+  const double widest = widest_turn_about_y(free_space, 2.5, 3.0);
   std::printf("turned at most %.5f rad of the device's 2.5\n", widest);
   EXPECT_LE(0.05 * widest, hand::kClearanceLook_m + 1e-9);
   EXPECT_GT(widest, 1.95) << "it turns up to the bound";
