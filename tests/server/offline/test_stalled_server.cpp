@@ -50,7 +50,7 @@ constexpr double kPeriod = 1e-3;
 struct StallRun {
   long proxy_resets = 0, world_resets = 0, fallbacks = 0, holds = 0, contact_ticks = 0, bounded = 0;
   double max_force_n = 0, max_rate_n_s = 0;
-  double deepest_m = 0;  // the deepest skin point of the world's contacts
+  double deepest_m = 0;  // the deepest of the world's contacts (WorldSnapshot::max_penetration_m)
 };
 
 StallRun run_stalls(const world::SceneDesc& scene, double jump_m, int model_delay_ticks, int step_ticks = 100) {
@@ -91,11 +91,11 @@ StallRun run_stalls(const world::SceneDesc& scene, double jump_m, int model_dela
   out.holds = proxy.contact_holds();
   out.bounded = proxy.travel_limits();
   std::printf(
-      "%s, %d ms steps, %.0f cm jumps, models %d ms late: proxy resets %ld, world resets %ld, contact solves without the "
-      "lookahead %ld, holds %ld, ticks held by the travel bound %ld, contact ticks %ld, largest force "
-      "%.2f N, fastest change %.0f N/s, deepest skin point %.1f mm\n",
-      scene.name.c_str(), step_ticks, 100 * jump_m, model_delay_ticks, out.proxy_resets, out.world_resets, out.fallbacks, out.holds,
-      out.bounded, out.contact_ticks, out.max_force_n, out.max_rate_n_s, 1e3 * out.deepest_m);
+      "%s, %d ms steps, %.0f cm jumps, models %d ms late: proxy resets %ld, world resets %ld, contact solves "
+      "without the lookahead %ld, holds %ld, ticks held by the travel bound %ld, contact ticks %ld, largest force "
+      "%.2f N, fastest change %.0f N/s, deepest contact %.1f mm\n",
+      scene.name.c_str(), step_ticks, 100 * jump_m, model_delay_ticks, out.proxy_resets, out.world_resets,
+      out.fallbacks, out.holds, out.bounded, out.contact_ticks, out.max_force_n, out.max_rate_n_s, 1e3 * out.deepest_m);
   return out;
 }
 
