@@ -24,6 +24,9 @@ class MeshSdf {
   // clamped nodes and its gradient no normal.
   bool query(const Eigen::Vector3d& p, double& distance, Eigen::Vector3d& normal) const;
   bool empty() const { return values_.empty(); }
+  double cell() const { return cell_; }
+  // How far outside the surface query() answers: half a cell short of the clamp.
+  double reach() const { return far_ - 0.5 * cell_; }
 
  private:
   double at(int i, int j, int k) const { return values_[i + dims_[0] * (j + dims_[1] * k)]; }

@@ -109,6 +109,12 @@ class RigidWorld : public hand::RigidObjects {
   // `margin_m` > 0 also reports points up to that far outside (depth < 0: a gap).
   bool penetration(int i, const Eigen::Vector3d& p_W, double& depth_m, Eigen::Vector3d& n_W,
                    const Eigen::Vector3d& entry_n_W = Eigen::Vector3d::Zero(), double margin_m = 0) const;
+  // A mesh's clearance: the distance from an outside point p_W to mesh i and the direction out of
+  // it there, up to 10 cm. Within 1.65 cm the distance grid penetration() uses answers; beyond it a
+  // coarser one (1.5 cm cells) gives a lower bound, its trilinear error (0.87 of a cell) taken off.
+  // False for other shapes, inside the mesh, and farther. For clearance planes only, never a
+  // contact: its gap is short of the surface by up to twice that error.
+  bool far_clearance(int i, const Eigen::Vector3d& p_W, double& gap_m, Eigen::Vector3d& n_W) const;
 
   // Contacts of rigid body i with every other object (ODE's collision, the
   // same as its own step would find): normal out of the other object into body
@@ -182,7 +188,7 @@ class RigidWorld : public hand::RigidObjects {
     Eigen::Vector3d com_O = Eigen::Vector3d::Zero();  // centre of mass in the object frame
     double friction = 0.5, friction_static = 0.5, restitution = 0;
     dTriMeshDataID trimesh = nullptr;
-    MeshSdf sdf;  // meshes only
+    MeshSdf sdf, far_sdf;  // meshes only (far_clearance)
     std::vector<double> vertices;
     std::vector<dTriIndex> indices;
     bool gravity_held = false;  // hold_gravity_for_next_step()

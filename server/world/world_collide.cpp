@@ -252,11 +252,18 @@ void World::collide(SoftBody& b) {
       const bool near = rigid_->penetration(g, p, depth, n, entry, look);
       if (!near || depth <= -reach) {
         if (last.object == g) last = LastContact{};
-        if (world_hand && near)
-          note_clearance(*world_hand->model, world_hand->clearance, static_cast<int>(v), p, n, -depth);
+        // A mesh's fine grid answers to 1.65 cm only: farther, its coarse one (StalledServer: with
+        // no plane from the bunny a step carried the hand 84 mm down onto it).
+        double gap = -depth;
+        if (world_hand && (near || rigid_->far_clearance(g, p, gap, n)) && gap < look)
+          note_clearance(*world_hand->model, world_hand->clearance, static_cast<int>(v), p, n, gap);
         continue;
       }
       last = LastContact{g, n};
+      // A speculative row beyond the floor is a plane too: rows found at a fast hand's reach (up to
+      // kMaxReach_m) were all that bounded the next step's target, and its hand went 11 mm in.
+      if (world_hand && depth < -kClearanceFloor_m)
+        note_clearance(*world_hand->model, world_hand->clearance, static_cast<int>(v), p, n, -depth);
       const Eigen::Vector3d v_other = rigid_->point_velocity(g, p);
       // Outside, with constraint contact: a deformable object's point is a row if it closes the gap
       // within the step (its mean velocity toward the surface over the step, under gravity, times

@@ -83,7 +83,9 @@ TEST(Multirate, At30HzOnlyTheLinearizedModelRendersTheStylusPressStablyInClosedL
   // here as the reference); holding the last visual force on the proxy puts energy in until resets
   // stop it. (Whether the 30 Hz rendering is passive is the next test's.) The hold reset the proxy
   // over 100 times; since the tick carries no skin farther than the clearance planes look from the
-  // model's anchor (hand::free_travel_share), 27 times, with +0.35 J put into the device.
+  // model's anchor (hand::free_travel_share), 27 times, with +0.35 J put into the device; since the
+  // planes hold the bunny from 10 cm (RigidWorld::far_clearance) and the speculative rows, 8 times,
+  // with +0.24 J and an RMS force 4.7 times the reference's.
   const ClosedLoop reference = closed_loop_press(haptic::HandleModelKind::linearized, 1);
   const ClosedLoop lin = closed_loop_press(haptic::HandleModelKind::linearized, 33);
   const ClosedLoop zoh = closed_loop_press(haptic::HandleModelKind::zoh, 33);
@@ -92,8 +94,9 @@ TEST(Multirate, At30HzOnlyTheLinearizedModelRendersTheStylusPressStablyInClosedL
   EXPECT_EQ(lin.resets, 0);
   EXPECT_NEAR(lin.rms_force_n, reference.rms_force_n, 0.1 * reference.rms_force_n);
   EXPECT_LT(lin.max_force_n, 1.25 * reference.max_force_n);
-  EXPECT_GT(zoh.resets, 10);
+  EXPECT_GT(zoh.resets, 0);
   EXPECT_GT(zoh.energy_j, 0.1);
+  EXPECT_GT(zoh.rms_force_n, 3 * reference.rms_force_n);
 }
 
 TEST(Multirate, At30HzTheLinearizedModelRendersTheStylusPressPassively) {
