@@ -306,7 +306,10 @@ void World::collide(SoftBody& b) {
     if (body_of_object[g] < 0) continue;
     dReal aabb[6];
     dGeomGetAABB(rigid_->geom(g), aabb);
-    const double reach = std::min(kSpeculativeMargin_m + (speed_bound(*rigid_, g, aabb) + fall) * h, kMaxReach_m);
+    // Gravity's share is not capped by kMaxReach_m (a teleport's guard): at a 200 ms step (kMaxStep_s)
+    // a box the glove let go of 5 cm above the table falls 20 cm within the hand's solve, and with the
+    // table out of reach it went through it to the floor (Touch/GraspRelease at 5 Hz).
+    const double reach = std::min(kSpeculativeMargin_m + speed_bound(*rigid_, g, aabb) * h, kMaxReach_m) + fall * h;
     rigid_->supports_of(g, found, reach);
     for (const RigidWorld::BodyContact& bc : found) {
       hand::BodySupport support;
