@@ -306,7 +306,7 @@ void World::collide(SoftBody& b) {
     if (body_of_object[g] < 0) continue;
     dReal aabb[6];
     dGeomGetAABB(rigid_->geom(g), aabb);
-    // Gravity's share is not capped by kMaxReach_m (a teleport's guard): at a 200 ms step (kMaxStep_s)
+    // Gravity's share is not capped by kMaxReach_m (a teleport's guard): at a 200 ms step
     // a box the glove let go of 5 cm above the table falls 20 cm within the hand's solve, and with the
     // table out of reach it went through it to the floor (Touch/GraspRelease at 5 Hz).
     const double reach = std::min(kSpeculativeMargin_m + speed_bound(*rigid_, g, aabb) * h, kMaxReach_m) + fall * h;

@@ -140,13 +140,25 @@ TEST_P(PressHoldLiftForces, PullNothingAfterTheLiftAndFallQuiet) {
 
 const Press kGentle{0.02, 0.02, 0.05}, kDeepFast{0.035, 0.06, 0.15};
 
+// At 7 Hz too: 150 ms, the longest step the visual loop takes on a loaded machine (kMaxStep_s).
 std::vector<Case> cases() {
   std::vector<Case> out;
   for (const char* object : {"movable_bunny", "fixed_bunny", "deformable_bunny", "table_edge"})
-    for (int every : {67, 33, 17})  // 15, 30, 60 Hz
+    for (int every : {150, 67, 33, 17})  // 7, 15, 30, 60 Hz
       for (const Press& p : {kGentle, kDeepFast}) out.push_back({object, every, p});
   return out;
 }
+
+// A known fault of issue 17 (tests/CMakeLists.txt runs it as one ctest expected to fail): the deep
+// press into the deformable bunny at 10 Hz puts +7.9e-4 J into the stylus, and at 5 Hz (200 ms steps,
+// beyond kMaxStep_s) the hand first touches it 30 mm down instead of 18, pulls 4.1 N toward it after
+// the lift and is still InContact a second later. Every other object passes at 5 and 10 Hz. The
+// hand's points meet a deformable object only within 2 mm of it: no speculative rows ahead of a fast
+// step and no clearance planes from it (docs/architecture.md).
+const Case kSlowDeformablePresses[] = {{"deformable_bunny", 100, kDeepFast}, {"deformable_bunny", 200, kDeepFast}};
+INSTANTIATE_TEST_SUITE_P(Issue17KnownFault, PressHoldLift, ::testing::ValuesIn(kSlowDeformablePresses), case_name);
+INSTANTIATE_TEST_SUITE_P(Issue17KnownFault, PressHoldLiftForces,
+                         ::testing::Values(Case{"deformable_bunny", 200, kDeepFast}), case_name);
 
 // Seed 002's spring hand (issue 18) on the rigid objects: the same bounds. When added they failed in 25
 // of 36 cases (run as a known fault): the device carried the served spring hand's 0.65 kg through its
