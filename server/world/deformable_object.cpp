@@ -1,5 +1,6 @@
 #include "server/world/deformable_object.hpp"
 
+#include <Eigen/SVD>
 #include <algorithm>
 #include <cmath>
 #include <map>
@@ -155,6 +156,40 @@ hand::ContactBody rigid_proxy(const DeformableObject& o) {
   return b;
 }
 
+DeformableObject::RigidFit rigid_fit(const DeformableObject& o) {
+  const Eigen::VectorXd& m = o.model->fem().lumped_mass();
+  const std::vector<Eigen::Vector3d>& X = o.body.mesh.X;
+  const int n = o.model->num_nodes();
+  Eigen::Vector3d C = Eigen::Vector3d::Zero(), c = Eigen::Vector3d::Zero();
+  for (int i = 0; i < n; ++i) C += m[i] * X[i], c += m[i] * o.state.x.segment<3>(3 * i);
+  C /= m.sum();
+  c /= m.sum();
+  Eigen::Matrix3d A = Eigen::Matrix3d::Zero();
+  for (int i = 0; i < n; ++i) A += m[i] * (o.state.x.segment<3>(3 * i) - c) * (X[i] - C).transpose();
+  DeformableObject::RigidFit fit;
+  fit.deviation_m = INFINITY;
+  if (!A.allFinite()) return fit;
+  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(A, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
+  D(2, 2) = (svd.matrixU() * svd.matrixV().transpose()).determinant() < 0 ? -1 : 1;
+  fit.R = svd.matrixU() * D * svd.matrixV().transpose();
+  fit.t = c - fit.R * C;
+  double deviation = 0;
+  for (int i = 0; i < n; ++i)
+    deviation = std::max(deviation, (o.state.x.segment<3>(3 * i) - fit.R * X[i] - fit.t).norm());
+  fit.deviation_m = deviation;
+  return fit;
+}
+
+bool far_clearance(const DeformableObject& o, const Eigen::Vector3d& p, double& gap, Eigen::Vector3d& n) {
+  if (!o.query || !std::isfinite(o.fit.deviation_m)) return false;
+  Eigen::Vector3d n_rest;
+  if (!clearance(o.query->rest_sdf(), o.far_sdf, o.fit.R.transpose() * (p - o.fit.t), gap, n_rest)) return false;
+  gap -= o.fit.deviation_m;
+  n = o.fit.R * n_rest;
+  return gap > 0;
+}
+
 }  // namespace detail
 
 std::unique_ptr<DeformableObject> make_deformable_object(const ObjectDesc& desc, const DeformableBuild& build) {
@@ -220,6 +255,8 @@ std::unique_ptr<DeformableObject> make_deformable_object(const ObjectDesc& desc,
     const double cell = std::clamp(box.sizes().maxCoeff() / 40, 0.001, 0.003);
     o->query = std::make_unique<DeformedMeshQuery>(o->body.mesh, o->body.surface, cell, 6);
     o->query->update(o->state.x);
+    o->far_sdf = far_clearance_sdf(o->body.surface);
+    o->fit = detail::rigid_fit(*o);
   }
   return o;
 }

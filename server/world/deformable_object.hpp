@@ -36,6 +36,15 @@ struct DeformableObject {
   // null when the scene has no hand to touch the object.
   std::unique_ptr<DeformedMeshQuery> query;
   Eigen::AlignedBox3d surface_bounds;  // of the deformed surface, at the last collision
+  // Far from the object, where the query locates nothing (clearance planes): the rest surface's
+  // coarse distance grid (far_clearance_sdf), and the rigid motion x ~ R X + t that best matches the
+  // nodes' at the last collision, with the farthest any node is from where it puts it.
+  MeshSdf far_sdf;
+  struct RigidFit {
+    Eigen::Matrix3d R = Eigen::Matrix3d::Identity();
+    Eigen::Vector3d t = Eigen::Vector3d::Zero();
+    double deviation_m = 0;  // infinite when the nodes are not finite
+  } fit;
 };
 
 struct DeformableBuild {
@@ -69,6 +78,18 @@ Eigen::Vector3d surface_point(const DeformableObject& object, int v);
 // current shape, and the velocity and angular velocity that carry its momentum
 // and angular momentum.
 hand::ContactBody rigid_proxy(const DeformableObject& object);
+
+// The rigid motion that best matches the object's current node positions to its rest shape: the
+// rotation of the mass-weighted shape matching (polar factor of sum m (x - c)(X - C)^T) about the
+// centres of mass, and the largest distance of a node from its image.
+DeformableObject::RigidFit rigid_fit(const DeformableObject& object);
+
+// A lower bound of the distance from p_W to the deformed surface, and the direction out of it: the rest
+// surface's clearance (clearance() in mesh_sdf.hpp) at p carried back by the fit, less the fit's
+// deviation. A point of the deformed surface is a convex combination of its tet's nodes, each within
+// the deviation of its rigid image. False inside the surface, farther than the coarse grid reaches and
+// where the bound is not positive.
+bool far_clearance(const DeformableObject& object, const Eigen::Vector3d& p_W, double& gap_m, Eigen::Vector3d& n_W);
 
 }  // namespace detail
 

@@ -48,6 +48,8 @@ class DeformedMeshQuery {
   bool empty() const { return tets_.empty(); }
   // Bounding box of the deformed tets at the last update (empty before).
   const Eigen::AlignedBox3d& bounds() const { return bounds_; }
+  // The rest surface's signed distance grid.
+  const MeshSdf& rest_sdf() const { return sdf_; }
 
   // The tet holding p (or, within kBarycentricSlack outside the mesh, the
   // nearest) and p's barycentric coordinates in it; false when none.

@@ -7,6 +7,13 @@
 namespace hapticd::world {
 namespace {
 
+// The coarse distance grid of a mesh's far clearance: 1.5 cm cells, exact to 7 of them, and the
+// trilinear interpolant's largest error in cells: a distance field is 1-Lipschitz, so the
+// interpolant is within the weighted distance to the cell's corners, at most sqrt(3) / 2 at its centre.
+constexpr double kFarCell_m = 0.015;
+constexpr int kFarBandCells = 7;
+constexpr double kFarError = 0.8660254037844386;
+
 // Closest point on triangle abc to p (Ericson, Real-Time Collision Detection 5.1.5).
 Eigen::Vector3d closest_on_triangle(const Eigen::Vector3d& p, const Eigen::Vector3d& a, const Eigen::Vector3d& b,
                                     const Eigen::Vector3d& c) {
@@ -115,6 +122,22 @@ bool MeshSdf::query(const Eigen::Vector3d& p, double& distance, Eigen::Vector3d&
   if (distance > far_ - 0.5 * cell_) return false;
   const double g = grad.norm();
   normal = g > 0 ? Eigen::Vector3d(grad / g) : Eigen::Vector3d::UnitZ();
+  return true;
+}
+
+MeshSdf far_clearance_sdf(const hand::SurfaceMesh& mesh) { return MeshSdf(mesh, kFarCell_m, kFarBandCells); }
+
+bool clearance(const MeshSdf& fine, const MeshSdf& far, const Eigen::Vector3d& p, double& gap, Eigen::Vector3d& n) {
+  if (far.empty()) return false;
+  double distance;
+  if (fine.query(p, distance, n)) {  // within the fine grid's reach: its own answer
+    if (distance <= 0) return false;
+    gap = distance;
+    return true;
+  }
+  // Beyond it the point is at least that far from the surface.
+  if (!far.query(p, distance, n) || distance <= 0) return false;
+  gap = std::max(fine.reach(), distance - kFarError * far.cell());
   return true;
 }
 

@@ -36,4 +36,13 @@ class MeshSdf {
   std::vector<double> values_;
 };
 
+// A mesh's clearance far from it (clearance planes, never contacts), from its fine grid and a coarse
+// one: `far_clearance_sdf` builds the coarse grid, 1.5 cm cells exact to 7 of them (10 cm,
+// hand::kClearanceLook_m). `clearance` gives an outside point's distance from the fine grid where it
+// answers, else a lower bound from the coarse one (its trilinear error taken off), and the direction
+// out of the mesh; false inside the mesh and beyond the coarse grid's reach. The bound is short of the
+// surface by up to twice that error (2.6 cm).
+MeshSdf far_clearance_sdf(const hand::SurfaceMesh& mesh);
+bool clearance(const MeshSdf& fine, const MeshSdf& far, const Eigen::Vector3d& p, double& gap_m, Eigen::Vector3d& n);
+
 }  // namespace hapticd::world

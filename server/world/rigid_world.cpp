@@ -10,14 +10,6 @@
 namespace hapticd::world {
 namespace {
 
-// The coarse distance grid of a mesh's far clearance (far_clearance): 1.5 cm cells, exact to 7 of
-// them (10 cm, kClearanceLook_m), and the trilinear interpolant's largest error in cells: a distance
-// field is 1-Lipschitz, so the interpolant is within the weighted distance to the cell's corners,
-// at most sqrt(3) / 2 at its centre.
-constexpr double kFarCell_m = 0.015;
-constexpr int kFarBandCells = 7;
-constexpr double kFarError = 0.8660254037844386;
-
 constexpr int kMaxContactsPerPair = 8;
 // A body's supports on one piece of static geometry (supports_of), for the soft bodies' solves that
 // hold it: 8 left a mesh's other vertices free to go into the table, and the bunny pressed by the
@@ -276,7 +268,7 @@ RigidWorld::RigidWorld(const SceneDesc& scene, bool dynamics_for_hands) : dt_(sc
         hand::SurfaceMesh scaled = surface;
         for (Eigen::Vector3d& v : scaled.vertices) v *= s.scale;
         obj.sdf = MeshSdf(scaled, 0.003, 6);  // distances exact to 6 cells (1.8 cm, more for a mesh over 38 cm)
-        obj.far_sdf = MeshSdf(scaled, kFarCell_m, kFarBandCells);
+        obj.far_sdf = far_clearance_sdf(scaled);
         break;
       }
       case ShapeType::tet_mesh:
@@ -483,19 +475,10 @@ Eigen::Vector3d RigidWorld::point_velocity(int i, const Eigen::Vector3d& p) cons
 
 bool RigidWorld::far_clearance(int i, const Eigen::Vector3d& p, double& gap, Eigen::Vector3d& n) const {
   const Object& o = objects_[i];
-  if (o.far_sdf.empty()) return false;
+  if (o.far_sdf.empty()) return false;  // not a mesh (a plane has no rotation)
   const Eigen::Matrix3d R = geom_rotation(o.geom);
-  const Eigen::Vector3d local = R.transpose() * (p - geom_position(o.geom));
-  double distance;
   Eigen::Vector3d n_local;
-  if (o.sdf.query(local, distance, n_local)) {  // within the fine grid's reach: its own answer
-    if (distance <= 0) return false;
-    gap = distance;
-  } else {
-    // Beyond it the point is at least that far from the surface.
-    if (!o.far_sdf.query(local, distance, n_local) || distance <= 0) return false;
-    gap = std::max(o.sdf.reach(), distance - kFarError * o.far_sdf.cell());
-  }
+  if (!clearance(o.sdf, o.far_sdf, R.transpose() * (p - geom_position(o.geom)), gap, n_local)) return false;
   n = R * n_local;
   return true;
 }

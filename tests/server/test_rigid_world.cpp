@@ -11,6 +11,7 @@
 #include "hand_models/embedded_surface.hpp"
 #include "server/world/rigid_world.hpp"
 #include "server/world/scene_loader.hpp"
+#include "world_test_util.hpp"
 
 namespace hapticd::world {
 namespace {
@@ -342,26 +343,6 @@ TEST(RigidWorld, FastButBoundedBodiesAreNotReset) {
   EXPECT_NEAR(world.state(0).p_WO.x(), 40 * 30 * scene.dt_s, 1e-9);
 }
 
-// The point of segment ab nearest p.
-Eigen::Vector3d segment_closest(const Eigen::Vector3d& p, const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
-  const Eigen::Vector3d ab = b - a;
-  return a + std::clamp((p - a).dot(ab) / ab.squaredNorm(), 0.0, 1.0) * ab;
-}
-
-// The point of triangle abc nearest p: p projected on its plane where that lies inside it, else the
-// nearest point of its edges.
-Eigen::Vector3d triangle_closest(const Eigen::Vector3d& p, const Eigen::Vector3d& a, const Eigen::Vector3d& b,
-                                 const Eigen::Vector3d& c) {
-  const Eigen::Vector3d n = (b - a).cross(c - a);
-  const Eigen::Vector3d q = p - n.dot(p - a) / n.squaredNorm() * n;
-  if (n.dot((b - a).cross(q - a)) >= 0 && n.dot((c - b).cross(q - b)) >= 0 && n.dot((a - c).cross(q - c)) >= 0)
-    return q;
-  Eigen::Vector3d best = segment_closest(p, a, b);
-  for (const Eigen::Vector3d& e : {segment_closest(p, b, c), segment_closest(p, c, a)})
-    if ((p - e).squaredNorm() < (p - best).squaredNorm()) best = e;
-  return best;
-}
-
 // The bunny's clearance from 1 to 9.5 cm out (far_clearance: the fine grid within its 1.65 cm, a
 // 1.5 cm grid beyond) against the distance to its triangles, every one of them tried: never more than
 // the distance (a clearance plane must not let a skin point through), short of it by at most the
@@ -393,7 +374,8 @@ TEST(RigidWorld, AMeshsFarClearanceIsALowerBoundOfItsDistanceWithinTheCoarseGrid
       p = centre + along * dir;
       exact = 1e9;
       for (const hand::Triangle& tri : mesh.triangles) {
-        const Eigen::Vector3d q = triangle_closest(p, vertices[tri[0]], vertices[tri[1]], vertices[tri[2]]);
+        const Eigen::Vector3d q =
+            testing_util::triangle_closest(p, vertices[tri[0]], vertices[tri[1]], vertices[tri[2]]);
         if ((p - q).norm() < exact) exact = (p - q).norm(), nearest = q;
       }
       if (exact <= want) break;

@@ -4,9 +4,12 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <memory>
 #include <string>
+#include <vector>
 
 #include "hand_models/fem_hand.hpp"
 #include "server/world/scene_loader.hpp"
@@ -57,25 +60,9 @@ double lowest_surface_z(const WorldSnapshot& s, int d) {
   return z;
 }
 
-// Largest distance of a node from the best rigid placement of the rest shape
-// (mass-weighted Kabsch fit): what the body deformed, without its motion.
-double max_deformation(const DeformableObject& o) {
-  const Eigen::VectorXd& m = o.model->fem().lumped_mass();
-  const std::vector<Eigen::Vector3d>& X = o.model->mesh().X;
-  const int n = o.model->num_nodes();
-  Eigen::Vector3d cx = Eigen::Vector3d::Zero(), cX = Eigen::Vector3d::Zero();
-  for (int i = 0; i < n; ++i) cx += m[i] * o.state.x.segment<3>(3 * i), cX += m[i] * X[i];
-  cx /= m.sum(), cX /= m.sum();
-  Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
-  for (int i = 0; i < n; ++i) H += m[i] * (X[i] - cX) * (o.state.x.segment<3>(3 * i) - cx).transpose();
-  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(H, Eigen::ComputeFullU | Eigen::ComputeFullV);
-  Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
-  D(2, 2) = (svd.matrixV() * svd.matrixU().transpose()).determinant() > 0 ? 1 : -1;
-  const Eigen::Matrix3d R = svd.matrixV() * D * svd.matrixU().transpose();
-  double worst = 0;
-  for (int i = 0; i < n; ++i) worst = std::max(worst, (o.state.x.segment<3>(3 * i) - cx - R * (X[i] - cX)).norm());
-  return worst;
-}
+// Largest distance of a node from the best rigid placement of the rest shape: what the body
+// deformed, without its motion (its fit is tested against known motions below).
+double max_deformation(const DeformableObject& o) { return detail::rigid_fit(o).deviation_m; }
 
 TEST_P(DeformableWorld, SoftCubeDroppedOnTheFloorComesToRestOnItWithoutDrift) {
   SceneDesc scene;
@@ -293,6 +280,88 @@ TEST_P(DeformableWorld, SoftBunnyStepsAtSlowVisualRatesComeToRestOnTheTableAsAt6
     EXPECT_LT((c - reference).norm(), 1e-3) << rate << " Hz";
     EXPECT_LT(deepest, 1e-3) << rate << " Hz";
   }
+}
+
+// What a hand's skin point far from a deformable object is measured against (detail::rigid_fit,
+// detail::far_clearance). The bunny's nodes carried by a known rotation and translation give them back
+// to 1e-9 with no deviation. With a 1.5 cm dent pressed into its top as well, its clearance from 1 to
+// 8 cm out is never more than the distance to the deformed surface (its triangles between the deformed
+// surface points, every one tried; a point of one is a convex combination of points each within the
+// deviation of its rigid image), short of it by at most the coarse grid's two errors (0.87 of a 1.5 cm
+// cell each) and twice the deviation, and answered wherever that leaves a positive bound.
+TEST(DeformableObjectClearance, TheRigidFitCarriesTheRestSurfacesClearanceToTheDeformedOneAsALowerBound) {
+  const SceneDesc scene = load_scene(std::string(HAPTICD_SCENES_DIR) + "/deformable_bunny.json");
+  const ObjectDesc* desc = nullptr;
+  for (const ObjectDesc& d : scene.objects)
+    if (d.name == "bunny") desc = &d;
+  ASSERT_NE(desc, nullptr);
+  const std::unique_ptr<DeformableObject> o = make_deformable_object(*desc, DeformableBuild{});
+  const std::vector<Eigen::Vector3d>& X = o->body.mesh.X;
+  const Eigen::Matrix3d R0 = Eigen::AngleAxisd(0.4, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
+  const Eigen::Vector3d t0(0.05, -0.02, 0.1);
+  for (size_t i = 0; i < X.size(); ++i) o->state.x.segment<3>(3 * i) = R0 * X[i] + t0;
+  const DeformableObject::RigidFit rigid = detail::rigid_fit(*o);
+  EXPECT_LT((rigid.R - R0).norm(), 1e-9);
+  EXPECT_LT((rigid.t - t0).norm(), 1e-9);
+  EXPECT_LT(rigid.deviation_m, 1e-9);
+
+  size_t top = 0;
+  for (size_t i = 0; i < X.size(); ++i)
+    if (X[i].z() > X[top].z()) top = i;
+  for (size_t i = 0; i < X.size(); ++i)
+    o->state.x.segment<3>(3 * i) -= 0.015 * std::exp(-(X[i] - X[top]).squaredNorm() / (0.02 * 0.02)) * R0.col(2);
+  o->fit = detail::rigid_fit(*o);
+  const double deviation = o->fit.deviation_m;
+  EXPECT_GT(deviation, 0.005) << "the dent is part of the fit's deviation";
+  const int n_surface = static_cast<int>(o->body.surface_tet.size());
+  std::vector<Eigen::Vector3d> surface(static_cast<size_t>(n_surface));
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+  for (int v = 0; v < n_surface; ++v) surface[v] = detail::surface_point(*o, v), centre += surface[v] / n_surface;
+  const double far_error = 2 * 0.8660254 * 0.015;
+  int answered = 0, owed = 0;
+  double worst_short = 0, worst_over = -1;
+  std::vector<double> cosines;
+  for (int k = 0; k < 200; ++k) {
+    const Eigen::Vector3d dir =
+        Eigen::Vector3d(std::sin(1.3 * k), std::cos(2.1 * k), std::sin(0.7 * k + 1)).normalized();
+    const double want = 0.01 + 0.07 * (0.5 + 0.5 * std::sin(3.7 * k));
+    double exact = 0;
+    Eigen::Vector3d p, nearest;
+    for (double along = 0.3; along > 0; along -= 0.004) {
+      p = centre + along * dir;
+      exact = 1e9;
+      for (const hand::Triangle& tri : o->body.surface.triangles) {
+        const Eigen::Vector3d q = testing_util::triangle_closest(p, surface[tri[0]], surface[tri[1]], surface[tri[2]]);
+        if ((p - q).norm() < exact) exact = (p - q).norm(), nearest = q;
+      }
+      if (exact <= want) break;
+    }
+    const bool owed_answer = exact > far_error + 2 * deviation;
+    owed += owed_answer;
+    double gap;
+    Eigen::Vector3d n;
+    if (!detail::far_clearance(*o, p, gap, n)) {
+      EXPECT_FALSE(owed_answer) << "no bound " << 1e3 * exact << " mm out";
+      continue;
+    }
+    ++answered;
+    // The fine grid's own interpolation error (0.5 mm, MeshSdf's test) where it answers.
+    EXPECT_LE(gap, exact + 0.5e-3) << "at " << 1e3 * exact << " mm";
+    worst_over = std::max(worst_over, gap - exact);
+    worst_short = std::max(worst_short, exact - gap);
+    cosines.push_back(n.dot((p - nearest).normalized()));
+  }
+  ASSERT_FALSE(cosines.empty());
+  std::sort(cosines.begin(), cosines.end());
+  std::printf(
+      "dented bunny (deviation %.1f mm): %d of 200 points 1-8 cm out bounded (%d owed one), short by at most "
+      "%.1f mm, over by at most %.2f mm; normal from the nearest surface point at a cosine of at least %.2f, "
+      "of %.3f for 95 %% of them\n",
+      1e3 * deviation, answered, owed, 1e3 * worst_short, 1e3 * worst_over, cosines.front(),
+      cosines[cosines.size() / 20]);
+  EXPECT_GE(owed, 50) << "too few points far enough out to test the bound's reach";
+  EXPECT_LE(worst_short, far_error + 2 * deviation);
+  EXPECT_GT(cosines[cosines.size() / 20], 0.9);
 }
 
 INSTANTIATE_TEST_SUITE_P(Contact, DeformableWorld, testing::Values(ContactModel::penalty, ContactModel::constraint),

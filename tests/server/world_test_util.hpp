@@ -1,5 +1,8 @@
 #pragma once
-// Scene pieces shared by the world tests.
+// Scene pieces and geometry shared by the world tests.
+#include <Eigen/Geometry>
+#include <algorithm>
+
 #include "hand_models/hand_model.hpp"
 #include "server/world/scene.hpp"
 
@@ -33,6 +36,26 @@ inline hand::HandleTarget push_along_y(const hand::HandleState& start, int k, do
   t.q_W = start.q_WH;
   t.v_W = Eigen::Vector3d(0, 0.1, 0);
   return t;
+}
+
+// The point of segment ab nearest p.
+inline Eigen::Vector3d segment_closest(const Eigen::Vector3d& p, const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+  const Eigen::Vector3d ab = b - a;
+  return a + std::clamp((p - a).dot(ab) / ab.squaredNorm(), 0.0, 1.0) * ab;
+}
+
+// The point of triangle abc nearest p: p projected on its plane where that lies inside it, else the
+// nearest point of its edges.
+inline Eigen::Vector3d triangle_closest(const Eigen::Vector3d& p, const Eigen::Vector3d& a, const Eigen::Vector3d& b,
+                                        const Eigen::Vector3d& c) {
+  const Eigen::Vector3d n = (b - a).cross(c - a);
+  const Eigen::Vector3d q = p - n.dot(p - a) / n.squaredNorm() * n;
+  if (n.dot((b - a).cross(q - a)) >= 0 && n.dot((c - b).cross(q - b)) >= 0 && n.dot((a - c).cross(q - c)) >= 0)
+    return q;
+  Eigen::Vector3d best = segment_closest(p, a, b);
+  for (const Eigen::Vector3d& e : {segment_closest(p, b, c), segment_closest(p, c, a)})
+    if ((p - e).squaredNorm() < (p - best).squaredNorm()) best = e;
+  return best;
 }
 
 }  // namespace hapticd::testing_util
