@@ -2,8 +2,8 @@
 // milliseconds while the user keeps moving: the tick that resumes sees the device centimetres on,
 // the proxy rushes after it, the world's step is stretched toward kMaxStep_s (150 ms) by the lag, and
 // its model arrives late. The lockstep runner plays this on the stylus bunny, movable and fixed, at a
-// 10 Hz visual step (and at 150 and 200 ms, LongerSteps): the device presses 2.5 cm down, strokes along the bunny, and
-// every 250 ms jumps within one tick, alternately down, up, +x and -x.
+// 10 Hz visual step (and at 150 and 200 ms, LongerSteps; the deformable bunny at all three): the device presses 2.5 cm
+// down, strokes along the bunny, and every 250 ms jumps within one tick, alternately down, up, +x and -x.
 //
 // ThreeCentimetreJumps (a 40 ms stall at 0.75 m/s; models 30 ms late) and FiveCentimetreJumps
 // (models 90 ms late): nothing resets and the hand stays out of the bunny (at most kClearanceFloor_m,
@@ -58,6 +58,7 @@
 #include <utility>
 
 #include "server/offline/offline_run.hpp"
+#include "server/offline/touch.hpp"
 #include "server/world/scene_loader.hpp"
 
 namespace hapticd::offline {
@@ -179,6 +180,23 @@ TEST(StalledServer, LongerStepsResetNothingAndKeepTheHandOutOfTheBunny) {
         expect_safe_force(scene, r);
         expect_hand_out(scene, r);
       }
+    }
+}
+
+// The same stalls on the deformable bunny (deformable_bunny.json, the hand placed as on the stylus
+// bunny) at 100, 150 and 200 ms steps. While a hand met a deformable object only within 2 mm of it (no
+// speculative rows, no clearance planes from it; 6847105) none reset, but the hand went 18-176 mm into
+// it at 100 ms, 12-33 mm at 150 ms and 39-103 mm at 200 ms; since cbd33e2 at most 1.1 mm.
+TEST(StalledServer, DeformableBunnyJumpsResetNothingAndKeepTheHandOutOfIt) {
+  world::SceneDesc scene = press_scene("deformable_bunny");
+  scene.name = "deformable bunny";
+  for (const int step_ticks : {100, 150, 200})
+    for (const auto& [jump_m, late_ticks] :
+         {std::pair{0.02, 90}, std::pair{0.03, 30}, std::pair{0.05, 90}, std::pair{0.08, 90}}) {
+      const StallRun r = run_stalls(scene, jump_m, late_ticks, step_ticks);
+      expect_pressed(scene, r);
+      expect_safe_force(scene, r);
+      expect_hand_out(scene, r);
     }
 }
 
