@@ -363,23 +363,11 @@ TEST(RigidWorld, AMeshsFarClearanceIsALowerBoundOfItsDistanceWithinTheCoarseGrid
   double worst_short = 0, worst_over = -1;
   std::vector<double> cosines;
   for (int k = 0; k < 300; ++k) {
-    const Eigen::Vector3d dir =
-        Eigen::Vector3d(std::sin(1.3 * k), std::cos(2.1 * k), std::sin(0.7 * k + 1)).normalized();
-    // From 30 cm out toward the centre until the point is `want` from the surface (1 to 9.5 cm).
-    const double want = 0.01 + 0.085 * (0.5 + 0.5 * std::sin(3.7 * k));
-    double exact = 0;
-    Eigen::Vector3d p;
-    Eigen::Vector3d nearest;
-    for (double along = 0.3; along > 0; along -= 0.004) {
-      p = centre + along * dir;
-      exact = 1e9;
-      for (const hand::Triangle& tri : mesh.triangles) {
-        const Eigen::Vector3d q =
-            testing_util::triangle_closest(p, vertices[tri[0]], vertices[tri[1]], vertices[tri[2]]);
-        if ((p - q).norm() < exact) exact = (p - q).norm(), nearest = q;
-      }
-      if (exact <= want) break;
-    }
+    // From 30 cm out toward the centre until the point is 1 to 9.5 cm from the surface.
+    const testing_util::SurfaceProbe probe =
+        testing_util::probe_surface(k, centre, 0.01, 0.095, vertices, mesh.triangles);
+    const Eigen::Vector3d& p = probe.p;
+    const double exact = probe.distance;
     double gap;
     Eigen::Vector3d n;
     if (!world.far_clearance(bunny, p, gap, n)) continue;
@@ -389,7 +377,7 @@ TEST(RigidWorld, AMeshsFarClearanceIsALowerBoundOfItsDistanceWithinTheCoarseGrid
     EXPECT_LE(gap, exact + (exact < 0.0165 ? 0.5e-3 : 1e-9)) << "at " << 1e3 * exact << " mm";
     worst_over = std::max(worst_over, gap - exact);
     worst_short = std::max(worst_short, exact - gap);
-    cosines.push_back(n.dot((p - nearest).normalized()));
+    cosines.push_back(n.dot((p - probe.nearest).normalized()));
   }
   std::sort(cosines.begin(), cosines.end());
   const double cosine_5 = cosines[cosines.size() / 20];

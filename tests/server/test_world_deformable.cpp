@@ -322,20 +322,10 @@ TEST(DeformableObjectClearance, TheRigidFitCarriesTheRestSurfacesClearanceToTheD
   double worst_short = 0, worst_over = -1;
   std::vector<double> cosines;
   for (int k = 0; k < 200; ++k) {
-    const Eigen::Vector3d dir =
-        Eigen::Vector3d(std::sin(1.3 * k), std::cos(2.1 * k), std::sin(0.7 * k + 1)).normalized();
-    const double want = 0.01 + 0.07 * (0.5 + 0.5 * std::sin(3.7 * k));
-    double exact = 0;
-    Eigen::Vector3d p, nearest;
-    for (double along = 0.3; along > 0; along -= 0.004) {
-      p = centre + along * dir;
-      exact = 1e9;
-      for (const hand::Triangle& tri : o->body.surface.triangles) {
-        const Eigen::Vector3d q = testing_util::triangle_closest(p, surface[tri[0]], surface[tri[1]], surface[tri[2]]);
-        if ((p - q).norm() < exact) exact = (p - q).norm(), nearest = q;
-      }
-      if (exact <= want) break;
-    }
+    const testing_util::SurfaceProbe probe =
+        testing_util::probe_surface(k, centre, 0.01, 0.08, surface, o->body.surface.triangles);
+    const Eigen::Vector3d& p = probe.p;
+    const double exact = probe.distance;
     const bool owed_answer = exact > far_error + 2 * deviation;
     owed += owed_answer;
     double gap;
@@ -349,7 +339,7 @@ TEST(DeformableObjectClearance, TheRigidFitCarriesTheRestSurfacesClearanceToTheD
     EXPECT_LE(gap, exact + 0.5e-3) << "at " << 1e3 * exact << " mm";
     worst_over = std::max(worst_over, gap - exact);
     worst_short = std::max(worst_short, exact - gap);
-    cosines.push_back(n.dot((p - nearest).normalized()));
+    cosines.push_back(n.dot((p - probe.nearest).normalized()));
   }
   ASSERT_FALSE(cosines.empty());
   std::sort(cosines.begin(), cosines.end());

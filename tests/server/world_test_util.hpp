@@ -2,7 +2,10 @@
 // Scene pieces and geometry shared by the world tests.
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <cmath>
+#include <vector>
 
+#include "hand_models/embedded_surface.hpp"
 #include "hand_models/hand_model.hpp"
 #include "server/world/scene.hpp"
 
@@ -56,6 +59,31 @@ inline Eigen::Vector3d triangle_closest(const Eigen::Vector3d& p, const Eigen::V
   for (const Eigen::Vector3d& e : {segment_closest(p, b, c), segment_closest(p, c, a)})
     if ((p - e).squaredNorm() < (p - best).squaredNorm()) best = e;
   return best;
+}
+
+// Probe k of `probes` around a surface (clearance tests): from 30 cm out from `centre` along a fixed
+// spread of directions, inward in 4 mm steps to the first point within k's share of [near_m, far_m]
+// of the triangles (every one tried). Its distance to them and its nearest point on them.
+struct SurfaceProbe {
+  Eigen::Vector3d p = Eigen::Vector3d::Zero(), nearest = Eigen::Vector3d::Zero();
+  double distance = 0;
+};
+inline SurfaceProbe probe_surface(int k, const Eigen::Vector3d& centre, double near_m, double far_m,
+                                  const std::vector<Eigen::Vector3d>& vertices,
+                                  const std::vector<hand::Triangle>& triangles) {
+  const Eigen::Vector3d dir = Eigen::Vector3d(std::sin(1.3 * k), std::cos(2.1 * k), std::sin(0.7 * k + 1)).normalized();
+  const double want = near_m + (far_m - near_m) * (0.5 + 0.5 * std::sin(3.7 * k));
+  SurfaceProbe out;
+  for (double along = 0.3; along > 0; along -= 0.004) {
+    out.p = centre + along * dir;
+    out.distance = 1e9;
+    for (const hand::Triangle& tri : triangles) {
+      const Eigen::Vector3d q = triangle_closest(out.p, vertices[tri[0]], vertices[tri[1]], vertices[tri[2]]);
+      if ((out.p - q).norm() < out.distance) out.distance = (out.p - q).norm(), out.nearest = q;
+    }
+    if (out.distance <= want) break;
+  }
+  return out;
 }
 
 }  // namespace hapticd::testing_util
