@@ -24,9 +24,9 @@ namespace detail {
 // (tests/e2e/stylus_loopback.sh, README); with six competitors at 0.15 s (5.5-5.7 Hz, the world
 // behind the clock) in 4 of 4. The deep press into the deformable bunny, which glued the stylus at
 // 200 ms steps while a hand met deformable objects only within 2 mm, passes at 100 and 200 ms
-// (SlowTouch/PressHoldLiftForces); 0.15 s stays, the shorter steps keeping each model nearer the
-// state it was taken at. A stall's jumps at 150 and 200 ms steps are StalledServer.LongerSteps;
-// every press-hold-lift runs at 150 ms too.
+// (SlowTouch/PressHoldLiftForces); 0.15 s stays, as nothing measured asks for longer steps. A
+// stall's jumps at 150 and 200 ms steps are StalledServer.LongerSteps; every press-hold-lift runs at
+// 150 ms too.
 constexpr double kMaxStep_s = 0.15;
 // A visual step spans at least this many times the loop's latency (its model
 // then reaches the haptic loop before the step it describes is half over).
