@@ -124,9 +124,17 @@ int World::find_deformable(const std::string& name) const {
 }
 
 void World::step(double dt_s) {
-  // Contacts were detected at the end of the previous step.
+  // Contacts were detected at the end of the previous step, each point looked for as far ahead as a
+  // step of that one's length carries it. A step much longer (the first after a stall, or the first
+  // of a loaded visual loop) looks again: a soft cube falling onto a 4 cm table at 60 Hz went through
+  // it in one 200 ms step with the contacts found for 17 ms.
   const auto t0 = Clock::now();
-  step_dt_ = dt_s > 0 && std::isfinite(dt_s) ? dt_s : dt_;
+  const double dt = dt_s > 0 && std::isfinite(dt_s) ? dt_s : dt_;
+  if (dt > kLongerStepRecollides * step_dt_) {
+    step_dt_ = dt;
+    collide_all();
+  }
+  step_dt_ = dt;
   for (SoftBody& b : soft_) b.flesh.state->dt_s = step_dt_;
   WorldTimings timings;
   snapshot_.linear_models.resize(hands_.size());

@@ -248,7 +248,9 @@ class World {
   void publish();
 
   double dt_;
-  double step_dt_ = 0, t_s_ = 0;
+  double step_dt_ = 0, t_s_ = 0;  // step_dt_: the last step's length, which collide_all() reaches over
+  // A step this many times longer than the last collides again first (step()).
+  static constexpr double kLongerStepRecollides = 1.25;
   Eigen::Vector3d gravity_m_s2_;
   bool constraint_contact_ = true;
   bool hand_hand_ = false;  // hand-hand contact built (HandSlot::query)

@@ -192,7 +192,11 @@ void World::collide(SoftBody& b) {
   // stylus bunny's model error (p99 3.8 -> 4.8 N, scripts/bench-world), and more rows had slowed the
   // contact solve of a finger driven into the table (WorldGloveHardCases).
   const bool free_body = b.hand < 0;
-  const double h = step_dt_, fall = 0.5 * gravity_m_s2_.norm() * h;
+  // Gravity's share: the speed it adds over the step, which the implicit (backward Euler) step moves
+  // with for the step's whole length (h v_end), g h^2 from rest. A free body's reach is not capped by
+  // kMaxReach_m (a teleport's guard; its motion is its own): a soft cube dropped 25 cm onto a 4 cm
+  // table fell through it at 150 ms steps with the reach capped, and at 200 ms with half of g h^2.
+  const double h = step_dt_, fall = gravity_m_s2_.norm() * h;
   // A hand's points farther than their reach are still measured up to kClearanceLook_m: the smallest
   // such gap per handle is how far the haptic tick may carry that handle before a contact the
   // model does not hold could begin (World::clearance).
@@ -221,7 +225,7 @@ void World::collide(SoftBody& b) {
       const Eigen::Vector3d &p = points_p[v], &p_v = points_v[v];
       const Eigen::Vector4d& w = point_bary[v];
       const double reach =
-          free_body ? std::min(kSpeculativeMargin_m + (p_v.norm() + object_speed + fall) * h, kMaxReach_m)
+          free_body ? kSpeculativeMargin_m + (p_v.norm() + object_speed + fall) * h
                     : (constraint_contact_
                            ? std::min(std::max(kSpeculativeMargin_m, (p_v.norm() + object_speed) * h), kMaxReach_m)
                            : 0.0);
@@ -272,7 +276,7 @@ void World::collide(SoftBody& b) {
       if (depth <= 0) {
         // How far it approaches the surface over the step (a free body's gravity counted).
         const Eigen::Vector3d v_rel =
-            p_v - v_other + (free_body ? Eigen::Vector3d(0.5 * h * gravity_m_s2_) : Eigen::Vector3d::Zero());
+            p_v - v_other + (free_body ? Eigen::Vector3d(h * gravity_m_s2_) : Eigen::Vector3d::Zero());
         const double closes = std::max(0.0, -v_rel.dot(n)) * h;
         const bool row = constraint_contact_ && (free_body ? -depth <= kSpeculativeMargin_m + closes
                                                            : -depth <= std::max(kSpeculativeMargin_m, closes));
@@ -307,8 +311,8 @@ void World::collide(SoftBody& b) {
     dReal aabb[6];
     dGeomGetAABB(rigid_->geom(g), aabb);
     // Gravity's share is not capped by kMaxReach_m (a teleport's guard): at a 200 ms step
-    // a box the glove let go of 5 cm above the table falls 20 cm within the hand's solve, and with the
-    // table out of reach it went through it to the floor (Touch/GraspRelease at 5 Hz).
+    // a box the glove let go of 5 cm above the table falls up to 39 cm (g h^2) within the hand's solve,
+    // and with the table out of reach it went through it to the floor (Touch/GraspRelease at 5 Hz).
     const double reach = std::min(kSpeculativeMargin_m + speed_bound(*rigid_, g, aabb) * h, kMaxReach_m) + fall * h;
     rigid_->supports_of(g, found, reach);
     for (const RigidWorld::BodyContact& bc : found) {
