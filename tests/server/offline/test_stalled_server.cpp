@@ -139,9 +139,11 @@ void expect_hand_out(const world::SceneDesc& scene, const StallRun& r) {
   EXPECT_LE(r.deepest_m, 5e-3) << scene.name;
 }
 
-// The device pressed on the bunny for more than a second of the five: a precondition.
+// The device pressed on the bunny for at least a second of the five: a precondition (the deformable
+// bunny's 8 cm jumps at 200 ms steps press for exactly 1000 ticks, five whole steps, since a much
+// longer step collides again).
 void expect_pressed(const world::SceneDesc& scene, const StallRun& r) {
-  EXPECT_GT(r.contact_ticks, 1000) << scene.name << ": the stylus pressed on the bunny";
+  EXPECT_GE(r.contact_ticks, 1000) << scene.name << ": the stylus pressed on the bunny";
 }
 
 // The stalls of 2, 3, 5 and 8 cm jumps (models 90, 30, 90 and 90 ms late) on `scene` at steps of
@@ -189,7 +191,8 @@ TEST(StalledServer, LongerStepsResetNothingAndKeepTheHandOutOfTheBunny) {
 // The same stalls on the deformable bunny (deformable_bunny.json, the hand placed as on the stylus
 // bunny) at 100, 150 and 200 ms steps. While a hand met a deformable object only within 2 mm of it (no
 // speculative rows, no clearance planes from it; 6847105) none reset, but the hand went 18-176 mm into
-// it at 100 ms, 12-33 mm at 150 ms and 39-103 mm at 200 ms; since cbd33e2 at most 1.1 mm.
+// it at 100 ms, 12-33 mm at 150 ms and 39-103 mm at 200 ms; since cbd33e2 at most 1.1 mm (1.7 mm
+// since 2a49e32).
 TEST(StalledServer, DeformableBunnyJumpsResetNothingAndKeepTheHandOutOfIt) {
   world::SceneDesc scene = press_scene("deformable_bunny");
   scene.name = "deformable bunny";
