@@ -292,14 +292,8 @@ TEST_P(DeformableWorld, SoftBunnyStepsAtSlowVisualRatesComeToRestOnTheTableAsAt6
 TEST(DeformableWorldSlowSteps, ASoftCubeDroppedOntoATableStaysOnItAtStepsOfUpTo200Ms) {
   for (const double dt : {1.0 / 60, 0.1, 0.15, 0.2}) {
     SceneDesc scene;
-    ObjectDesc table;
-    table.name = "table";
-    table.kind = BodyKind::static_body;
-    table.shape.type = ShapeType::box;
-    table.shape.size = {1.0, 1.0, 0.04};
-    table.pose.p_W = {0, 0, 0.73};
-    scene.objects.push_back(table);
     const double top = 0.75;
+    scene.objects.push_back(testing_util::static_table({1.0, 1.0, 0.04}, top));
     ObjectDesc cube = soft_cube({0.04, 0.04, 0.04}, {0, 0, top + 0.02 + 0.25});
     cube.material.youngs_modulus_pa = 2e5;
     scene.objects.push_back(cube);

@@ -38,6 +38,7 @@
 #include "hand_models/skeleton/hand_skeleton.hpp"
 #include "server/world/scene_loader.hpp"
 #include "server/world/world.hpp"
+#include "world_test_util.hpp"
 
 namespace hapticd::world {
 namespace {
@@ -94,12 +95,7 @@ GraspSpec cube_pinch() {
 // hand 4 cm above its grasping pose, in the rest posture.
 SceneDesc grasp_scene(const GraspSpec& g, const Eigen::Vector3d& palm_W, HandModelKind model = HandModelKind::fem) {
   SceneDesc scene;
-  ObjectDesc table;
-  table.name = "table";
-  table.kind = BodyKind::static_body;
-  table.shape.type = ShapeType::box;
-  table.shape.size = {0.6, 0.6, 0.1};
-  table.pose.p_W = {0, 0, -0.05};
+  ObjectDesc table = testing_util::static_table({0.6, 0.6, 0.1}, 0.0);
   table.material.friction = 0.5;
   scene.objects.push_back(table);
   ObjectDesc object;

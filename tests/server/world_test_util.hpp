@@ -11,6 +11,17 @@
 
 namespace hapticd::testing_util {
 
+// A static box called "table" of `size`, its top at z = top_z, centred on the z axis.
+inline world::ObjectDesc static_table(const Eigen::Vector3d& size, double top_z) {
+  world::ObjectDesc table;
+  table.name = "table";
+  table.kind = world::BodyKind::static_body;
+  table.shape.type = world::ShapeType::box;
+  table.shape.size = size;
+  table.pose.p_W = {0, 0, top_z - 0.5 * size.z()};
+  return table;
+}
+
 // A 350-tet right hand whose palm centre is 3 cm above z = 0.
 inline void add_test_hand(world::SceneDesc& scene) {
   world::HandDesc hand;
