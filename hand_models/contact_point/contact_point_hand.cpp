@@ -413,9 +413,8 @@ bool ContactPointHand::linearize_next_step(HandleLinearization& out, ContactLine
     if (c.object >= 0) {
       const Eigen::Isometry3d T_O = objects_->object_pose(c.object);
       for (int k = 0; k < c.count; ++k) {
-        const Sample& sample = c.samples[k];
-        const Eigen::Vector3d p = T * sample.p_S, C = T_O * sample.C_O, n = T_O.linear() * sample.n_O;
-        const double depth = n.dot(C - p);
+        Sample sample = c.samples[k];
+        const Eigen::Vector3d p = T * sample.p_S;
         double d;
         Eigen::Vector3d n_geometry;
         if (!objects_->surface_near(c.object, p, prm.lookahead_m, d, n_geometry)) continue;
@@ -430,7 +429,19 @@ bool ContactPointHand::linearize_next_step(HandleLinearization& out, ContactLine
         // The tick's cone is the sample's state's (eq. 5): a sample the last ODE step slid is taken
         // kinetic. A static cone on a finger sliding up the bunny's flank as the stylus lifted
         // dragged it down 0.5 N where the world's kinetic samples dragged 0.05-0.11 N.
-        const double mu = sample.state == ContactState::sliding ? c.mu_dynamic : c.mu_static;
+        double mu = sample.state == ContactState::sliding ? c.mu_dynamic : c.mu_static;
+        if (contact_force(prm.gamma_n_m / c.count, c.mu_static, c.mu_dynamic, T_O * sample.C_O,
+                          T_O.linear() * sample.n_O, p)
+                .state == ContactState::sliding) {
+          // Outside the cone at the anchor: the world's next ODE step slides it before it pushes
+          // (before_ode_step), so the row starts from the slid point and its normal. The anchor is a
+          // step ahead of the world's hand: a finger lifted along the bunny's flank by a late model
+          // kept contact points from 9 mm lower, whose planes, facing down, pulled the stylus 1.1 N.
+          slide(sample, c.mu_dynamic, T_O, p, c.object, *objects_);
+          mu = c.mu_dynamic;
+        }
+        const Eigen::Vector3d C = T_O * sample.C_O, n = T_O.linear() * sample.n_O;
+        const double depth = n.dot(C - p);
         if (depth > -prm.lookahead_m) rows.push_back({shape_handle(s), p, C, n, prm.gamma_n_m / c.count, mu, depth});
       }
       continue;

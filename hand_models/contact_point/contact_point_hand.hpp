@@ -31,9 +31,10 @@
 // renders is exact for this hand: each sample's eqs. 1-5 are a penalty row of the tick's
 // complementarity problem (compliance 1 / (gamma h^2) on the row impulse, no impulse while the hand
 // point is outside, the tangential spring clipped to the friction cone), with C held where the
-// visual step left it; shapes within ContactPointParams::lookahead_m of an object with no contact yet
-// carry one speculative row each (their closest point, the contact's whole gamma), so a press
-// engages and a lift releases within the tick.
+// visual step left it (slid first where the world's next step would slide it); shapes within
+// ContactPointParams::lookahead_m of an object with no contact yet carry one speculative row each
+// (their closest point, the contact's whole gamma), so a press engages and a lift releases within
+// the tick.
 //
 // Driven by a stylus (one handle, the palm; the fingers held at the skeleton's rest angles), by a
 // glove's palm and 15 phalanx frames (16 handles, each shape on its frame) or by a glove's palm and 5

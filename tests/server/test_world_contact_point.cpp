@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <numbers>
 
 #include "hand_models/contact_point/contact_point_hand.hpp"
 #include "server/world/scene_loader.hpp"
@@ -346,6 +347,77 @@ TEST(WorldContactPointHand, ItsModelIsTheLawAtTheStepEndAndLeavesOutWhatTheLawLe
   std::vector<hand::HandleState> back = model.x0;
   back[kIndexDistal].p_WH.x() -= 0.006;
   EXPECT_GT(model.evaluate(back)[6 * kIndexDistal], 0.1) << "the side pushes the finger back out (+x)";
+}
+
+// A finger sliding along a curved surface within the step the model looks ahead: the index's distal
+// 1 mm into the lower half of a fixed 3 cm sphere, 40 degrees below its equator, its device carrying it
+// up along the sphere to 15 degrees below (the frame's target there, as the tick's anchor puts it).
+// Its samples' contact points were made 25 degrees back, where the tangent plane faces down more: by
+// that plane the finger is 4.5 mm in. The world's next ODE step slides each such sample first (section
+// 3.5) and pushes with the slid point; the model at its anchor must be that force, not the stale
+// plane's (on the bunny, a stylus lifting a finger along its flank was pulled down 1.1 N by those).
+TEST(WorldContactPointHand, ItsModelSlidesTheSamplesAsTheWorldsNextStepDoes) {
+  SceneDesc scene = glove_scene();
+  const Eigen::Vector3d centre(0, 0, 0.1);
+  const double R = 0.03;
+  ObjectDesc sphere;
+  sphere.name = "sphere";
+  sphere.kind = BodyKind::static_body;
+  sphere.shape.type = ShapeType::sphere;
+  sphere.shape.radius = R;
+  sphere.pose.p_W = centre;
+  sphere.material.friction = 0.5;
+  scene.objects.push_back(sphere);
+  World w(scene);
+  ContactPointHand& hand = dynamic_cast<ContactPointHand&>(w.hand(0));
+  const double h = w.dt(), r = capsule_radius(hand, kIndexDistal);
+  // The capsule's axis is along y: its side touches the sphere in the xz plane, at angle phi below the
+  // equator, 1 mm deep.
+  const auto outward = [](double phi_deg) {
+    const double phi = phi_deg * std::numbers::pi / 180;
+    return Eigen::Vector3d(std::cos(phi), 0, -std::sin(phi));
+  };
+  const auto finger_at = [&](double phi_deg) { return Eigen::Vector3d(centre + (R + r - 0.001) * outward(phi_deg)); };
+  Frames f;
+  f.t[kIndexDistal].p_W = finger_at(40);
+  drive(w, f);
+  w.step();
+  w.step();
+  const ContactPointHand::Contact& contact = hand.contact(kIndexDistal);
+  ASSERT_EQ(contact.object, w.rigid()->find("sphere"));
+  ASSERT_GT(contact.f_W.norm(), 0.3) << "pressed 1 mm: pushed out";
+  // The device carries the frame to 15 degrees within the step.
+  hand::HandleTarget moving = f.t[kIndexDistal];
+  moving.v_device_W = (finger_at(15) - finger_at(40)) / h;
+  ASSERT_TRUE(hand.set_target(kIndexDistal, moving));
+  hand::HandleLinearization model;
+  ASSERT_TRUE(hand.linearize_next_step(model, hand::ContactLinearization::unilateral));
+  ASSERT_LT((model.x0[kIndexDistal].p_WH - finger_at(15)).norm(), 1e-12);
+  const Eigen::Vector3d predicted = model.evaluate(model.x0).segment<3>(6 * kIndexDistal);
+  // The stale planes' force there: each sample's spring from its contact point as it stands.
+  Eigen::Vector3d stale = Eigen::Vector3d::Zero();
+  {
+    Eigen::Isometry3d T = hand.shape_pose(kIndexDistal);
+    T.translation() = finger_at(15);
+    for (int k = 0; k < contact.count; ++k) {
+      const ContactPointHand::Sample& s = contact.samples[k];
+      stale += hand::contact_point::contact_force(kGamma / contact.count, contact.mu_static, contact.mu_dynamic,
+                                                  s.C_O + centre, s.n_O, T * s.p_S)
+                   .total();
+    }
+  }
+  // The world's next step with the frame there.
+  f.t[kIndexDistal].p_W = finger_at(15);
+  drive(w, f);
+  w.step();
+  const Eigen::Vector3d world = contact.f_W;
+  std::printf(
+      "at 15 degrees: the world pushes (%.3f, %.3f, %.3f) N, the model (%.3f, %.3f, %.3f) N, the stale "
+      "planes (%.3f, %.3f, %.3f) N\n",
+      world.x(), world.y(), world.z(), predicted.x(), predicted.y(), predicted.z(), stale.x(), stale.y(), stale.z());
+  EXPECT_LT((predicted - world).norm(), 1e-6 * std::max(1.0, world.norm()));
+  EXPECT_GT(world.norm(), 0.1) << "1 mm in: pushed out";
+  EXPECT_GT((stale - world).norm(), 0.5 * world.norm()) << "the case should tell the stale planes from the slid ones";
 }
 
 // A 6-frame glove (palm and distal phalanges): each distal shape sits on its frame, the proximal and
