@@ -360,13 +360,10 @@ TEST(WorldContactPointHand, ItsModelSlidesTheSamplesAsTheWorldsNextStepDoes) {
   SceneDesc scene = glove_scene();
   const Eigen::Vector3d centre(0, 0, 0.1);
   const double R = 0.03;
-  ObjectDesc sphere;
-  sphere.name = "sphere";
+  ObjectDesc sphere = box("sphere", Eigen::Vector3d::Zero(), 1.0, centre, 0.5);
   sphere.kind = BodyKind::static_body;
   sphere.shape.type = ShapeType::sphere;
   sphere.shape.radius = R;
-  sphere.pose.p_W = centre;
-  sphere.material.friction = 0.5;
   scene.objects.push_back(sphere);
   World w(scene);
   ContactPointHand& hand = dynamic_cast<ContactPointHand&>(w.hand(0));
