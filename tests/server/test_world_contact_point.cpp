@@ -353,9 +353,10 @@ TEST(WorldContactPointHand, ItsModelIsTheLawAtTheStepEndAndLeavesOutWhatTheLawLe
 // 1 mm into the lower half of a fixed 3 cm sphere, 40 degrees below its equator, its device carrying it
 // up along the sphere to 15 degrees below (the frame's target there, as the tick's anchor puts it).
 // Its samples' contact points were made 25 degrees back, where the tangent plane faces down more: by
-// that plane the finger is 4.5 mm in. The world's next ODE step slides each such sample first (section
-// 3.5) and pushes with the slid point; the model at its anchor must be that force, not the stale
-// plane's (on the bunny, a stylus lifting a finger along its flank was pulled down 1.1 N by those).
+// that plane the finger is 3.7 mm in (R - (R - 1 mm) cos 25 degrees). The world's next ODE step
+// slides each such sample first (section 3.5) and pushes with the slid point; the model at its anchor
+// must be that force, not the stale plane's (on the bunny, a stylus lifting a finger along its flank
+// was pulled down 1.1 N by those).
 TEST(WorldContactPointHand, ItsModelSlidesTheSamplesAsTheWorldsNextStepDoes) {
   SceneDesc scene = glove_scene();
   const Eigen::Vector3d centre(0, 0, 0.1);
