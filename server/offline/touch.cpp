@@ -7,6 +7,7 @@
 #include <utility>
 #include <vector>
 
+#include "hand_models/rigid_handle.hpp"
 #include "server/world/scene_loader.hpp"
 
 namespace hapticd::offline {
@@ -293,6 +294,26 @@ sim::GloveTrajectory grasp_release_trajectory(const Eigen::Vector3d& palm_D, con
       sim::GloveTrajectory::from_samples(grasp_name(kind), samples, {palm_D.x(), palm_D.y(), palm_D.z()});
   motion.set_palm_orientation(q_D);
   return motion;
+}
+
+FrameWork frame_work(const OfflineTrace& trace) {
+  FrameWork w;
+  for (std::size_t k = 0; k + 1 < trace.replies.size() && k + 1 < trace.poses.size(); ++k) {
+    const DeviceFrames &from = trace.poses[k], &to = trace.poses[k + 1];
+    const Eigen::Vector3d palm_move = to.p_D[0] - from.p_D[0];
+    const Eigen::Vector3d palm_turn = hand::rotation_difference(to.q_D[0], from.q_D[0]);
+    for (int j = 0; j < trace.replies[k].frames; ++j) {
+      const haptic::ReplyWrench& f = trace.replies[k].wrench[j];
+      const Eigen::Vector3d move = to.p_D[j] - from.p_D[j];
+      const Eigen::Vector3d turn = hand::rotation_difference(to.q_D[j], from.q_D[j]);
+      const double grounded = f.f_D.dot(move) + f.tau_D.dot(turn);
+      w.grounded_j += grounded;
+      w.on_palm_j += j == 0 ? grounded
+                            : f.f_D.dot(move - palm_move - palm_turn.cross(from.p_D[j] - from.p_D[0])) +
+                                  f.tau_D.dot(turn - palm_turn);
+    }
+  }
+  return w;
 }
 
 GraspRun run_grasp_release(const world::SceneDesc& scene, const OfflineOptions& options, GraspKind kind) {

@@ -114,6 +114,17 @@ struct GraspRun : TouchRun {
   double after_n = 0;    // the largest frame force from a second after the hand has opened
 };
 
+// The work the replies of `trace` did on a glove's frames, J (> 0: put in), each reply held over the
+// motion to the next pose: with every frame a grounded port (its own motion, as the proxies take it),
+// and with the finger frames' actuators pushing against the palm's frame (frame 0), as the simulated
+// glove's are: their motion relative to the palm's body, which is what its own account books
+// (sim::GloveSimulation::passivity_energy_j). The two differ by the work of the finger forces over
+// the palm's motion.
+struct FrameWork {
+  double grounded_j = 0, on_palm_j = 0;
+};
+FrameWork frame_work(const OfflineTrace& trace);
+
 // The grasp, lift and release of `kind` on `scene` (as grasp_scene makes it for `kind`) with the
 // 16-frame simulated glove.
 GraspRun run_grasp_release(const world::SceneDesc& scene, const OfflineOptions& options,
