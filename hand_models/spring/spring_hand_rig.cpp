@@ -2,15 +2,39 @@
 
 #include <Eigen/Eigenvalues>
 #include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <cstdarg>
+#include <cstdio>
 #include <limits>
 #include <mutex>
+#include <stdexcept>
+#include <string>
 
 namespace hapticd::hand {
 
+namespace {
+std::atomic<long> ode_message_count{0};
+
+void count_ode_message(int, const char*, va_list) { ode_message_count.fetch_add(1, std::memory_order_relaxed); }
+
+[[noreturn]] void throw_ode_error(int errnum, const char* msg, va_list ap) {
+  char text[256];
+  std::vsnprintf(text, sizeof text, msg, ap);
+  throw std::runtime_error("ODE error " + std::to_string(errnum) + ": " + text);
+}
+}  // namespace
+
+long ode_messages() { return ode_message_count.load(std::memory_order_relaxed); }
+
 void ensure_ode_for_this_thread() {
   static std::once_flag once;
-  std::call_once(once, [] { dInitODE2(0); });
+  std::call_once(once, [] {
+    dInitODE2(0);
+    dSetMessageHandler(&count_ode_message);
+    dSetErrorHandler(&throw_ode_error);
+    dSetDebugHandler(&throw_ode_error);
+  });
   thread_local bool allocated = false;
   if (!allocated) allocated = dAllocateODEDataForThread(dAllocateMaskAll) != 0;
 }

@@ -34,8 +34,14 @@
 
 namespace hapticd::hand {
 // Calls dInitODE2 once per process and dAllocateODEDataForThread for the calling thread (the world's
-// rigid bodies and the rigid hands share it).
+// rigid bodies and the rigid hands share it). It also takes ODE's handlers: its messages (warnings
+// such as "LCP internal error, s <= 0", which its LCP solver recovers from; a spring hand pressing
+// the bunny raised a few a second) are counted, not printed (ode_messages); its fatal errors and
+// debug traps, which would abort the process (ODE's defaults), throw std::runtime_error naming
+// them, for the visual step to catch as any failed step.
 void ensure_ode_for_this_thread();
+// ODE's messages since the process started (all threads).
+long ode_messages();
 }  // namespace hapticd::hand
 
 namespace hapticd::hand::spring {

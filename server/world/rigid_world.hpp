@@ -21,6 +21,7 @@
 namespace hapticd::world {
 
 using hand::ensure_ode_for_this_thread;  // spring_hand_rig.hpp
+using hand::ode_messages;                // spring_hand_rig.hpp
 
 struct RigidBodyState {
   Eigen::Vector3d p_WO = Eigen::Vector3d::Zero();  // object frame origin (as in the scene), m

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdio>
 #include <numbers>
+#include <stdexcept>
 #include <string>
 
 #include "hand_models/embedded_surface.hpp"
@@ -430,6 +431,30 @@ TEST(RigidWorldSlowSteps, MeshBunnyRestsOnTheTableAtSlowVisualRatesAsAt60Hz) {
                 1e3 * (low - rest_low), 1e3 * (high - rest_low));
     EXPECT_LT(std::abs(low - rest_low), 1e-4) << rate << " Hz";
     EXPECT_LT(std::abs(high - rest_high), 1e-4) << rate << " Hz";
+  }
+}
+
+// ODE's own reports (ensure_ode_for_this_thread): a message, such as the warning its LCP solver
+// raises when it meets a degenerate pivot and recovers, is counted and printed nowhere; a fatal error
+// or a debug trap throws instead of aborting the server, with ODE's number and text.
+TEST(RigidWorld, OdesMessagesAreCountedSilentlyAndItsErrorsThrowInsteadOfAborting) {
+  ensure_ode_for_this_thread();
+  const long before = ode_messages();
+  ::testing::internal::CaptureStderr();
+  dMessage(3, "LCP internal error, s <= 0 (s=%.4e)", 0.0);
+  EXPECT_EQ(::testing::internal::GetCapturedStderr(), "");
+  EXPECT_EQ(ode_messages(), before + 1);
+  for (const bool debug : {false, true}) {
+    try {
+      if (debug) {
+        dDebug(2, "trap %d", 7);
+      } else {
+        dError(1, "bad argument %s", "x");
+      }
+      ADD_FAILURE() << "no throw";
+    } catch (const std::runtime_error& e) {
+      EXPECT_EQ(std::string(e.what()), debug ? "ODE error 2: trap 7" : "ODE error 1: bad argument x");
+    }
   }
 }
 }  // namespace
