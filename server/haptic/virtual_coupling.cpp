@@ -225,20 +225,18 @@ void ProxyHand::configure(int handles, const double* mass_kg, const Eigen::Matri
                           const CouplingGains& gains, const DeviceLimits& limits, const DeviceMap& map) {
   handles_ = std::clamp(handles, 0, kMaxHapticHandles);
   gains_ = gains;
-  safe_k_n_m_ = kSafeStiffness * gains_.k_n_m;
-  safe_k_nm_rad_ = kSafeStiffness * gains_.k_nm_rad;
   limits_ = limits;
   map_ = map;
   for (int j = 0; j < handles_; ++j) {
     mass_[j] = mass_kg[j];
     inertia_B_[j] = inertia_B[j];
-    // Critical damping of the proxy on coupling and safe spring together (2 sqrt(k m), the
-    // rotation with the inertia's trace), and at least b_c k_safe / k_c (the device's port passive).
-    const auto damping = [](double k_c, double b_c, double k_s, double inertia) {
-      return std::max(2.0 * std::sqrt((k_c + k_s) * inertia) - b_c, k_c > 0 ? b_c * k_s / k_c : 0.0);
+    // Critical damping of the proxy on the coupling (2 sqrt(k m), the rotation with the inertia's
+    // trace), with the coupling's own damper.
+    const auto damping = [](double k_c, double b_c, double inertia) {
+      return std::max(2.0 * std::sqrt(k_c * inertia) - b_c, 0.0);
     };
-    safe_b_ns_m_[j] = damping(gains_.k_n_m, gains_.b_ns_m, safe_k_n_m_, mass_[j]);
-    safe_b_nms_rad_[j] = damping(gains_.k_nm_rad, gains_.b_nms_rad, safe_k_nm_rad_, inertia_B_[j].trace());
+    safe_b_ns_m_[j] = damping(gains_.k_n_m, gains_.b_ns_m, mass_[j]);
+    safe_b_nms_rad_[j] = damping(gains_.k_nm_rad, gains_.b_nms_rad, inertia_B_[j].trace());
   }
   const int n = 6 * handles_;
   A_.resize(n, n);
@@ -432,16 +430,15 @@ ProxyHand::TickSolve ProxyHand::solve_velocities(const HapticModel& model, doubl
     // user pressing past the limit moves the device, not the hand through the object. The explicit
     // wrench at the tick's start is scaled down to the limit; A keeps the full b + h k (the tick's
     // matrix does not change), which only damps the proxy's velocity change within the tick.
-    // The safe model, implicit like the coupling: spring (k) and damper (b) toward the device, and
-    // saturated with it: a proxy held by the model's contacts is not pressed into them harder.
-    const double k = safe * safe_k_n_m_, b = safe * safe_b_ns_m_[j];
-    const double k_rot = safe * safe_k_nm_rad_, b_rot = safe * safe_b_nms_rad_[j];
-    a_lin_[j] += dt * b + dt * dt * k;
-    a_rot_[j].diagonal().array() += dt * b_rot + dt * dt * k_rot;
+    // The safe model, implicit like the coupling: the damper on the proxy's own velocity, saturated
+    // with the coupling.
+    const double b = safe * safe_b_ns_m_[j], b_rot = safe * safe_b_nms_rad_[j];
+    a_lin_[j] += dt * b;
+    a_rot_[j].diagonal().array() += dt * b_rot;
     const Eigen::Vector3d dp = predicted_[j].p_W - proxy_[j].p_W;
     const Eigen::Vector3d dq = hand::rotation_difference(predicted_[j].q_W, proxy_[j].q_W);
-    const Eigen::Vector3d f_c = (gains_.k_n_m + k) * dp + (gains_.b_ns_m + b) * (v_dev_[j] - v_[j]);
-    const Eigen::Vector3d tau_c = (gains_.k_nm_rad + k_rot) * dq + (gains_.b_nms_rad + b_rot) * (w_dev_[j] - w_[j]);
+    const Eigen::Vector3d f_c = gains_.k_n_m * dp + gains_.b_ns_m * (v_dev_[j] - v_[j]) - b * v_[j];
+    const Eigen::Vector3d tau_c = gains_.k_nm_rad * dq + gains_.b_nms_rad * (w_dev_[j] - w_[j]) - b_rot * w_[j];
     const double f_max = limits_.max_force_n / map_.scale;
     const double sat = f_c.norm() > f_max ? f_max / f_c.norm() : 1.0;
     const double sat_rot = tau_c.norm() > limits_.max_torque_nm ? limits_.max_torque_nm / tau_c.norm() : 1.0;
