@@ -241,6 +241,20 @@ void ContactPointHand::slide(Sample& sample, double mu_dynamic, const Eigen::Iso
   sample.n_O = T_OW.linear() * n_new;
 }
 
+ContactForce ContactPointHand::slid_force(const Contact& c, Sample& sample, const Eigen::Isometry3d& T_O,
+                                          const Eigen::Vector3d& p_W) const {
+  const double gamma = config_.params.gamma_n_m / c.count;
+  ContactForce f = contact_force(gamma, c.mu_static, c.mu_dynamic, T_O * sample.C_O, T_O.linear() * sample.n_O, p_W);
+  if (f.state != ContactState::sliding) return f;
+  // The point slides first (section 3.5), to where its spring is the kinetic force (eq. 5); the
+  // object then takes that spring as a stuck one's, implicitly. A kinetic force applied as a
+  // constant overshot: a 100 g box held by sliding fingers swung 3 mm up and down every step.
+  slide(sample, c.mu_dynamic, T_O, p_W, c.object, *objects_);
+  f = contact_force(gamma, c.mu_static, c.mu_dynamic, T_O * sample.C_O, T_O.linear() * sample.n_O, p_W);
+  f.state = ContactState::sliding;
+  return f;
+}
+
 void ContactPointHand::before_ode_step(double h, RigidObjects& objects) {
   objects_ = &objects;
   if (!config_.touches) return;
@@ -296,19 +310,10 @@ void ContactPointHand::before_ode_step(double h, RigidObjects& objects) {
       Eigen::Vector3d n_geometry;
       const bool near = objects.surface_near(c.object, p, prm.threshold_m, d_geometry, n_geometry);
       if (near || objects.surface_near(c.object, p, release, d_geometry, n_geometry)) left = false;
-      ContactForce f = near ? contact_force(gamma, c.mu_static, c.mu_dynamic, C, n, p) : ContactForce{};
+      const ContactForce f = near ? slid_force(c, sample, T_O, p) : ContactForce{};
       sample.state = f.state;
       if (f.state == ContactState::separated) continue;
-      Eigen::Vector3d C_at = C;
-      if (f.state == ContactState::sliding) {
-        // The point slides first (section 3.5), to where its spring is the kinetic force (eq. 5); the
-        // object then takes that spring as a stuck one's, implicitly. A kinetic force applied as a
-        // constant overshot: a 100 g box held by sliding fingers swung 3 mm up and down every step.
-        slide(sample, c.mu_dynamic, T_O, p, c.object, objects);
-        C_at = T_O * sample.C_O;
-        f = contact_force(gamma, c.mu_static, c.mu_dynamic, C_at, T_O.linear() * sample.n_O, p);
-        f.state = ContactState::sliding;
-      }
+      const Eigen::Vector3d C_at = T_O * sample.C_O;
       ++active;
       c.f_W += f.total();
       p_sum += C_at;
@@ -429,17 +434,13 @@ bool ContactPointHand::linearize_next_step(HandleLinearization& out, ContactLine
         // The tick's cone is the sample's state's (eq. 5): a sample the last ODE step slid is taken
         // kinetic. A static cone on a finger sliding up the bunny's flank as the stylus lifted
         // dragged it down 0.5 N where the world's kinetic samples dragged 0.05-0.11 N.
-        double mu = sample.state == ContactState::sliding ? c.mu_dynamic : c.mu_static;
-        if (contact_force(prm.gamma_n_m / c.count, c.mu_static, c.mu_dynamic, T_O * sample.C_O,
-                          T_O.linear() * sample.n_O, p)
-                .state == ContactState::sliding) {
-          // Outside the cone at the anchor: the world's next ODE step slides it before it pushes
-          // (before_ode_step), so the row starts from the slid point and its normal. The anchor is a
-          // step ahead of the world's hand: a finger lifted along the bunny's flank by a late model
-          // kept contact points from 9 mm lower, whose planes, facing down, pulled the stylus 1.1 N.
-          slide(sample, c.mu_dynamic, T_O, p, c.object, *objects_);
-          mu = c.mu_dynamic;
-        }
+        // Outside the cone at the anchor, it is slid as the world's next ODE step slides it before
+        // it pushes (slid_force), and the row starts from the slid point and its normal, kinetic. The
+        // anchor is a step ahead of the world's hand: a finger lifted along the bunny's flank by a late
+        // model kept contact points from 9 mm lower, whose planes, facing down, pulled the stylus 1.1 N.
+        const bool slid = sample.state == ContactState::sliding;
+        const bool slides = slid_force(c, sample, T_O, p).state == ContactState::sliding;
+        const double mu = slid || slides ? c.mu_dynamic : c.mu_static;
         const Eigen::Vector3d C = T_O * sample.C_O, n = T_O.linear() * sample.n_O;
         const double depth = n.dot(C - p);
         if (depth > -prm.lookahead_m) rows.push_back({shape_handle(s), p, C, n, prm.gamma_n_m / c.count, mu, depth});

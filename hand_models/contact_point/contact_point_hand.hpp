@@ -151,6 +151,10 @@ class ContactPointHand : public OdeHand {
   // A new contact of shape s with `object` around probe point p_S (section 3.2).
   void make_contact(int s, int object, const Eigen::Vector3d& p_S, const Eigen::Vector3d& n_W,
                     const RigidObjects& objects);
+  // Eqs. 1-5 for `sample` of contact `c` at hand point p_W as an ODE step applies them: a sample
+  // outside its cone is first slid (section 3.5; `sample` is updated) and pushes from there.
+  ContactForce slid_force(const Contact& c, Sample& sample, const Eigen::Isometry3d& T_O,
+                          const Eigen::Vector3d& p_W) const;
   // Section 3.5's surface point update of a sliding sample.
   void slide(Sample& sample, double mu_dynamic, const Eigen::Isometry3d& T_O, const Eigen::Vector3d& p_W, int object,
              const RigidObjects& objects) const;
