@@ -88,10 +88,14 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0.2, 3600.0));
   app.add_option("--model-stale-after", options.model_stale_after_s,
                  "seconds a hand's model may be overdue (the visual loop stalled) before it fades to the safe "
-                 "model, where the proxy feels only its device (default 0.1)")
+                 "model: the hand's dynamics go, the surfaces it touched stay for --model-contacts-hold (default 0.1)")
       ->check(CLI::Range(0.001, 10.0));
   app.add_option("--model-fade", options.model_fade_s, "seconds that fade takes, and the recovery (default 0.1)")
       ->check(CLI::Range(0.0, 10.0));
+  app.add_option("--model-contacts-hold", options.model_contacts_hold_s,
+                 "seconds the device still feels a faded model's surfaces (the objects the world last found) "
+                 "before they fade out of the force too (default 0.5)")
+      ->check(CLI::Range(0.0, 60.0));
   app.add_option("--source-rate", options.source_rate_hz,
                  "datagrams a second allowed per source address and port; 0: 4x the haptic rate (default)")
       ->check(CLI::Range(0.0, 1e7));
@@ -209,6 +213,7 @@ int main(int argc, char** argv) {
           {"model_watchdog",
            {{"stale_after_s", options.model_stale_after_s},
             {"fade_s", options.model_fade_s},
+            {"contacts_hold_s", options.model_contacts_hold_s},
             {"stale_models", st.stale_models},
             {"stale_model_ticks", st.stale_model_ticks},
             {"overdue_max_s", st.model_overdue_max_s}}}}},

@@ -76,8 +76,8 @@ HapticCore::HapticCore(std::vector<DeviceLink> links, const ServerOptions& optio
       reply_(std::make_unique<protocol::Message>()) {
   if (!(options_.haptic_rate_hz >= 100 && options_.haptic_rate_hz <= 10000))
     throw std::invalid_argument("--haptic-rate: must be in [100, 10000] Hz");
-  if (!(options_.model_stale_after_s > 0) || !(options_.model_fade_s >= 0))
-    throw std::invalid_argument("model watchdog: stale_after must be > 0 and fade >= 0");
+  if (!(options_.model_stale_after_s > 0) || !(options_.model_fade_s >= 0) || !(options_.model_contacts_hold_s >= 0))
+    throw std::invalid_argument("model watchdog: stale_after must be > 0, fade and contacts_hold >= 0");
   if (options_.key) {
     auth_ = std::make_unique<protocol::AuthKeys>(*options_.key);
     sealer_ = std::make_unique<protocol::Sealer>();
@@ -135,17 +135,21 @@ void HapticCore::watch_models(std::uint64_t now) {
     }
     model_overdue_[h] = overdue;
     model_fade_[h] = std::clamp(model_fade_[h] + (overdue ? step : -step), 0.0, 1.0);
+    const bool surfaces_overdue = overdue_s > options_.model_stale_after_s + options_.model_contacts_hold_s;
+    output_fade_[h] = std::clamp(output_fade_[h] + (surfaces_overdue ? step : -step), 0.0, 1.0);
     fading = fading || (h < snap.hands && model_fade_[h] > 0);
   }
   st.stale_model_ticks += fading;
 }
 
-double HapticCore::model_weight(int h) const {
-  // smoothstep: the weight leaves 1 and reaches 0 with zero slope, so the force on the proxy
-  // changes without a kink at either end (a kink rings the proxy on its coupling spring).
-  const double u = model_fade_[h];
-  return 1.0 - u * u * (3.0 - 2.0 * u);
-}
+namespace {
+// smoothstep: the weight leaves 1 and reaches 0 with zero slope, so the force changes without a kink
+// at either end (a kink rings the proxy on its coupling spring).
+double smooth_weight(double u) { return 1.0 - u * u * (3.0 - 2.0 * u); }
+}  // namespace
+
+double HapticCore::model_weight(int h) const { return smooth_weight(model_fade_[h]); }
+double HapticCore::output_weight(int h) const { return smooth_weight(output_fade_[h]); }
 
 void HapticCore::tick(std::uint64_t now) {
   ServerStats& st = *stats_;
@@ -601,9 +605,9 @@ void HapticCore::on_pose(const protocol::PoseSample& pose, std::uint64_t now) {
   const DeviceLink& link = links_[s->link];
   const HapticModel& model = snapshots_.front().model[link.hand];
   // A gated frame whose part touches nothing is driven to zero through the slew limit (no step).
-  // A stale model's force fades out with its weight: the proxy stays on the model's surfaces
-  // (ProxyHand::integrate) while the device stops feeling them.
-  const double scale = s->output_scale * (model.handles == s->frames ? model_weight(link.hand) : 1.0);
+  // A model overdue past its contacts' hold fades out of what the device feels: the proxy stays on the
+  // model's surfaces (ProxyHand::integrate) while the device stops feeling them.
+  const double scale = s->output_scale * (model.handles == s->frames ? output_weight(link.hand) : 1.0);
   ReplyWrench replies[kMaxHapticHandles];
   for (int j = 0; j < s->frames; ++j) {
     const bool gated = link.contact_gated && !(model.handles == s->frames && model.handle_in_contact[j]);

@@ -244,6 +244,7 @@ void ProxyHand::configure(int handles, const double* mass_kg, const Eigen::Matri
   multiplier_.resize(n);
   b_.resize(n);
   x_rel_.resize(n);
+  late_x_rel_.resize(n);
   v_next_.resize(n);
   v0_.resize(n);
   r_.resize(n);
@@ -274,6 +275,7 @@ void ProxyHand::reset() {
 
 void ProxyHand::resync() {
   resync_following_ = true;
+  late_t_end_ns_ = 0;  // a late model's frozen displacement was the proxy's before the jump
   for (int j = 0; j < handles_; ++j) {
     proxy_[j] = predicted_[j] = device_[j];
     v_[j].setZero(), w_[j].setZero(), v_dev_[j].setZero(), w_dev_[j].setZero();
@@ -355,6 +357,13 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
   // anchor of a press went on into the object while the model was late, the late model then pushed
   // the stylus back out harder than it had pressed in, and a press under four CPU-bound competitors
   // (models up to ~90 ms late at 8-9 Hz) gave the stylus +0.7 to +3.1 mJ (Touch/LateModels).
+  // Nor does its stiffness K follow the proxy past the step's end: K is the hand's answer to a
+  // handle displaced within the step it linearizes (for a light free hand, its flesh's inertia over
+  // that step), and a proxy that travels on for a stalled visual step's 100-300 ms would stretch it
+  // far outside it. Its K (x - x0) is taken at the proxy's pose of the first late tick (frozen until
+  // the next model; the contact rows keep the proxy's live pose): a stylus lifting away from the
+  // bunny during a 300 ms stall was pulled 0.37-0.57 N toward it (press_hold_lift_busy.sh).
+  model_late_ = lookahead_s < 0;
   TickSolve solve = solve_velocities(model, dt, tau, weight);
   if (solve != TickSolve::solved && contacts_on && tau > dt) {
     // The tick's contact operator W + (tau U_K + U_D) h A(tau)^-1 G is not symmetric: the
@@ -408,7 +417,7 @@ ProxyHand::TickSolve ProxyHand::solve_velocities(const HapticModel& model, doubl
   const bool has_model = model.handles == handles_;
   const bool use_model = has_model && weight > 0;  // F0, K and D, scaled by the weight
   const bool contacts_on = has_model && model.contacts.count > 0;
-  const double safe = 1.0 - weight;  // the safe model's share
+  const double safe = safe_share_ = 1.0 - weight;  // the safe model's share (reply() renders its damper)
   // seed 004 section 3: implicit Euler of the proxies under F* and the coupling, F* at x + tau v':
   //   [M - h D - h tau K + h B_c + h^2 K_c] v' = M v + h [F0 + K (x - x0) - D v0 + K_c (x_dev - x) + B_c v_dev].
   b_.setZero();
@@ -430,15 +439,15 @@ ProxyHand::TickSolve ProxyHand::solve_velocities(const HapticModel& model, doubl
     // user pressing past the limit moves the device, not the hand through the object. The explicit
     // wrench at the tick's start is scaled down to the limit; A keeps the full b + h k (the tick's
     // matrix does not change), which only damps the proxy's velocity change within the tick.
-    // The safe model, implicit like the coupling: the damper on the proxy's own velocity, saturated
-    // with the coupling.
+    // The safe model, implicit like the coupling: a damper between proxy and device that the device
+    // feels (reply() adds it to the coupling's), saturated with the coupling.
     const double b = safe * safe_b_ns_m_[j], b_rot = safe * safe_b_nms_rad_[j];
     a_lin_[j] += dt * b;
     a_rot_[j].diagonal().array() += dt * b_rot;
     const Eigen::Vector3d dp = predicted_[j].p_W - proxy_[j].p_W;
     const Eigen::Vector3d dq = hand::rotation_difference(predicted_[j].q_W, proxy_[j].q_W);
-    const Eigen::Vector3d f_c = gains_.k_n_m * dp + gains_.b_ns_m * (v_dev_[j] - v_[j]) - b * v_[j];
-    const Eigen::Vector3d tau_c = gains_.k_nm_rad * dq + gains_.b_nms_rad * (w_dev_[j] - w_[j]) - b_rot * w_[j];
+    const Eigen::Vector3d f_c = gains_.k_n_m * dp + (gains_.b_ns_m + b) * (v_dev_[j] - v_[j]);
+    const Eigen::Vector3d tau_c = gains_.k_nm_rad * dq + (gains_.b_nms_rad + b_rot) * (w_dev_[j] - w_[j]);
     const double f_max = limits_.max_force_n / map_.scale;
     const double sat = f_c.norm() > f_max ? f_max / f_c.norm() : 1.0;
     const double sat_rot = tau_c.norm() > limits_.max_torque_nm ? limits_.max_torque_nm / tau_c.norm() : 1.0;
@@ -456,7 +465,13 @@ ProxyHand::TickSolve ProxyHand::solve_velocities(const HapticModel& model, doubl
   const bool prepared =
       use_model && handles_ >= kMinPreparedHandles && weight == 1.0 && solver_matches(model.solver, dt);
   if (use_model) {
-    b_.noalias() += h * (model.K * x_rel_);
+    if (!model_late_) {
+      late_t_end_ns_ = 0;
+    } else if (late_t_end_ns_ != model.t_end_ns) {
+      late_t_end_ns_ = model.t_end_ns;
+      late_x_rel_ = x_rel_;
+    }
+    b_.noalias() += h * (model.K * (model_late_ ? late_x_rel_ : x_rel_));
     if (prepared) {
       b_.noalias() += h * model.solver.anchor_force;
     } else {
@@ -772,9 +787,12 @@ ReplyWrench ProxyHand::reply(int j, double output_scale, double dt_since_last_s)
   ReplyWrench r;
   if (j < 0 || j >= handles_ || !have_device_) return r;
   // The coupling wrench on the proxy; the device feels it reversed (f_D = s R^T f_W keeps power equal).
-  const Eigen::Vector3d f_W = gains_.k_n_m * (device_[j].p_W - proxy_[j].p_W) + gains_.b_ns_m * (v_dev_[j] - v_[j]);
-  const Eigen::Vector3d tau_W = gains_.k_nm_rad * hand::rotation_difference(device_[j].q_W, proxy_[j].q_W) +
-                                gains_.b_nms_rad * (w_dev_[j] - w_[j]);
+  // The coupling's damper with the safe model's share of the last integration (solve_velocities).
+  const double b_c = gains_.b_ns_m + safe_share_ * safe_b_ns_m_[j];
+  const double b_c_rot = gains_.b_nms_rad + safe_share_ * safe_b_nms_rad_[j];
+  const Eigen::Vector3d f_W = gains_.k_n_m * (device_[j].p_W - proxy_[j].p_W) + b_c * (v_dev_[j] - v_[j]);
+  const Eigen::Vector3d tau_W =
+      gains_.k_nm_rad * hand::rotation_difference(device_[j].q_W, proxy_[j].q_W) + b_c_rot * (w_dev_[j] - w_[j]);
   const Eigen::Matrix3d R_DW = map_.R_WD.toRotationMatrix().transpose();
   // About the frame's origin: the handle sits at r = q_frame handle_p_F from it.
   const Eigen::Vector3d r_W = device_[j].q_W * (map_.handle_q_F[j].conjugate() * map_.handle_p_F[j]);

@@ -269,16 +269,19 @@ class ProxyHand {
   // proxy's pose, its anchor where the world left the hand.
   // `model_weight` in [0, 1] blends the model with the safe model (the haptic loop fades a stale
   // model so): the model's influence (F0, K, D) is scaled by it, and the safe model's by
-  // 1 - weight. The safe model is a damper on the proxy's own velocity (against the world, not the
-  // device) that makes its motion on the coupling spring critically damped: a proxy released from a
-  // stiff model settles onto a still device without ringing, pulled by the coupling alone, which the
-  // device feels. Nothing acts between proxy and device that the device does not feel, so every
-  // blend is passive at the device's port (SafeModelBlend). A spring and damper toward the device,
-  // unfelt, settled the proxy 2.4 times faster but gave energy back half faded (-9e-5 J over four
-  // 2 mm cycles at 1 Hz): the device did work through them it never paid. The model's contacts and
-  // clearance planes hold at every weight, so the safe model brings the proxy to its device only as
-  // far as the world's surfaces let it (a faded model's force is not felt: the haptic loop scales
-  // the output by the weight).
+  // 1 - weight. The safe model is a damper between the proxy and its device, part of the coupling
+  // and felt by the device (reply()), that makes the proxy's motion on the coupling spring critically
+  // damped: a proxy released from a stiff model settles onto a still device without ringing, and a
+  // device moving through free space carries its proxy along without drag. Nothing acts between
+  // proxy and device that the device does not feel (SafeModelBlend: every blend is passive at the
+  // device's port). Two earlier safe models: a spring and damper toward the device, unfelt, gave
+  // energy back half faded (-9e-5 J over four 2 mm cycles at 1 Hz: the device did work through them
+  // it never paid); a damper on the proxy's own velocity, against the world, dragged a device moving
+  // through free space while a model faded ((1 - w) b v: 0.77 N at 0.1 m/s half faded). The model's
+  // contacts and clearance planes hold at every weight, so the safe model brings the proxy to its
+  // device only as far as the world's surfaces let it (HapticCore decides how long the device feels
+  // them: ServerOptions::model_contacts_hold_s).
+  // A late model (lookahead_s < 0) takes its K (x - x0) at the proxies' pose of its first late tick.
   // A solve with contacts that fails or throws a proxy past kMaxProxySpeed_m_s is solved again
   // without the lookahead, and if still too fast the proxies hold still for the tick (both counted);
   // a non-finite model or state resets the proxies onto the device (counted).
@@ -350,8 +353,10 @@ class ProxyHand {
   DeviceMap map_;
   double mass_[kMaxHapticHandles]{};
   Eigen::Matrix3d inertia_B_[kMaxHapticHandles];
-  // The safe model per handle (integrate()): the damper on the proxy's velocity.
+  // The safe model per handle (integrate()): the damper between proxy and device, and its share in
+  // the last integration (1 - the model's weight), which reply() renders.
   double safe_b_ns_m_[kMaxHapticHandles]{}, safe_b_nms_rad_[kMaxHapticHandles]{};
+  double safe_share_ = 0;
   HapticPose proxy_[kMaxHapticHandles], device_[kMaxHapticHandles], pending_[kMaxHapticHandles];
   HapticPose predicted_[kMaxHapticHandles];  // the device where the coupling pulls the proxy (predict_device)
   Eigen::Vector3d v_[kMaxHapticHandles], w_[kMaxHapticHandles];
@@ -419,6 +424,11 @@ class ProxyHand {
   Eigen::Matrix3d a_rot_[kMaxHapticHandles];
   HapticMatrix A_;
   HapticVector b_, x_rel_, v_next_, v0_, r_, c_, dv_;
+  // A late model's K term (integrate()): the proxies' displacement from its anchor at the first tick
+  // past its step's end (late_t_end_ns_: that model's; 0: none frozen).
+  bool model_late_ = false;
+  std::uint64_t late_t_end_ns_ = 0;
+  HapticVector late_x_rel_;
   // apply_prepared's elimination: the column being reduced, each step's multiplier, and whether
   // the step swapped its two columns (partial pivoting).
   HapticVector column_, multiplier_;

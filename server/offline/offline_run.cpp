@@ -58,9 +58,10 @@ OfflineLoops::OfflineLoops(world::SceneDesc scene, const OfflineOptions& options
     throw std::invalid_argument(
         "offline run: visual_every_ticks >= 1, 0 <= model_delay_ticks < visual_every_ticks, late_model_max_ticks >= 0 "
         "with model_delay_ticks + late_model_max_ticks <= visual_every_ticks, haptic_period_s > 0");
-  for (const auto& [from, to] : options_.withheld_samples_s)
-    if (!(std::isfinite(from) && std::isfinite(to) && from < to))
-      throw std::invalid_argument("offline run: a withheld-samples window needs finite from < to");
+  for (const auto* windows : {&options_.withheld_samples_s, &options_.visual_stalls_s})
+    for (const auto& [from, to] : *windows)
+      if (!(std::isfinite(from) && std::isfinite(to) && from < to))
+        throw std::invalid_argument("offline run: a withheld-samples or visual-stall window needs finite from < to");
   if (options_.device < 0 || options_.device >= static_cast<int>(scene.devices.size()))
     throw std::runtime_error(scene.name + ": no device " + std::to_string(options_.device) + " to serve");
   period_ns_ = static_cast<std::uint64_t>(std::llround(1e9 * options_.haptic_period_s));
@@ -147,18 +148,23 @@ OfflineTimings OfflineLoops::timings() const {
 void OfflineLoops::tick(const DeviceFrames& sample, DeviceReply& reply) {
   const std::uint64_t now = now_ns();
   const Clock::time_point c0 = Clock::now();
-  // The model of the last visual step reaches the haptic side `model_delay_ticks` after its step.
-  if (pending_ && ticks_ >= publish_at_) visual_->publish(), pending_ = false;
-  reply = DeviceReply{};
   const double t_s = time_s();
-  const bool withheld =
-      ticks_ > 0 && std::any_of(options_.withheld_samples_s.begin(), options_.withheld_samples_s.end(),
-                                [t_s](const auto& w) { return t_s >= w.first && t_s < w.second; });
-  if (!withheld) answer(sample, now, reply);
+  const auto within = [t_s](const std::vector<std::pair<double, double>>& windows) {
+    return std::any_of(windows.begin(), windows.end(),
+                       [t_s](const auto& w) { return t_s >= w.first && t_s < w.second; });
+  };
+  const bool stalled = within(options_.visual_stalls_s);
+  // The model of the last visual step reaches the haptic side `model_delay_ticks` after its step.
+  if (pending_ && ticks_ >= publish_at_ && !stalled) visual_->publish(), pending_ = false;
+  reply = DeviceReply{};
+  if (ticks_ == 0 || !within(options_.withheld_samples_s)) answer(sample, now, reply);
   // The haptic tick: the proxies integrated over [now, now + T] under the newest model.
   core_->tick(now);
   haptic_us_.push_back(elapsed_us(c0, Clock::now()));
-  if (ticks_ % options_.visual_every_ticks == 0) visual_step();
+  if (ticks_ >= next_visual_tick_ && !stalled) {
+    visual_step();
+    next_visual_tick_ = ticks_ + options_.visual_every_ticks;
+  }
   ++ticks_;
 }
 

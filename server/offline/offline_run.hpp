@@ -46,6 +46,12 @@ struct OfflineOptions {
   // device whose servo loop or link stalled): the core ticks on without them, and the device, sent
   // no reply, holds the last one it received. The first tick's sample always arrives.
   std::vector<std::pair<double, double>> withheld_samples_s;
+  // Windows [from, to) of simulated time, s, in which the visual thread does not run (descheduled on a
+  // busy machine): no visual step, and a model due meanwhile is handed over at the window's end; the
+  // haptic core ticks on with the model it has, late and then faded by its watchdog. The visual steps
+  // resume at the window's end, k ticks apart; the world does not make up the time it lost (VisualLoop
+  // lengthens its steps to).
+  std::vector<std::pair<double, double>> visual_stalls_s;
   haptic::HandleModelKind model = haptic::HandleModelKind::linearized;
   int device = 0;  // the scene device served
   // Before the first tick, the scene's rigid bodies (ODE alone) settle this long
@@ -151,7 +157,7 @@ class OfflineLoops {
   std::unique_ptr<protocol::Message> pose_, received_;
   std::uint64_t session_ = 0;
   bool pending_ = false;
-  long publish_at_ = 0, ticks_ = 0;
+  long publish_at_ = 0, ticks_ = 0, next_visual_tick_ = 0;
   std::uint64_t late_draws_;  // the late models' generator (a 64-bit LCG), from late_model_seed
   std::vector<double> haptic_us_, visual_ms_;
 };

@@ -654,11 +654,15 @@ TEST(VirtualCoupling, StreamResumedAfterATwoSecondGapResyncsWithoutAForceJump) {
   EXPECT_NEAR(settled.f_D.z(), std::min(8.0, 1000.0 * 3000.0 / 4000.0 * 0.032), 1e-3);
 }
 
-// The safe model (integrate's model_weight < 1, what the haptic loop fades a stale model to):
-// the proxy held on its device by a spring and critical damping the device does not feel.
+// The safe model (integrate's model_weight < 1, what the haptic loop fades a stale model to): a
+// damper between the proxy and its device, felt by the device, critical on the coupling.
+// Released at once (weight 0), the proxy comes onto its still device without passing it, as the
+// plain coupling's does not; faded over 0.1 s as HapticCore fades a stale model (a smoothstep on the
+// weight, the reply scaled by it), what the device feels falls to zero without changing sign.
 TEST(VirtualCoupling, TheSafeModelReleasesAPressedProxyOntoItsDeviceWithoutRinging) {
   const HapticModel wall = wall_model(3000.0);
   const Eigen::Vector3d p_D(0, 0, -0.004);
+  const CouplingGains g = coupling_gains_for(1000.0, 1.0, kPeriod);
   for (const bool safe : {false, true}) {
     ProxyHand p = make_proxy();
     double t = 0;
@@ -667,79 +671,94 @@ TEST(VirtualCoupling, TheSafeModelReleasesAPressedProxyOntoItsDeviceWithoutRingi
     // The model is gone at once: free space (weight 1, no stiffness), or the safe model (weight 0).
     HapticModel free_space = wall;
     free_space.K.setZero();
-    double lowest = 0, settled_at = 0;
+    double passed = 0, settled_at = 0;
     for (int k = 0; k < 300; ++k) {
       t += kPeriod;
       p.set_device_pose(0, p_D, Eigen::Quaterniond::Identity());
       p.commit_sample(t, 0.05);
-      const double f = p.reply(0, 1.0, kPeriod).f_D.z();
-      lowest = std::min(lowest, f);
-      if (std::abs(f) > 0.02 * pressed.f_D.z()) settled_at = (k + 1) * kPeriod;
       if (safe) {
         p.integrate(wall, kPeriod, 0, 0.0);
       } else {
         p.integrate(free_space, kPeriod);
       }
+      const double e = p.proxy(0).p_W.z() - p_D.z();  // > 0 until the proxy reaches its device
+      passed = std::min(passed, e);
+      if (g.k_n_m * std::abs(e) > 0.02 * pressed.f_D.z()) settled_at = (k + 1) * kPeriod;
     }
-    std::printf("%s: lowest force %.3f N, within 2 %% of zero from %.0f ms\n",
-                safe ? "released onto the safe model" : "released into free space", lowest, 1e3 * settled_at);
+    std::printf("%s: the proxy passed its device by %.3f mm, its spring within 2 %% of zero from %.0f ms\n",
+                safe ? "released onto the safe model" : "released into free space", -1e3 * passed, 1e3 * settled_at);
     if (safe) {
-      EXPECT_GT(lowest, -1e-3);  // no overshoot (critically damped)
-      // 2 % within 45 ms: the slew limit takes 3 ms off 3 N, then critical damping at
-      // sqrt(k_c / m) = 141 rad/s falls to 2 % ((1 + x) e^-x = 0.02) in 5.83 / 141 s = 41.3 ms.
-      // (18 ms with the safe spring of 4 k_c the safe model had, which the device did not feel and
-      // which made a half-faded model active: SafeModelBlend.)
+      EXPECT_GT(passed, -1e-7);  // no overshoot (critically damped)
+      // 2 % within 45 ms: critical damping at sqrt(k_c / m) = 141 rad/s falls to 2 %
+      // ((1 + x) e^-x = 0.02) in 5.83 / 141 s = 41.3 ms.
       EXPECT_LT(settled_at, 0.045);
     } else {
-      EXPECT_LT(lowest, -0.5);  // the plain coupling rings: what the safe model is for
+      EXPECT_LT(passed, -0.5e-3);  // the plain coupling rings: what the safe model is for
     }
   }
+  // Faded as HapticCore fades a stale model: u from 0 to 1 in 0.1 s, weight 1 - u^2 (3 - 2 u).
+  ProxyHand p = make_proxy();
+  double t = 0;
+  const ReplyWrench pressed = hold(p, wall, p_D, 0.5, t);
+  double weight = 1.0, lowest = 0, settled_at = 0;
+  for (int k = 0; k < 300; ++k) {
+    t += kPeriod;
+    p.set_device_pose(0, p_D, Eigen::Quaterniond::Identity());
+    p.commit_sample(t, 0.05);
+    const double f = p.reply(0, weight, kPeriod).f_D.z();
+    lowest = std::min(lowest, f);
+    if (std::abs(f) > 0.02 * pressed.f_D.z()) settled_at = (k + 1) * kPeriod;
+    const double u = std::min((k + 1) * kPeriod / 0.1, 1.0);
+    weight = 1.0 - u * u * (3.0 - 2.0 * u);
+    p.integrate(wall, kPeriod, 0, weight);
+  }
+  std::printf("faded in 0.1 s: the device felt %.4f N at the lowest, within 2 %% of zero from %.0f ms\n", lowest,
+              1e3 * settled_at);
+  EXPECT_GT(lowest, -1e-3);
+  EXPECT_LE(settled_at, 0.1);
 }
 
-// What the safe model costs a moving device: its damper acts on the proxy's own velocity, so a device
-// moving through free space while a stale model fades drags its proxy along through the coupling. At
-// a steady 0.1 m/s the coupling then carries exactly the damper's force, (1 - w) b v with
-// b = 2 sqrt(k_c m) - b_c, and the reply, taken at a sample one period newer than the proxy, the
-// coupling's stretch over that period too, k_c v T; the haptic loop scales what the device feels by
-// w (HapticCore). (The safe model's old spring toward the device held the coupling force at 0.25 N
-// fully faded and 0.31 N half faded, at most.)
-TEST(VirtualCoupling, ADeviceMovingOnTheSafeModelPullsItsProxyAgainstTheDamperAlone) {
+// What the safe model costs a moving device: nothing once the proxy moves with it. Its damper acts
+// on the proxy's velocity relative to the device's, so a device moving steadily through free space
+// while a stale model fades carries its proxy along; the reply, taken at a sample one period newer
+// than the proxy, has only the coupling's stretch over that period, k_c v T, at every weight.
+// (A damper on the proxy's own velocity, against the world, cost (1 - w) b v with
+// b = 2 sqrt(k_c m) - b_c: 1.44 N here fully faded, 0.77 N half faded.)
+TEST(VirtualCoupling, ADeviceMovingThroughFreeSpaceOnTheSafeModelCarriesItsProxyWithoutDrag) {
   HapticModel free_space = wall_model(3000.0);
   free_space.K.setZero();
   const CouplingGains g = coupling_gains_for(1000.0, 1.0, kPeriod);
-  const double mass = 0.05, v = 0.1;  // make_proxy's
-  const double b = 2 * std::sqrt(g.k_n_m * mass) - g.b_ns_m;
+  const double v = 0.1;
   for (const double weight : {0.0, 0.5}) {
     ProxyHand p = make_proxy();
-    double t = 0, largest = 0, last = 0;
+    double t = 0, last = 0;
     for (int k = 0; k < 500; ++k) {
       t += kPeriod;
       p.set_device_pose(0, Eigen::Vector3d(v * t, 0, 0), Eigen::Quaterniond::Identity());
       p.commit_sample(t, 0.05);
-      const ReplyWrench r = p.reply(0, 1.0, kPeriod);
-      largest = std::max(largest, r.f_D.norm());
-      last = r.f_D.x();
+      last = p.reply(0, 1.0, kPeriod).f_D.x();
       p.integrate(free_space, kPeriod, 0, weight);
     }
-    std::printf(
-        "weight %.1f, the device at %.1f m/s: coupling force %.3f N at the end (at most %.3f N), "
-        "felt times the weight\n",
-        weight, v, -last, largest);
-    EXPECT_NEAR(-last, (1 - weight) * b * v + g.k_n_m * v * kPeriod, 1e-3) << weight;
+    std::printf("weight %.1f, the device at %.1f m/s: coupling force %.4f N at the end, felt times the weight\n",
+                weight, v, -last);
+    EXPECT_NEAR(-last, g.k_n_m * v * kPeriod, 1e-4) << weight;
   }
 }
 
-// The device swept along a closed path (a 2 mm sinusoid in z, within the device's force and rate
-// limits) at 1..50 Hz against the wall blended with the safe model at a weight: over whole cycles the
-// device does non-negative work on the rendering (ProxyHand's passivity observer: the work of each
-// reply held over the motion that follows it, exact for this device).
+// The device swept along a closed path (a 2 mm sinusoid in z) at 1..50 Hz against the wall blended
+// with the safe model at a weight, the reply scaled by the weight as HapticCore scales a fading
+// model's: over whole cycles the device does non-negative work on the rendering (ProxyHand's
+// passivity observer: the work of each reply held over the motion that follows it, exact for this
+// device). The device's rate limit is raised so that no reply is clamped (at 50 Hz the felt damper
+// carries the proxy's inertia, 10 N at the sinusoid's peak acceleration): what is measured is the
+// rendering, not the limiter.
 class SafeModelBlend : public ::testing::TestWithParam<double> {};
 
 TEST_P(SafeModelBlend, IsPassive) {
   const double weight = GetParam();
   const HapticModel wall = wall_model(3000.0, 2.0);
   for (const double hz : {1.0, 5.0, 20.0, 50.0}) {
-    ProxyHand p = make_proxy();
+    ProxyHand p = make_proxy({}, 1000.0, DeviceLimits{8.0, 0.5, 1e5});
     double t = 0;
     hold(p, wall, Eigen::Vector3d(0, 0, 0), 0.2, t);
     const double e0 = p.energy_in(0);
@@ -749,10 +768,10 @@ TEST_P(SafeModelBlend, IsPassive) {
       const double z = -0.002 * std::sin(2 * std::numbers::pi * hz * k * kPeriod);
       p.set_device_pose(0, Eigen::Vector3d(0, 0, z), Eigen::Quaterniond::Identity());
       p.commit_sample(t, 0.05);
-      p.reply(0, 1.0, kPeriod);
+      p.reply(0, weight, kPeriod);
       p.integrate(wall, kPeriod, 0, weight);
     }
-    std::printf("weight %.1f, %4.0f Hz: the device did %+.3e J on the rendering\n", weight, hz, p.energy_in(0) - e0);
+    std::printf("weight %.2f, %4.0f Hz: the device did %+.3e J on the rendering\n", weight, hz, p.energy_in(0) - e0);
     EXPECT_GE(p.energy_in(0) - e0, 0.0) << "weight " << weight << ", " << hz << " Hz";
     EXPECT_EQ(p.clamps(), 0);
   }
@@ -761,9 +780,9 @@ TEST_P(SafeModelBlend, IsPassive) {
 // Half faded (0.5), the device did -9.2e-5 J (1 Hz) and -9.0e-5 J (5 Hz) on the rendering over the
 // four cycles (an issue 17 known fault) while the safe model was a spring and damper pulling the
 // proxy toward the device, which the device did not feel: energy the wall stored through them came
-// back to the device unpaid for. With the safe model a damper on the proxy's own velocity: +5.1e-4 J
-// and +2.6e-3 J.
-INSTANTIATE_TEST_SUITE_P(VirtualCoupling, SafeModelBlend, ::testing::Values(0.0, 0.5, 1.0));
+// back to the device unpaid for. The damper alone, unfelt, does the same (-1.0e-4 J at 0.25 and 0.5,
+// 1 Hz). Weight 0 is not run: the device feels nothing of a fully faded model.
+INSTANTIATE_TEST_SUITE_P(VirtualCoupling, SafeModelBlend, ::testing::Values(0.25, 0.5, 0.75, 1.0));
 
 // --- The prepared tick solver (prepare_tick_solver) against the dense LU ---------------------------
 

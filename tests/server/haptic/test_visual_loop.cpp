@@ -137,14 +137,13 @@ double press_depth_m(double t_s) { return 0.015 * std::clamp((t_s - 0.2) / 0.5, 
 // hapticd's two real-time runners on their threads (HapticServer, VisualLoop around a VisualStep), on
 // test::static_box_scene().
 struct Threads {
-  explicit Threads(double visual_hz = 60) {
+  explicit Threads(double visual_hz = 60, const ServerOptions& options = {}) {
     world::SceneDesc scene = test::static_box_scene();
     scene.visual_rate_hz = visual_hz;
     scene.dt_s = 1.0 / visual_hz;
     world = std::make_unique<world::World>(scene, served_world_options());
     link = make_device_link(*world, scene.devices[0], 1000.0);
-    server =
-        std::make_unique<HapticServer>(std::vector<DeviceLink>{link}, ServerOptions{}, *snapshots, *targets, &report);
+    server = std::make_unique<HapticServer>(std::vector<DeviceLink>{link}, options, *snapshots, *targets, &report);
     preparer = std::make_unique<TickSolverPreparer>(std::vector<DeviceLink>{link}, 1e-3);
     step = std::make_unique<VisualStep>(*world, *snapshots, *targets, preparer.get());
     step->build_models(protocol::now_ns(), 1.0 / visual_hz);
@@ -240,8 +239,11 @@ TEST(VisualLoopThreads, TheRealTimeRunnersServeAPressOnTheWorldWithFreshModels) 
 
 TEST(VisualLoopThreads, AThrowInTheWorldStepIsAFaultTheServerKeepsAnsweringAndFadesToTheSafeModel) {
   // While the press is held (from 1.2 s) the world step throws (an allocation fails) for 0.6 s, then
-  // works again.
-  Threads t;
+  // works again. The box's surfaces stay felt for 0.1 s past the model's fade (the default 0.5 s would
+  // outlast the faults).
+  ServerOptions o;
+  o.model_contacts_hold_s = 0.1;
+  Threads t(60, o);
   std::atomic<std::uint64_t> first_ns{0}, last_ns{0};
   const std::uint64_t t0 = protocol::now_ns();
   t.step->set_fault_injection([&] {
@@ -257,10 +259,10 @@ TEST(VisualLoopThreads, AThrowInTheWorldStepIsAFaultTheServerKeepsAnsweringAndFa
   ASSERT_NE(first_ns.load(), 0u) << "no fault was injected";
   const double fault_from = 1e-9 * static_cast<double>(first_ns - t0),
                fault_to = 1e-9 * static_cast<double>(last_ns - t0);
-  const ServerOptions o;
-  // The safe model is reached within the watchdog's delay and fade, plus a visual period for the
-  // last good model's step to end.
-  const double safe_by = fault_from + o.model_stale_after_s + o.model_fade_s + 1.0 / 60 + 0.02;
+  // The safe model is reached within the watchdog's delay, the surfaces' hold and the fade, plus a
+  // visual period for the last good model's step to end.
+  const double safe_by =
+      fault_from + o.model_stale_after_s + o.model_contacts_hold_s + o.model_fade_s + 1.0 / 60 + 0.02;
   long unanswered = 0, not_stale = 0, safe_samples = 0;
   double f_before = 0, f_safe_max = 0, f_after_max = 0;
   int before = 0;
