@@ -13,15 +13,57 @@ VisualLoop::VisualLoop(VisualStep& step, double rate_hz, VisualReport* report,
                        std::function<void(const std::string&)> on_fault)
     : step_(step), rate_hz_(rate_hz), report_(report), on_fault_(std::move(on_fault)) {}
 
+namespace detail {
+
+namespace {
+std::uint64_t to_ns(double s) { return static_cast<std::uint64_t>(1e9 * s); }
+}  // namespace
+
+// The first step brings the world to the first publication: simulated time starts a step early.
+// (From 0, the world started a period ahead of the clock and, never catching up from ahead, took
+// steps shorter than the period: hapticd's stylus scene at 60 Hz on a quiet machine ran at 68 Hz.)
+StepClock::StepClock(double period_s, std::uint64_t start_ns)
+    : period_s_(period_s), start_ns_(start_ns), step_s_(period_s), pace_s_(period_s), world_time_s_(-period_s) {}
+
+std::uint64_t StepClock::publish_ns(std::uint64_t t0_ns) const { return t0_ns + to_ns(latency_s_); }
+
+double StepClock::plan(std::uint64_t publish_ns) {
+  world_time_s_ += step_s_;
+  // At least the period and twice the loop's latency (its model must reach the haptic loop before the
+  // step is half over; a slower machine gets a lower visual rate, counted, never a late model), plus
+  // half of any lag of simulated time behind the wall clock. The model is built for exactly this
+  // length and the world then takes it, reusing the model's factorization.
+  lag_s_ = 1e-9 * static_cast<double>(publish_ns - start_ns_) - world_time_s_;
+  const double pace = std::min(std::max(period_s_, kLatencyMargin * latency_s_), kMaxStep_s);
+  step_s_ = std::clamp(pace + 0.5 * lag_s_, kMinStepFraction * period_s_, kMaxStep_s);
+  // A world ahead of the clock (a shorter step) publishes again at its step's end: the model then
+  // never ends before the next one arrives.
+  pace_s_ = std::min(step_s_, pace);
+  return step_s_;
+}
+
+void StepClock::measured(double iteration_s) {
+  latency_s_ = std::max(std::min(iteration_s, 2.0 * latency_s_ + period_s_), kLatencyMemory * latency_s_);
+}
+
+void StepClock::restart(std::uint64_t now_ns) {
+  step_s_ = pace_s_ = period_s_;
+  world_time_s_ = 1e-9 * static_cast<double>(now_ns - start_ns_);
+}
+
+std::uint64_t StepClock::next_read_ns(std::uint64_t publish_ns) const {
+  // One latency before the coming publication.
+  return publish_ns + to_ns(pace_s_) - std::min(to_ns(latency_s_), to_ns(pace_s_));
+}
+
+}  // namespace detail
+
 void VisualLoop::run(const std::atomic<bool>& stop) {
   world::ensure_ode_for_this_thread();
   hand::single_threaded_cholmod();
   world::World& world = step_.world();
-  const double period = 1.0 / rate_hz_;
   const std::uint64_t start = protocol::now_ns();
-  double latency_s = 0;      // how long an iteration takes from reading the proxies to publishing
-  double dt = period;        // the coming step: its model was built for this length, so the world takes it
-  double world_time_s = 0;   // simulated time, kept on the wall clock
+  detail::StepClock clock(1.0 / rate_hz_, start);
   while (!stop.load(std::memory_order_relaxed)) {
     const std::uint64_t t0 = protocol::now_ns();
     // The world simulates up to the moment it will publish: the proxies are
@@ -31,22 +73,14 @@ void VisualLoop::run(const std::atomic<bool>& stop) {
     // the haptic loop gets it on time; a world behind the clock would replay the
     // proxies' motion faster than it happened and a late model would lag the
     // flesh: both feed energy back to the device.
-    const std::uint64_t publish = t0 + static_cast<std::uint64_t>(1e9 * latency_s);
+    const std::uint64_t publish = clock.publish_ns(t0);
     std::uint64_t t_world = t0, t_model = t0;
     bool faulted = false;
     try {
-      step_.advance_world(publish, dt);
-      world_time_s += dt;
+      step_.advance_world(publish, clock.step_s());
       t_world = protocol::now_ns();
-      // The coming step: at least the period and twice the loop's latency (its model
-      // must reach the haptic loop before the step is half over; a slower machine
-      // gets a lower visual rate, counted, never a late model), plus half of any
-      // lag of simulated time behind the wall clock. The model is built for exactly
-      // this length and the world then takes it, reusing the model's factorization.
-      const double lag_s = 1e-9 * static_cast<double>(publish - start) - world_time_s;
-      dt = std::clamp(std::max(period, detail::kLatencyMargin * latency_s) + 0.5 * lag_s,
-                      detail::kMinStepFraction * period, detail::kMaxStep_s);
-      if (detail::kLatencyMargin * latency_s > period) ++stats_.late_steps;
+      const double dt = clock.plan(publish);
+      if (clock.late()) ++stats_.late_steps;
       step_.build_models(publish, dt);
       t_model = protocol::now_ns();
       step_.prepare_tick_solvers();
@@ -61,13 +95,11 @@ void VisualLoop::run(const std::atomic<bool>& stop) {
       // Nothing of this step is published; the world restarts from the proxies at the clock.
       step_.recover();
       ++stats_.faults;
-      dt = period;
-      world_time_s = 1e-9 * static_cast<double>(protocol::now_ns() - start);
+      clock.restart(protocol::now_ns());
     }
     const std::uint64_t t1 = protocol::now_ns();
     if (!faulted) {
-      // The next iteration's latency: the slower of this one and a decaying memory of the last.
-      latency_s = std::max(1e-9 * static_cast<double>(t1 - t0), detail::kLatencyMemory * latency_s);
+      clock.measured(1e-9 * static_cast<double>(t1 - t0));
       step_.publish();
       ++stats_.steps;
       stats_.step_us.add(1e-3 * static_cast<double>(t1 - t0));
@@ -83,9 +115,7 @@ void VisualLoop::run(const std::atomic<bool>& stop) {
       report_->rate_hz.store(static_cast<double>(stats_.steps) / std::max(stats_.elapsed_s, 1e-9),
                              std::memory_order_relaxed);
     }
-    // Read the proxies again one latency before the coming step's publication.
-    const std::uint64_t deadline = publish + static_cast<std::uint64_t>(1e9 * dt) -
-                                   std::min(static_cast<std::uint64_t>(1e9 * latency_s), static_cast<std::uint64_t>(1e9 * dt));
+    const std::uint64_t deadline = clock.next_read_ns(publish);
     if (protocol::now_ns() >= deadline) continue;
     timespec ts{static_cast<time_t>(deadline / 1000000000ull), static_cast<long>(deadline % 1000000000ull)};
     clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr);

@@ -6,6 +6,7 @@
 // nothing is published for that step, so the haptic side's watchdog fades to the safe model as for
 // a stalled loop if the faults go on; the loop keeps running.
 #include <atomic>
+#include <cstdint>
 #include <functional>
 #include <string>
 
@@ -35,6 +36,41 @@ constexpr double kLatencyMargin = 2.0;
 constexpr double kLatencyMemory = 0.8;
 // The shortest step, as a fraction of the period (a world ahead of the clock catches up no faster).
 constexpr double kMinStepFraction = 0.25;
+
+// The visual loop's timing on the times it is given (VisualLoop::run; tested on made-up times): how
+// far ahead an iteration publishes (its latency estimate), how long each step is, and when the loop
+// reads the proxies again. The loop publishes every `pace` (the period, or twice its latency when
+// that is longer, at most kMaxStep_s) and each step is the pace plus half the lag of simulated
+// time behind the clock, so a world that fell behind (a stall) catches up geometrically: with the
+// step as the pace too, a 300 ms stall kept the steps at kMaxStep_s for the rest of the session.
+// The latency estimate follows a slower machine within a few iterations (at most doubling, plus a
+// period, per iteration) and decays by kLatencyMemory: a single descheduled iteration (300 ms) set
+// it, and the loop then published 0.2-0.3 s ahead of its reads for a second and a half.
+class StepClock {
+ public:
+  StepClock(double period_s, std::uint64_t start_ns);
+  // When an iteration that reads the proxies at t0 publishes: one latency later.
+  std::uint64_t publish_ns(std::uint64_t t0_ns) const;
+  // The step the world takes now: the length the last model was built for.
+  double step_s() const { return step_s_; }
+  // The world took step_s(): the coming step's length, for a model published at `publish_ns`.
+  double plan(std::uint64_t publish_ns);
+  // The latency asks for a step longer than the period (a late step, counted).
+  bool late() const { return kLatencyMargin * latency_s_ > period_s_; }
+  // An iteration that published took this long from its read: the next latency estimate.
+  void measured(double iteration_s);
+  // A faulted iteration published nothing: the world restarts from the proxies at the clock.
+  void restart(std::uint64_t now_ns);
+  // When to read the proxies again, for an iteration that published (or would have) at `publish_ns`.
+  std::uint64_t next_read_ns(std::uint64_t publish_ns) const;
+  double latency_s() const { return latency_s_; }
+  double lag_s() const { return lag_s_; }
+
+ private:
+  double period_s_;
+  std::uint64_t start_ns_;
+  double latency_s_ = 0, step_s_, pace_s_, world_time_s_ = 0, lag_s_ = 0;
+};
 
 }  // namespace detail
 

@@ -5,7 +5,10 @@
 // device (test_loops_offline.cpp, OfflineOptions::targets_one_tick_stale: +6.8 % of the work).
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <cstdio>
 #include <new>
 #include <thread>
 
@@ -29,6 +32,56 @@ ProxyTargets moving_proxy(std::uint64_t t_ns) {
   t.v_device_W[0][1] = {0.05, 0.0, -0.3};  // the device: the proxy lags it, pushed by a model
   t.w_device_W[0][1] = {0.0, 1.0, 0.0};
   return t;
+}
+
+// The visual loop's timing (detail::StepClock, which VisualLoop::run uses) on made-up times: a loop
+// whose iterations take 5 ms at 60 Hz, one of them descheduled for 300 ms (a busy machine). Its world
+// falls 0.3 s behind the clock; the steps catch that up, each the period plus half the lag, and come
+// back to the period (to 1 %) within 20 iterations; from the second model after the stall on, every model
+// reaches the haptic loop before the one before it has ended. Measured before the loop published at
+// its pace rather than at its step's end: the lag never shrank and every step stayed at kMaxStep_s
+// (150 ms) for the rest of the session (hapticd with a 300 ms stall injected into its visual
+// thread: 6.7 Hz after it); and the stalled iteration's 300 ms, taken as the loop's latency, had it
+// publish up to 0.3 s ahead of its reads for 1.5 s.
+TEST(StepClock, AfterAStallTheWorldCatchesUpAndTheStepsComeBackToThePeriod) {
+  const double period = 1.0 / 60, compute = 0.005, stall = 0.3;
+  const int stalled = 60;
+  const std::uint64_t start = 1'000'000'000ull;
+  const auto ns = [](double s) { return static_cast<std::uint64_t>(1e9 * s); };
+  detail::StepClock clock(period, start);
+  std::uint64_t t = start, last_end = 0;
+  int back_at = -1, gaps_after = 0;
+  double longest = 0, latest_publish_ahead = 0;
+  for (int i = 0; i < 240; ++i) {
+    const std::uint64_t t0 = t, publish = clock.publish_ns(t0);
+    const double dt = clock.plan(publish);
+    const double took = compute + (i == stalled ? stall : 0.0);
+    const std::uint64_t arrives = t0 + ns(took);
+    longest = std::max(longest, dt);
+    if (i > stalled) latest_publish_ahead = std::max(latest_publish_ahead, 1e-9 * static_cast<double>(publish - t0));
+    if (i < stalled && i >= 10) {  // steady before it (the latency estimate starts at zero)
+      EXPECT_NEAR(dt, period, 1e-9) << i;
+      EXPECT_LE(arrives, last_end) << i;
+    }
+    if (i > stalled + 1) gaps_after += arrives > last_end;
+    const bool at_period = std::abs(dt - period) < 0.01 * period && std::abs(clock.lag_s()) < 1e-3;
+    if (i > stalled && back_at < 0 && at_period) back_at = i - stalled;
+    if (back_at >= 0) {
+      EXPECT_TRUE(at_period) << "iteration " << i << ": step " << dt << " s, lag " << clock.lag_s();
+    }
+    last_end = publish + ns(dt);
+    clock.measured(took);
+    t = std::max(arrives, clock.next_read_ns(publish));
+  }
+  std::printf(
+      "a %.0f ms stall: the steps back at the period %d iterations after it, the longest %.0f ms; "
+      "published at most %.1f ms ahead of a read after it; %d models after it came after the last ended\n",
+      1e3 * stall, back_at, 1e3 * longest, 1e3 * latest_publish_ahead, gaps_after);
+  EXPECT_GE(back_at, 1);
+  EXPECT_LE(back_at, 20);  // a third of a second at 60 Hz
+  EXPECT_LE(longest, detail::kMaxStep_s);
+  EXPECT_LE(latest_publish_ahead, 0.05);
+  EXPECT_EQ(gaps_after, 0);
 }
 
 TEST(VisualLoopTargets, AProxyIsExtrapolatedFromTheTimeItIsOfToThePublication) {
