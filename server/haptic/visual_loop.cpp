@@ -23,12 +23,23 @@ std::uint64_t to_ns(double s) { return static_cast<std::uint64_t>(1e9 * s); }
 // (From 0, the world started a period ahead of the clock and, never catching up from ahead, took
 // steps shorter than the period: hapticd's stylus scene at 60 Hz on a quiet machine ran at 68 Hz.)
 StepClock::StepClock(double period_s, std::uint64_t start_ns)
-    : period_s_(period_s), start_ns_(start_ns), step_s_(period_s), pace_s_(period_s), world_time_s_(-period_s) {}
+    : period_s_(period_s),
+      start_ns_(start_ns),
+      step_s_(period_s),
+      pace_s_(period_s),
+      taken_s_(period_s),
+      world_time_s_(-period_s) {}
 
 std::uint64_t StepClock::publish_ns(std::uint64_t t0_ns) const { return t0_ns + to_ns(latency_s_); }
 
+double StepClock::world_step_s(std::uint64_t publish_ns) {
+  const double behind = 1e-9 * static_cast<double>(publish_ns - start_ns_) - world_time_s_;
+  taken_s_ = behind > step_s_ + period_s_ ? std::min(behind, std::max(kMaxStep_s, step_s_)) : step_s_;
+  return taken_s_;
+}
+
 double StepClock::plan(std::uint64_t publish_ns) {
-  world_time_s_ += step_s_;
+  world_time_s_ += taken_s_;
   // At least the period and twice the loop's latency (its model must reach the haptic loop before the
   // step is half over; a slower machine gets a lower visual rate, counted, never a late model), plus
   // half of any lag of simulated time behind the wall clock. The model is built for exactly this
@@ -47,7 +58,7 @@ void StepClock::measured(double iteration_s) {
 }
 
 void StepClock::restart(std::uint64_t now_ns) {
-  step_s_ = pace_s_ = period_s_;
+  step_s_ = pace_s_ = taken_s_ = period_s_;
   world_time_s_ = 1e-9 * static_cast<double>(now_ns - start_ns_);
 }
 
@@ -77,7 +88,7 @@ void VisualLoop::run(const std::atomic<bool>& stop) {
     std::uint64_t t_world = t0, t_model = t0;
     bool faulted = false;
     try {
-      step_.advance_world(publish, clock.step_s());
+      step_.advance_world(publish, clock.world_step_s(publish));
       t_world = protocol::now_ns();
       const double dt = clock.plan(publish);
       if (clock.late()) ++stats_.late_steps;

@@ -43,6 +43,9 @@ constexpr double kMinStepFraction = 0.25;
 // that is longer, at most kMaxStep_s) and each step is the pace plus half the lag of simulated
 // time behind the clock, so a world that fell behind (a stall) catches up geometrically: with the
 // step as the pace too, a 300 ms stall kept the steps at kMaxStep_s for the rest of the session.
+// The step right after a stall spans the time lost, up to kMaxStep_s: taken as the last model's
+// step, it replayed the stall's motion of the proxies in one visual period and put energy into the
+// device (a 300 ms stall with one step in it, in the lockstep runner: up to +5 mJ).
 // The latency estimate follows a slower machine within a few iterations (at most doubling, plus a
 // period, per iteration) and decays by kLatencyMemory: a single descheduled iteration (300 ms) set
 // it, and the loop then published 0.2-0.3 s ahead of its reads for a second and a half.
@@ -51,9 +54,11 @@ class StepClock {
   StepClock(double period_s, std::uint64_t start_ns);
   // When an iteration that reads the proxies at t0 publishes: one latency later.
   std::uint64_t publish_ns(std::uint64_t t0_ns) const;
-  // The step the world takes now: the length the last model was built for.
-  double step_s() const { return step_s_; }
-  // The world took step_s(): the coming step's length, for a model published at `publish_ns`.
+  // The step the world takes to a publication at `publish_ns`: the length the last model was built
+  // for, or, when the world is more than a period further behind (a stall), the time to the
+  // publication, at most kMaxStep_s.
+  double world_step_s(std::uint64_t publish_ns);
+  // The world took world_step_s(): the coming step's length, for a model published at `publish_ns`.
   double plan(std::uint64_t publish_ns);
   // The latency asks for a step longer than the period (a late step, counted).
   bool late() const { return kLatencyMargin * latency_s_ > period_s_; }
@@ -69,7 +74,7 @@ class StepClock {
  private:
   double period_s_;
   std::uint64_t start_ns_;
-  double latency_s_ = 0, step_s_, pace_s_, world_time_s_ = 0, lag_s_ = 0;
+  double latency_s_ = 0, step_s_, pace_s_, taken_s_, world_time_s_ = 0, lag_s_ = 0;
 };
 
 }  // namespace detail

@@ -49,8 +49,9 @@ struct OfflineOptions {
   // Windows [from, to) of simulated time, s, in which the visual thread does not run (descheduled on a
   // busy machine): no visual step, and a model due meanwhile is handed over at the window's end; the
   // haptic core ticks on with the model it has, late and then faded by its watchdog. The visual steps
-  // resume at the window's end, k ticks apart; the world does not make up the time it lost (VisualLoop
-  // lengthens its steps to).
+  // resume at the window's end, k ticks apart, the first one's world step spanning the time since the
+  // last, up to haptic::detail::kMaxStep_s, as VisualLoop's; the world does not make up the rest
+  // (VisualLoop lengthens its next steps to).
   std::vector<std::pair<double, double>> visual_stalls_s;
   haptic::HandleModelKind model = haptic::HandleModelKind::linearized;
   int device = 0;  // the scene device served

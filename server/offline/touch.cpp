@@ -202,6 +202,14 @@ TouchRun run_press_hold_lift(const world::SceneDesc& scene, const PressSchedule&
   return r;
 }
 
+OfflineOptions movable_bunny_press_options() {
+  OfflineOptions options;
+  options.visual_every_ticks = 17;
+  options.settle_s = 0.5;
+  options.passivity_control = false;
+  return options;
+}
+
 AfterLift after_lift(const OfflineTrace& trace, const PressSchedule& schedule, const OfflineOptions& options) {
   AfterLift a;
   const double T = options.haptic_period_s;

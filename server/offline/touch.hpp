@@ -43,6 +43,11 @@ struct PressSchedule {
 // Throws std::invalid_argument for another name.
 world::SceneDesc press_scene(const std::string& object);
 
+// The lockstep runner as the movable bunny's press tests run it (SampleGaps, VisualStalls): 59 Hz
+// (the world every 17 ticks), the bodies settled 0.5 s first, the passivity controller off (the
+// rendering's own behaviour).
+OfflineOptions movable_bunny_press_options();
+
 // The press-hold-lift of `schedule` on `scene` through loops built with `options` (the scene's own
 // contact model unless the options say otherwise), the stylus starting at its handle.
 TouchRun run_press_hold_lift(const world::SceneDesc& scene, const PressSchedule& schedule,

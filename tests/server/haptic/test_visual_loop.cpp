@@ -50,10 +50,20 @@ TEST(StepClock, AfterAStallTheWorldCatchesUpAndTheStepsComeBackToThePeriod) {
   const auto ns = [](double s) { return static_cast<std::uint64_t>(1e9 * s); };
   detail::StepClock clock(period, start);
   std::uint64_t t = start, last_end = 0;
+  double last_dt = period;
   int back_at = -1, gaps_after = 0;
   double longest = 0, latest_publish_ahead = 0;
   for (int i = 0; i < 240; ++i) {
     const std::uint64_t t0 = t, publish = clock.publish_ns(t0);
+    const double taken = clock.world_step_s(publish);
+    if (i == stalled + 1) {
+      EXPECT_NEAR(taken, detail::kMaxStep_s, 1e-9);  // the step after the stall spans what it can of it
+    } else if ((i >= 10 && i <= stalled) || back_at >= 0) {
+      EXPECT_NEAR(taken, last_dt, 1e-9) << i;  // otherwise the step its model was built for
+    } else if (i > stalled) {
+      EXPECT_GE(taken, last_dt) << i;  // or longer while a period or more is to catch up
+      EXPECT_LE(taken, detail::kMaxStep_s) << i;
+    }
     const double dt = clock.plan(publish);
     const double took = compute + (i == stalled ? stall : 0.0);
     const std::uint64_t arrives = t0 + ns(took);
@@ -70,6 +80,7 @@ TEST(StepClock, AfterAStallTheWorldCatchesUpAndTheStepsComeBackToThePeriod) {
       EXPECT_TRUE(at_period) << "iteration " << i << ": step " << dt << " s, lag " << clock.lag_s();
     }
     last_end = publish + ns(dt);
+    last_dt = dt;
     clock.measured(took);
     t = std::max(arrives, clock.next_read_ns(publish));
   }

@@ -83,10 +83,7 @@ TEST(SampleGaps, ADeviceWhoseSamplesStopForAFewMillisecondsFeelsWhatItWouldHaveF
       {"lifting in free space", schedule.up_start + 0.6 * up, 0.01},
       {"lifting in free space, 20 ms", schedule.up_start + 0.8 * up, 0.02},
   };
-  OfflineOptions options;
-  options.visual_every_ticks = 17;
-  options.settle_s = 0.5;
-  options.passivity_control = false;
+  OfflineOptions options = movable_bunny_press_options();
   const world::SceneDesc scene = press_scene("movable_bunny");
   const TouchRun reference = run_press_hold_lift(scene, schedule, options);
   withhold(gaps, options);

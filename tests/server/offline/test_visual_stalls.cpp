@@ -17,6 +17,10 @@
 //   when models came again. With the passivity controller on, the energy was taken back by damping
 //   that then dragged the lift: a 1.0 N pull. The device now feels the model's surfaces for
 //   ServerOptions::model_contacts_hold_s past the fade.
+// - the same stalls with one visual step 165 ms into them (how a starved visual thread ran on a busy
+//   machine): +1e-3 to +5e-3 J into the device, the step after a stall replaying the proxies' 165 ms
+//   of motion in one visual period. That step now spans the time lost, up to the longest step
+//   (detail::StepClock in hapticd, as this runner does).
 #include <gtest/gtest.h>
 
 #include <cstdio>
@@ -29,9 +33,11 @@ namespace {
 
 constexpr double kMaxPullN = 0.3;  // press_hold_lift_busy.sh's bound
 
+// A stall of length_s from from_s; with `step_at_s` > 0, the visual thread gets through one step that
+// far into it (a starved thread's crumb of CPU).
 struct Stall {
   const char* when;
-  double from_s, length_s;
+  double from_s, length_s, step_at_s = 0;
 };
 
 TEST(VisualStalls, AStylusPressingOrLiftingThroughAStalledVisualLoopIsNeitherPushedOutNorPulledBack) {
@@ -45,17 +51,19 @@ TEST(VisualStalls, AStylusPressingOrLiftingThroughAStalledVisualLoopIsNeitherPus
       // Past the surfaces' hold (ServerOptions::model_contacts_hold_s): the device stops feeling
       // the bunny 0.6 s into the stall, while the lift has begun.
       {"holding, 1 s", schedule.down_end + 0.1, 1.0},
+      {"holding, one step in", schedule.down_end + 0.1, 0.3, 0.165},
+      {"lifting, one step in", schedule.up_start + 0.1, 0.3, 0.165},
   };
-  OfflineOptions options;
-  options.visual_every_ticks = 17;
-  options.settle_s = 0.5;
-  options.passivity_control = false;
+  OfflineOptions options = movable_bunny_press_options();
   const world::SceneDesc scene = press_scene("movable_bunny");
   const TouchRun reference = run_press_hold_lift(scene, schedule, options);
   const AfterLift r = after_lift(reference.trace, schedule, options);
   std::printf("no stall%28s: energy %+.2e J, pull %.3f N, largest %.2f N\n", "", reference.energy_j, r.pull, r.largest);
   for (const Stall& s : stalls) {
     options.visual_stalls_s = {{s.from_s, s.from_s + s.length_s}};
+    if (s.step_at_s > 0)
+      options.visual_stalls_s = {{s.from_s, s.from_s + s.step_at_s},
+                                 {s.from_s + s.step_at_s + 0.002, s.from_s + s.length_s}};
     const TouchRun run = run_press_hold_lift(scene, schedule, options);
     const AfterLift a = after_lift(run.trace, schedule, options);
     std::printf(
