@@ -1,6 +1,9 @@
 // hapticd: the haptic rendering server. Loads a scene, builds its world, and
 // runs the visual loop and the haptic loop (UDP) until --duration ends or
 // SIGINT / SIGTERM arrives; then writes --stats.
+#include <pthread.h>
+#include <spdlog/sinks/stdout_sinks.h>
+#include <spdlog/spdlog.h>
 #include <sys/mman.h>
 
 #include <CLI/CLI.hpp>
@@ -10,8 +13,6 @@
 #include <cstdio>
 #include <fstream>
 #include <nlohmann/json.hpp>
-#include <spdlog/sinks/stdout_sinks.h>
-#include <spdlog/spdlog.h>
 #include <thread>
 
 #include "protocol/clock.hpp"
@@ -160,6 +161,9 @@ int main(int argc, char** argv) {
     std::atomic<bool> stop_loops{false};
     std::thread visual_thread([&] { visual.run(stop_loops); });
     std::thread haptic_thread([&] { server.run(stop_loops); });
+    // Named for top -H and for the tests that find a loop's thread (press_hold_lift_busy.sh's stall).
+    pthread_setname_np(visual_thread.native_handle(), "hapticd-visual");
+    pthread_setname_np(haptic_thread.native_handle(), "hapticd-haptic");
     std::printf("hapticd listening on %s:%u\n", server.address().c_str(), static_cast<unsigned>(server.port()));
     std::fflush(stdout);
     if (options.key) {

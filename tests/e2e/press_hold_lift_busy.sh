@@ -13,7 +13,10 @@
 # while its arm carries the tip up: the pull while lifting was 0.71-0.75 N while the proxy stopped
 # under an overdue device (before 8996729), and is 0.13-0.23 N now with 32-808 ticks missed (6 runs;
 # 0.12-0.20 N at real-time priority, the same motion in the lockstep runner 0.11 N). Asserted either way.
-# Usage: [DEVICE_REALTIME=0] press_hold_lift_busy.sh BIN_DIR SCENE [hapticd options, e.g. --no-passivity-control]
+# VISUAL_STALL=AT:SECONDS stalls hapticd's visual thread AT s after the device starts, for SECONDS:
+# the thread, pinned to the competitor's core at SCHED_IDLE, gets no CPU (a descheduled visual loop,
+# as a busy CI machine gave one: a 0.43 N pull in the lift before the lockstep VisualStalls fixes).
+# Usage: [DEVICE_REALTIME=0] [VISUAL_STALL=3.6:0.3] press_hold_lift_busy.sh BIN_DIR SCENE [hapticd options, e.g. --no-passivity-control]
 set -euo pipefail
 bin=$1
 scene=$2
@@ -34,8 +37,27 @@ if [ "${DEVICE_REALTIME:-1}" != 0 ] && chrt -f 20 true 2>/dev/null; then device_
 bash -c 'while :; do :; done' &
 busy_pid=$!
 start_hapticd "$bin" "$scene" "$seconds" "$work" "${@:3}"
+if [ -n "${VISUAL_STALL:-}" ]; then
+  visual_tid=$(grep -l '^hapticd-visual$' /proc/"$server_pid"/task/*/comm | head -1 | cut -d/ -f5)
+  [ -n "$visual_tid" ] || { echo "no hapticd-visual thread in hapticd $server_pid"; exit 1; }
+  (
+    sleep "${VISUAL_STALL%%:*}"
+    if taskset -pc 0 "$busy_pid" > /dev/null && taskset -pc 0 "$visual_tid" > /dev/null && chrt -i -p 0 "$visual_tid"; then
+      sleep "${VISUAL_STALL##*:}"
+      chrt -o -p 0 "$visual_tid" && touch "$work/stalled"
+    fi
+    taskset -pc 0-"$(($(nproc) - 1))" "$visual_tid" > /dev/null 2>&1 || true
+    taskset -pc 0-"$(($(nproc) - 1))" "$busy_pid" > /dev/null 2>&1 || true
+  ) &
+  stall_pid=$!
+fi
 "${device_priority[@]}" "$bin/haptic-device" --server "127.0.0.1:$port" --device stylus --trajectory "$trajectory" \
   --rate 1000 --duration "$seconds" --report "$work/device.json" --trace "$work/trace.csv"
+if [ -n "${VISUAL_STALL:-}" ]; then
+  wait "$stall_pid" || true
+  # ctest's SKIP_RETURN_CODE: a machine that does not let the script starve the thread tests nothing here.
+  [ -e "$work/stalled" ] || { echo "could not stall hapticd's visual thread (taskset, chrt -i)"; exit 77; }
+fi
 kill "$busy_pid"
 busy_pid=""
 kill -INT "$server_pid"
@@ -62,7 +84,8 @@ print(f"visual {s['visual']['rate_hz_achieved']:.1f} Hz with one core busy; ener
       f"first contact at {1e3 * first_contact_z if first_contact_z is not None else float('nan'):.1f} mm; "
       f"largest pull while lifting {max(pull, 0.0):.3f} N{'' if device_realtime else ' (device not real-time)'}; "
       f"a second after the lift {after_force:.3f} N, "
-      f"{after_flagged} ticks InContact; resets proxy {s['proxy_resets']} hand {s['visual']['hand_resets']}")
+      f"{after_flagged} ticks InContact; resets proxy {s['proxy_resets']} hand {s['visual']['hand_resets']}; "
+      f"models overdue up to {1e3 * s['haptic']['model_watchdog']['overdue_max_s']:.0f} ms ({s['haptic']['model_watchdog']['stale_models']} faded)")
 failures = []
 if not touched: failures.append("the stylus never touched the bunny")
 if not d["passivity_energy_j"] <= 0: failures.append(f"the rendering put {d['passivity_energy_j']} J into the device")
@@ -72,5 +95,12 @@ if not after_force <= 0.3: failures.append(f"{after_force} N a second after the 
 if after_flagged: failures.append(f"InContact for {after_flagged} ticks a second after the lift")
 if s["proxy_resets"] or s["visual"]["hand_resets"]: failures.append("resets")
 if failures:
+    # What CI keeps of a failure: the ticks around the largest pull while lifting.
+    lifting = [i for i, r in enumerate(rows) if above and r["t_s"] >= above[0] + grace]
+    if lifting:
+        worst = max(lifting, key=lambda i: -rows[i]["f_z_n"])
+        for r in rows[max(0, worst - 40):worst + 10:2]:
+            print(f"  t {r['t_s']:.3f} s: tip z {1e3 * r['p_z_m']:.2f} mm (command {1e3 * r['pc_z_m']:.2f}), "
+                  f"force z {r['f_z_n']:+.3f} N{' InContact' if r['in_contact'] else ''}")
     print("FAILED: " + "; ".join(failures)); sys.exit(1)
 PY
