@@ -363,8 +363,8 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
   // far outside it. Its K (x - x0) is taken at the proxy's pose of the first late tick (frozen until
   // the next model; the contact rows keep the proxy's live pose): a stylus lifting away from the
   // bunny during a 300 ms stall was pulled 0.37-0.57 N toward it (press_hold_lift_busy.sh).
-  model_late_ = lookahead_s < 0;
-  TickSolve solve = solve_velocities(model, dt, tau, weight);
+  const bool late = lookahead_s < 0;
+  TickSolve solve = solve_velocities(model, dt, tau, weight, late);
   if (solve != TickSolve::solved && contacts_on && tau > dt) {
     // The tick's contact operator W + (tau U_K + U_D) h A(tau)^-1 G is not symmetric: the
     // flesh's response to a handle's displacement and a contact's pull on the handles differ by
@@ -377,7 +377,7 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
     // motion toward the step end is not anticipated.
     ++lookahead_fallbacks_;
     warm_start_valid_ = false;
-    solve = solve_velocities(model, dt, dt, weight);
+    solve = solve_velocities(model, dt, dt, weight, late);
   }
   if (solve == TickSolve::too_fast && contacts_on) {
     // A proxy centimetres from its model's anchor (the device moved on while the whole server
@@ -409,7 +409,8 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
   }
 }
 
-ProxyHand::TickSolve ProxyHand::solve_velocities(const HapticModel& model, double dt, double tau, double weight) {
+ProxyHand::TickSolve ProxyHand::solve_velocities(const HapticModel& model, double dt, double tau, double weight,
+                                                  bool late) {
   // The model's contacts and clearance planes hold at any weight: they are where the world's
   // surfaces are, and the world, which follows the proxies, must not be driven into them by a proxy
   // that the safe model carried through (a stalled or failed world resumes there). The device does
@@ -465,13 +466,13 @@ ProxyHand::TickSolve ProxyHand::solve_velocities(const HapticModel& model, doubl
   const bool prepared =
       use_model && handles_ >= kMinPreparedHandles && weight == 1.0 && solver_matches(model.solver, dt);
   if (use_model) {
-    if (!model_late_) {
+    if (!late) {
       late_t_end_ns_ = 0;
     } else if (late_t_end_ns_ != model.t_end_ns) {
       late_t_end_ns_ = model.t_end_ns;
       late_x_rel_ = x_rel_;
     }
-    b_.noalias() += h * (model.K * (model_late_ ? late_x_rel_ : x_rel_));
+    b_.noalias() += h * (model.K * (late ? late_x_rel_ : x_rel_));
     if (prepared) {
       b_.noalias() += h * model.solver.anchor_force;
     } else {

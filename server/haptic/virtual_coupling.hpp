@@ -394,7 +394,8 @@ class ProxyHand {
   bool solve_contacts(const HapticModel& model, double dt, double tau, bool dense);
   // integrate()'s implicit step into v_next_ with lookahead tau.
   enum class TickSolve { solved, too_fast, failed };  // too_fast: a proxy past kMaxProxySpeed_m_s
-  TickSolve solve_velocities(const HapticModel& model, double dt, double tau, double weight);
+  // `late`: the model's step has ended (integrate()'s lookahead_s < 0): its K term is frozen.
+  TickSolve solve_velocities(const HapticModel& model, double dt, double tau, double weight, bool late);
   // The active set of the sweeps' answer solved exactly, kept if it is a solution (solve_contacts):
   // true then.
   bool polish_contacts(const TickContacts& c);
@@ -426,7 +427,6 @@ class ProxyHand {
   HapticVector b_, x_rel_, v_next_, v0_, r_, c_, dv_;
   // A late model's K term (integrate()): the proxies' displacement from its anchor at the first tick
   // past its step's end (late_t_end_ns_: that model's; 0: none frozen).
-  bool model_late_ = false;
   std::uint64_t late_t_end_ns_ = 0;
   HapticVector late_x_rel_;
   // apply_prepared's elimination: the column being reduced, each step's multiplier, and whether

@@ -32,9 +32,12 @@ StepClock::StepClock(double period_s, std::uint64_t start_ns)
 
 std::uint64_t StepClock::publish_ns(std::uint64_t t0_ns) const { return t0_ns + to_ns(latency_s_); }
 
+double world_step_for(double behind_s, double step_s, double period_s) {
+  return behind_s > step_s + period_s ? std::min(behind_s, std::max(kMaxStep_s, step_s)) : step_s;
+}
+
 double StepClock::world_step_s(std::uint64_t publish_ns) {
-  const double behind = 1e-9 * static_cast<double>(publish_ns - start_ns_) - world_time_s_;
-  taken_s_ = behind > step_s_ + period_s_ ? std::min(behind, std::max(kMaxStep_s, step_s_)) : step_s_;
+  taken_s_ = world_step_for(1e-9 * static_cast<double>(publish_ns - start_ns_) - world_time_s_, step_s_, period_s_);
   return taken_s_;
 }
 

@@ -49,14 +49,18 @@ constexpr double kMinStepFraction = 0.25;
 // The latency estimate follows a slower machine within a few iterations (at most doubling, plus a
 // period, per iteration) and decays by kLatencyMemory: a single descheduled iteration (300 ms) set
 // it, and the loop then published 0.2-0.3 s ahead of its reads for a second and a half.
+// The world's step to a publication `behind_s` after its simulated time, when its last model was
+// built for `step_s`: that step, or, when the world is more than a period further behind (a stall),
+// the time to the publication, at most kMaxStep_s. StepClock's rule, and the lockstep runner's after
+// its stall windows.
+double world_step_for(double behind_s, double step_s, double period_s);
+
 class StepClock {
  public:
   StepClock(double period_s, std::uint64_t start_ns);
   // When an iteration that reads the proxies at t0 publishes: one latency later.
   std::uint64_t publish_ns(std::uint64_t t0_ns) const;
-  // The step the world takes to a publication at `publish_ns`: the length the last model was built
-  // for, or, when the world is more than a period further behind (a stall), the time to the
-  // publication, at most kMaxStep_s.
+  // The step the world takes to a publication at `publish_ns` (world_step_for).
   double world_step_s(std::uint64_t publish_ns);
   // The world took world_step_s(): the coming step's length, for a model published at `publish_ns`.
   double plan(std::uint64_t publish_ns);

@@ -210,11 +210,10 @@ void OfflineLoops::visual_step() {
   const std::uint64_t publish = now_ns() + period_ns_ + latency_ns;
   const double dt = options_.visual_every_ticks * options_.haptic_period_s;
   // After a stall (visual_stalls_s) the world's step spans the time since the last step, as
-  // VisualLoop's (detail::StepClock), up to the longest step it takes.
+  // VisualLoop's does.
   const long since = ticks_ - next_visual_tick_ + options_.visual_every_ticks;
-  const double step =
-      std::min(static_cast<double>(since) * options_.haptic_period_s, std::max(haptic::detail::kMaxStep_s, dt));
-  visual_->advance_world(publish, step);
+  visual_->advance_world(publish,
+                         haptic::detail::world_step_for(static_cast<double>(since) * options_.haptic_period_s, dt, dt));
   visual_->build_models(options_.targets_one_tick_stale ? publish - period_ns_ : publish, dt);
   visual_->prepare_tick_solvers();
   pending_ = true;
