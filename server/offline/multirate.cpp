@@ -34,14 +34,18 @@ Interaction stylus_press(world::SceneDesc scene, double seconds) {
   return in;
 }
 
-Interaction stylus_press_fixed(world::SceneDesc scene, double seconds) {
+world::SceneDesc with_rigid_bodies_fixed(world::SceneDesc scene) {
   for (world::ObjectDesc& o : scene.objects)
     if (o.kind == world::BodyKind::rigid) {
       o.kind = world::BodyKind::static_body;
       o.linear_velocity.setZero();
       o.angular_velocity.setZero();
     }
-  Interaction in = stylus_press(std::move(scene), seconds);
+  return scene;
+}
+
+Interaction stylus_press_fixed(world::SceneDesc scene, double seconds) {
+  Interaction in = stylus_press(with_rigid_bodies_fixed(std::move(scene)), seconds);
   in.name = "stylus_press_fixed";
   return in;
 }

@@ -37,6 +37,8 @@ struct Interaction {
 // The simulated stylus along sim::Trajectory::press (settle, 2 cm down over
 // 1 s, hold; device space), starting where the scene's handle is.
 Interaction stylus_press(world::SceneDesc scene, double seconds);
+// `scene` with its rigid bodies made static, at rest where they stand.
+world::SceneDesc with_rigid_bodies_fixed(world::SceneDesc scene);
 // The same press with the scene's rigid bodies made static ("stylus_press_fixed"): nothing but the
 // hand moves, so the world at the visual rate differs from the every-tick world only in the hand
 // and its contacts, and the error is the rendering's own. On the movable bunny the 30 Hz world
