@@ -3,38 +3,46 @@
 // glove_grasp.json made static, closed loop through the lockstep runner (hapticd's own haptic tick
 // and visual step). The grasp's posture lies up to 1.5 cm inside the box, so the index, middle,
 // ring and little fingers press into it and stay there; from 1.5 s the glove's command holds still.
-// A still hold is where a passive rendering can only take energy out: whatever the rendering puts
-// into the glove from 2 s (settled) to the end of the run (4 s) is energy it made.
 //
 // Asserted, at visual rates 60, 30 and 15 Hz, the passivity controller on (as in hapticd) and off
 // (the controller guards the port, it must not hide a wrong model):
 //   - no reset of a proxy or of the world;
-//   - the glove gains at most 1 mJ over the still hold (GloveSimulation::passivity_energy_j, the
-//     work of the rendered forces on its palm and joints; 1 mJ is what the 300 N/m coupling holds
-//     at 2.6 mm).
-// A known fault (tests/CMakeLists.txt): measured at 87b8eea, the gain over the hold is +0.05 J
-// (60 Hz), +0.04 J (30 Hz) and +0.30 J (15 Hz) with the controller, +0.60, +0.12 and +2.2 J
-// without it; through the real server the same press gains -0.001 to +0.27 J over 4 s
-// (tests/e2e/glove_loopback.sh on tests/e2e/fem_static_box.json, README). What was found, without
-// the controller (temporary switches in the haptic tick; gain over the hold at 60 / 30 / 15 Hz):
+//   - the issue's energy bound: the rendering puts no energy into the glove over the run
+//     (GloveSimulation::passivity_energy_j, the work of the rendered forces on its palm and joints);
+//   - the glove holds still: over the last 0.5 s every frame's force stays within 0.05 N of its
+//     mean. A glove ringing in a limit cycle while its command holds still is how the rendering
+//     gives it energy, whether or not the run's total has turned positive yet.
+// A known fault (tests/CMakeLists.txt). Measured at 5ab32e3, total energy and the largest swing:
+//   controller on:  60 Hz -0.062 J 0.52 N, 30 Hz -0.076 J 0.51 N, 15 Hz +0.78 J 4.2 N;
+//   controller off: 60 Hz +0.53 J 4.8 N,   30 Hz +0.011 J 1.0 N,  15 Hz +3.6 J 4.0 N.
+// Through the real server the same press gains -0.001 to +0.27 J over 4 s (README, Gloves).
+// Three mechanisms, each traced to a frame and a cause (controller off):
 //   - Contact gating works as a relay. A finger frame whose part touches nothing is gated to zero
 //     force, but its proxy still feels the coupling to its device. The ring finger's middle
 //     phalanx, resting on the box's edge, alternated between touching and not from one visual step
 //     to the next: felt, its device was pushed 5 mm out at ~2.5 N; gated, it sank back in at no
-//     cost; felt again, it was pushed out from deeper (period two steps, ~12 mJ a cycle). Not
-//     gated at all: +0.13, +0.32, +2.2 J (a steady gain of ~0.01 J/s at each fingertip, and at
-//     15 Hz every frame at the 5 N limit); gated but held 0.1-0.3 s after the last contact:
-//     +0.05 to +1.4 J.
-//   - The lookahead (F* at x + tau v', tau the time left to the model's step end) kicks a light
-//     proxy at every model switch: a fingertip proxy (3.8 g, K_yy -103 N/m) arriving at its rows at
-//     -0.94 m/s leaves them at +1.29 m/s when tau jumps from 1 to 33 ms, flies 7 mm out and comes
-//     back by the step's end (30 Hz, ungated, 50 N limit). The tick's contact solve, unconverged
-//     by its 1e-10 test at almost every tick of a glove or a stylus in contact (hapticd's
-//     contact_unconverged), is not the cause: 1000 sweeps give the same impulses. Without the
-//     lookahead: +0.36, +0.07, +0.92 J gated, +0.13, +0.13, +0.78 J ungated; with a constant tau of
-//     8 ms: +0.45, +0.02, +0.75 J gated, +0.10, +0.13, +0.05 J ungated.
-//   - The zero-order hold resets the proxies 300 times a run; the bilateral model gains +0.07 to
-//     +0.83 J.
+//     cost; felt again, it was pushed out from deeper (period two steps, ~12 mJ a cycle).
+//   - A prepared glove tick solves its contact rows on an operator formed at half the step's
+//     lookahead (TickContacts::W_proxy) while the rows' velocities and the proxies' response take
+//     the live lookahead, from the whole step down to h: the rows overshoot early in each step. A
+//     fingertip proxy (3.8 g) arriving at its rows at -0.94 m/s as a model switched (the rows
+//     seeing its velocity as 3 cm of penetration) left them at +1.29 m/s, flew 7 mm out and came
+//     back by the step's end (30 Hz). Not the contact solve's convergence (unconverged by its 1e-10
+//     test at almost every contact tick of a glove or a stylus, hapticd's contact_unconverged):
+//     1000 sweeps give the same impulses.
+//   - The rotational coupling's damper, 0.01 N m s/rad, on the glove's distal joint (5e-6 kg m^2,
+//     0.0022 N m s/rad, sim::GloveParams): B T / I = 2, and Colgate and Schenkel's b > K T / 2 + |B|
+//     fails. Every pressed fingertip rang at 500 Hz (+-1.2 mrad a tick), +0.012 J/s each.
+// Fixed together (branch wip/glove-press-passivity: a gated frame's stretch stays unfelt after its
+// gate opens, releasing only what keeps the felt spring's energy; the prepared tick at its
+// operator's one lookahead; rotational damping 1.5 K T / 2), all six cases pass (swing <= 0.02 N,
+// -0.04 to -0.14 J), but Touch/GraspRelease's tripod then lifts the box 17.4 mm of the 20 asked at
+// 5 Hz on two_hands.json, and the lower rotational damping moves the stylus's tests (a
+// contact-point stylus pulls 0.39 N after a lift at 15 Hz). With the unfelt stretch and the rows
+// solved exactly at the live lookahead instead (the dense LU for the glove, too slow for the
+// tick), the press is passive (-0.08 to -0.17 J, swing <= 0.064 N) but the tripod lifts 2.9-12.7 mm
+// in three of nine cases: its lift has relied on the proxies sinking past their rows late in each
+// step.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -50,7 +58,8 @@ namespace {
 
 constexpr double kPeriod = 1e-3;
 constexpr double kHoldFrom_s = 2.0, kEnd_s = 4.0;
-constexpr double kHoldGainBound_J = 1e-3;
+constexpr double kStillFor_s = 0.5;
+constexpr double kStillSwing_N = 0.05;
 
 struct PressCase {
   int visual_hz;
@@ -63,7 +72,7 @@ std::string case_name(const ::testing::TestParamInfo<PressCase>& info) {
 
 class GlovePressHold : public ::testing::TestWithParam<PressCase> {};
 
-TEST_P(GlovePressHold, AStillHoldPutsNoEnergyIntoTheGlove) {
+TEST_P(GlovePressHold, AStillHoldPutsNoEnergyIntoTheGloveAndHoldsStill) {
   const PressCase& c = GetParam();
   const Interaction press =
       glove_grasp(with_rigid_bodies_fixed(world::load_scene(std::string(HAPTICD_SCENES_DIR) + "/glove_grasp.json")),
@@ -75,18 +84,31 @@ TEST_P(GlovePressHold, AStillHoldPutsNoEnergyIntoTheGlove) {
   OfflineLoops loops(press.scene, options);
   const std::unique_ptr<OfflineDevice> device = press.device(loops);
   const auto& glove = dynamic_cast<const SimulatedGlove&>(*device);
-  const long hold_tick = std::lround(kHoldFrom_s / kPeriod);
+  const long hold_tick = std::lround(kHoldFrom_s / kPeriod), end_tick = std::lround(kEnd_s / kPeriod);
   double at_hold = 0;
-  const OfflineTrace trace = run_offline(loops, *device, std::lround(kEnd_s / kPeriod), [&](long tick) {
+  const OfflineTrace trace = run_offline(loops, *device, end_tick, [&](long tick) {
     if (tick + 1 == hold_tick) at_hold = glove.simulation().passivity_energy_j();
   });
-  const double gain = glove.simulation().passivity_energy_j() - at_hold;
+  const double energy = glove.simulation().passivity_energy_j();
+  // How far each frame's force strays from its mean over the last kStillFor_s: a glove ringing
+  // in a limit cycle is what takes energy from the rendering while its command holds still.
+  const long still_from = end_tick - std::lround(kStillFor_s / kPeriod);
+  double swing = 0;
+  for (int j = 0; j < trace.replies.back().frames; ++j) {
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    for (long k = still_from; k < end_tick; ++k) mean += trace.replies[k].wrench[j].f_D;
+    mean /= static_cast<double>(end_tick - still_from);
+    for (long k = still_from; k < end_tick; ++k)
+      swing = std::max(swing, (trace.replies[k].wrench[j].f_D - mean).norm());
+  }
   std::printf(
-      "glove press on the fixed box at %d Hz, controller %s: energy %+.4f J at %.1f s, %+.4f J over the "
-      "still hold, resets %ld\n",
-      c.visual_hz, c.passivity_control ? "on" : "off", at_hold, kHoldFrom_s, gain, trace.resets);
+      "glove press on the fixed box at %d Hz, controller %s: energy %+.4f J (%+.4f J at %.1f s, %+.4f J over "
+      "the still hold), largest swing of a frame's force over the last %.1f s %.4f N, resets %ld\n",
+      c.visual_hz, c.passivity_control ? "on" : "off", energy, at_hold, kHoldFrom_s, energy - at_hold, kStillFor_s,
+      swing, trace.resets);
   EXPECT_EQ(trace.resets, 0);
-  EXPECT_LE(gain, kHoldGainBound_J) << "the rendering put energy into the glove while it held still";
+  EXPECT_LE(energy, 0.0) << "the rendering put energy into the glove";
+  EXPECT_LT(swing, kStillSwing_N) << "the glove does not hold still";
 }
 
 INSTANTIATE_TEST_SUITE_P(Issue17KnownFault, GlovePressHold,
