@@ -90,7 +90,9 @@ struct TickContacts {
   // more handles, W + (tau U_K + U_D) A(tau)^-1 h G at the tick's full weight and tau = half the
   // model's step (prepare_tick_solver; the tick cannot afford 3c solves of a glove's 96 DOFs). A tick
   // with another lookahead solves its contacts on this one and its proxies exactly: its impulses stay
-  // in the cone (a contact never pulls), their gaps are off by the lookahead's share.
+  // in the cone (a contact never pulls), their gaps are off by the lookahead's share. Early in a step
+  // (lookahead above half) the rows overshoot: a fingertip proxy arriving at -0.94 m/s as a model
+  // switched left at +1.29 m/s (Issue17KnownFault/GlovePressHold).
   TickRowMatrix W_proxy;
   bool proxy_prepared = false;
   // The longest lookahead the tick may solve these rows with (prepare_tick_solver,
@@ -177,10 +179,14 @@ struct DeviceMap {
 
 // Coupling gains for a device whose declared stiffness is k_dev (N/m in device
 // space): world stiffness k_dev / scale^2 keeps the device-side stiffness at its
-// limit, and the damping b > k T / 2 of a sampled spring (Colgate and Schenkel)
-// with a 1.5x margin at the haptic period T keeps the sampled coupling passive.
+// limit, and the damping B = 1.5 k T / 2 at the haptic period T leaves the sampled coupling's
+// low-frequency damping B - k T / 2 positive. Colgate and Schenkel's passivity condition is on the
+// device's own damping b > k T / 2 + |B| (bench/haptic_rate_bench.cpp): B costs passivity too.
+// The rotation keeps CouplingGains' 1 N m/rad and 0.01 N m s/rad, which a glove's distal joint
+// (5e-6 kg m^2, 0.0022 N m s/rad, sim::GloveParams) does not meet: it rings at 500 Hz under a
+// pressed fingertip (Issue17KnownFault/GlovePressHold).
 CouplingGains coupling_gains_for(double device_stiffness_n_m, double scale, double haptic_period_s);
-// That margin: the coupling damping is this many times Colgate and Schenkel's bound k T / 2 (no unit).
+// That margin: the coupling damping is this many times k T / 2 (no unit).
 constexpr double kCouplingDampingMargin = 1.5;
 // The least coupling damping, device space, N s/m: where k T / 2 all but vanishes (a soft device,
 // a fast haptic rate) the coupling still damps.
