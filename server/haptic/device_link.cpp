@@ -41,6 +41,7 @@ DeviceLink make_device_link(const world::World& world, const world::DeviceDesc& 
                                "handles");
   }
   link.gains = coupling_gains_for(d.stiffness_n_m, d.workspace.scale, 1.0 / haptic_rate_hz);
+  if (d.kind == world::DeviceKind::glove) link.gains.b_nms_rad = glove_rotational_damping(link.gains, haptic_rate_hz);
   link.limits = {d.max_force_n, d.max_torque_nm, d.max_force_rate_n_s};
   return link;
 }

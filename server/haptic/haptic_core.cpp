@@ -611,7 +611,7 @@ void HapticCore::on_pose(const protocol::PoseSample& pose, std::uint64_t now) {
   ReplyWrench replies[kMaxHapticHandles];
   for (int j = 0; j < s->frames; ++j) {
     const bool gated = link.contact_gated && !(model.handles == s->frames && model.handle_in_contact[j]);
-    replies[j] = s->proxy.reply(j, gated || s->lost[j] ? 0.0 : scale, since_reply);
+    replies[j] = s->proxy.reply(j, gated || s->lost[j] ? 0.0 : scale, since_reply, gated);
   }
   if (link.output == ForceOutput::finger_lines) {
     HapticPose device_W[kMaxHapticHandles];

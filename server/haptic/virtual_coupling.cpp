@@ -199,12 +199,15 @@ bool prepare_tick_solver(HapticModel& model, int handles, const double* mass_kg,
   c.max_lookahead_s = std::numeric_limits<double>::infinity();
   if (c.count > 0) {
     // The contacts' Delassus operator with the proxies' response at the model's mid-step
-    // lookahead, or shorter where it is not monotone there (the tick's lookahead is then bounded
-    // by the one it holds at).
+    // lookahead, or shorter where it is not monotone there; the tick serves the model at that one
+    // lookahead through its step (integrate). At the live one the rows overshot early in a step,
+    // the proxies' response to their impulses being larger than the operator says (a fingertip
+    // proxy arriving at -0.94 m/s as a model switched left at +1.29 m/s and flew 7 mm out,
+    // Touch/GlovePressHold), and undershot late in it, letting the proxies sink past them.
     const double mid = std::max(0.5 * model.step_s, dt);
     const double tau = monotone_lookahead(model, B, dt, mid, c.W_proxy);
     if (!c.W_proxy.allFinite()) return false;
-    if (tau < mid) c.max_lookahead_s = tau;
+    c.max_lookahead_s = tau;
     c.proxy_prepared = true;
   }
   s.dt_s = dt;
@@ -219,6 +222,10 @@ CouplingGains coupling_gains_for(double device_stiffness_n_m, double scale, doub
   g.k_n_m = device_stiffness_n_m / s2;
   g.b_ns_m = std::max(kCouplingDampingMargin * 0.5 * device_stiffness_n_m * period_s, kMinCouplingDamping_ns_m) / s2;
   return g;
+}
+
+double glove_rotational_damping(const CouplingGains& gains, double haptic_rate_hz) {
+  return kCouplingDampingMargin * 0.5 * gains.k_nm_rad / haptic_rate_hz;
 }
 
 void ProxyHand::configure(int handles, const double* mass_kg, const Eigen::Matrix3d* inertia_B,
@@ -261,6 +268,7 @@ void ProxyHand::configure(int handles, const double* mass_kg, const Eigen::Matri
     v_[j].setZero(), w_[j].setZero(), v_dev_[j].setZero(), w_dev_[j].setZero();
     last_f_D_[j].setZero(), last_tau_D_[j].setZero(), last_r_D_[j].setZero();
     moved_p_W_[j].setZero(), moved_theta_W_[j].setZero();
+    unfelt_p_W_[j].setZero(), unfelt_theta_W_[j].setZero();
     energy_in_[j] = 0, damped_j_[j] = 0, passivity_b_[j] = 0;
   }
 }
@@ -279,6 +287,7 @@ void ProxyHand::resync() {
   for (int j = 0; j < handles_; ++j) {
     proxy_[j] = predicted_[j] = device_[j];
     v_[j].setZero(), w_[j].setZero(), v_dev_[j].setZero(), w_dev_[j].setZero();
+    unfelt_p_W_[j].setZero(), unfelt_theta_W_[j].setZero();
     moved_p_W_[j].setZero(), moved_theta_W_[j].setZero();
   }
 }
@@ -350,7 +359,12 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
   const bool contacts_on = model.handles == handles_ && model.contacts.count > 0;
   // seed 004 section 3: F* is taken at the pose extrapolated to the model's step end, x + tau v'
   // (tau >= h), no further than the model's contact rows stay monotone (TickContacts::max_lookahead_s).
-  const double tau = std::max(std::min(lookahead_s, contacts_on ? model.contacts.max_lookahead_s : lookahead_s), dt);
+  // A model whose rows' operator was prepared at one lookahead (TickContacts::W_proxy) is served at
+  // that one through its step: the rows' impulses and the proxies' response to them then agree.
+  const bool served_prepared = contacts_on && model.contacts.proxy_prepared && lookahead_s >= 0;
+  const double tau =
+      served_prepared ? model.contacts.max_lookahead_s
+                      : std::max(std::min(lookahead_s, contacts_on ? model.contacts.max_lookahead_s : lookahead_s), dt);
   // A model that arrives after its step's end (the visual step took longer than the step it
   // simulated) keeps its anchor where the world left the hand: the world has not moved it since.
   // Carried along by the handle's velocity for the time since (as if the flesh kept moving), the
@@ -784,16 +798,43 @@ bool ProxyHand::solve_prepared(const HapticModel& model, double h, double tau) {
   }
 }
 
-ReplyWrench ProxyHand::reply(int j, double output_scale, double dt_since_last_s) {
+namespace {
+
+// Shrinks an unfelt stretch u as far as the felt stretch s - u keeps its length (energy): u times
+// max(0, 2 s.u / u.u - 1), where |s - l u| = |s - u|. A device backing out of where its gate
+// opened gets its unfelt share back at no cost; one pressing on keeps it.
+void release_unfelt(Eigen::Vector3d& u, const Eigen::Vector3d& s) {
+  const double uu = u.squaredNorm();
+  if (uu == 0) return;
+  const double l = std::max(2.0 * s.dot(u) / uu - 1.0, 0.0);
+  if (l < 1.0) u *= l;
+}
+
+}  // namespace
+
+ReplyWrench ProxyHand::reply(int j, double output_scale, double dt_since_last_s, bool gated) {
   ReplyWrench r;
   if (j < 0 || j >= handles_ || !have_device_) return r;
   // The coupling wrench on the proxy; the device feels it reversed (f_D = s R^T f_W keeps power equal).
   // The coupling's damper with the safe model's share of the last integration (solve_velocities).
+  // A gated frame's stretch is unfelt, and stays so after its gate opens until the device backs out
+  // of it (release_unfelt): a frame whose gate flips from one visual step to the next is then felt
+  // as a spring that only ever engages where its gate opened. Felt in full at once, the stretch the
+  // proxy built while its device sank in unfelt pushed the device out each time the gate opened,
+  // from deeper each time (a relay: ~12 mJ a cycle on a glove's phalanx resting on a box's edge,
+  // Touch/GlovePressHold).
+  const Eigen::Vector3d stretch = device_[j].p_W - proxy_[j].p_W;
+  const Eigen::Vector3d twist = hand::rotation_difference(device_[j].q_W, proxy_[j].q_W);
+  if (gated) {
+    unfelt_p_W_[j] = stretch, unfelt_theta_W_[j] = twist;
+  } else {
+    release_unfelt(unfelt_p_W_[j], stretch);
+    release_unfelt(unfelt_theta_W_[j], twist);
+  }
   const double b_c = gains_.b_ns_m + safe_share_ * safe_b_ns_m_[j];
   const double b_c_rot = gains_.b_nms_rad + safe_share_ * safe_b_nms_rad_[j];
-  const Eigen::Vector3d f_W = gains_.k_n_m * (device_[j].p_W - proxy_[j].p_W) + b_c * (v_dev_[j] - v_[j]);
-  const Eigen::Vector3d tau_W =
-      gains_.k_nm_rad * hand::rotation_difference(device_[j].q_W, proxy_[j].q_W) + b_c_rot * (w_dev_[j] - w_[j]);
+  const Eigen::Vector3d f_W = gains_.k_n_m * (stretch - unfelt_p_W_[j]) + b_c * (v_dev_[j] - v_[j]);
+  const Eigen::Vector3d tau_W = gains_.k_nm_rad * (twist - unfelt_theta_W_[j]) + b_c_rot * (w_dev_[j] - w_[j]);
   const Eigen::Matrix3d R_DW = map_.R_WD.toRotationMatrix().transpose();
   // About the frame's origin: the handle sits at r = q_frame handle_p_F from it.
   const Eigen::Vector3d r_W = device_[j].q_W * (map_.handle_q_F[j].conjugate() * map_.handle_p_F[j]);

@@ -88,19 +88,19 @@ struct TickContacts {
   double bias[kMaxTickContacts]{}, mu[kMaxTickContacts]{};
   // The rows' Delassus operator with the proxies' own response for a model on kMinPreparedHandles or
   // more handles, W + (tau U_K + U_D) A(tau)^-1 h G at the tick's full weight and tau = half the
-  // model's step (prepare_tick_solver; the tick cannot afford 3c solves of a glove's 96 DOFs). A tick
-  // with another lookahead solves its contacts on this one and its proxies exactly: its impulses stay
-  // in the cone (a contact never pulls), their gaps are off by the lookahead's share. Early in a step
-  // (lookahead above half) the rows overshoot: a fingertip proxy arriving at -0.94 m/s as a model
-  // switched left at +1.29 m/s (Issue17KnownFault/GlovePressHold).
+  // model's step (prepare_tick_solver; the tick cannot afford 3c solves of a glove's 96 DOFs), or
+  // shorter (max_lookahead_s). The tick serves such a model at that lookahead through its step
+  // (ProxyHand::integrate): at the live one, from the whole step down to h, the rows overshot early
+  // in a step (a fingertip proxy arriving at -0.94 m/s as a model switched left at +1.29 m/s,
+  // Touch/GlovePressHold) and let the proxies sink past them late in it.
   TickRowMatrix W_proxy;
   bool proxy_prepared = false;
   // The longest lookahead the tick may solve these rows with (prepare_tick_solver,
-  // prepare_contact_lookahead): the operator W + (tau U_K + U_D) A(tau)^-1 h G is not symmetric,
-  // and past some tau its symmetric part stops being positive semidefinite: the rows can then
-  // give energy, and the sweeps diverge or throw the proxy around (after a 92 ms step of a
-  // stalled server, at tau 0.085 s, its least eigenvalue was -46 against 228 at the top, and the
-  // stylus's proxy swung 5-22 mm at up to 15 m/s). Infinite: no bound found or none needed.
+  // prepare_contact_lookahead; with W_proxy, the one it was formed at): the operator W + (tau U_K + U_D) A(tau)^-1 h G
+  // is not symmetric, and past some tau its symmetric part stops being positive semidefinite: the rows can then give
+  // energy, and the sweeps diverge or throw the proxy around (after a 92 ms step of a stalled server, at tau 0.085 s,
+  // its least eigenvalue was -46 against 228 at the top, and the stylus's proxy swung 5-22 mm at up to 15 m/s).
+  // Infinite: no bound found or none needed.
   double max_lookahead_s = std::numeric_limits<double>::infinity();
 };
 
@@ -182,10 +182,13 @@ struct DeviceMap {
 // limit, and the damping B = 1.5 k T / 2 at the haptic period T leaves the sampled coupling's
 // low-frequency damping B - k T / 2 positive. Colgate and Schenkel's passivity condition is on the
 // device's own damping b > k T / 2 + |B| (bench/haptic_rate_bench.cpp): B costs passivity too.
-// The rotation keeps CouplingGains' 1 N m/rad and 0.01 N m s/rad, which a glove's distal joint
-// (5e-6 kg m^2, 0.0022 N m s/rad, sim::GloveParams) does not meet: it rings at 500 Hz under a
-// pressed fingertip (Issue17KnownFault/GlovePressHold).
+// The rotation keeps CouplingGains' 1 N m/rad and 0.01 N m s/rad (a stylus's handle).
 CouplingGains coupling_gains_for(double device_stiffness_n_m, double scale, double haptic_period_s);
+// A glove's rotational coupling damper, N m s/rad: the margin times k T / 2, as the translation's.
+// A glove's distal joint (5e-6 kg m^2, 0.0022 N m s/rad, sim::GloveParams) does not meet
+// b > k T / 2 + |B| with the stylus's 0.01 N m s/rad (B T / I = 2): every pressed fingertip rang at
+// 500 Hz (+-1.2 mrad a tick), +0.012 J/s each (GlovePressHold); with 7.5e-4 it needs 1.25e-3.
+double glove_rotational_damping(const CouplingGains& gains, double haptic_rate_hz);
 // That margin: the coupling damping is this many times k T / 2 (no unit).
 constexpr double kCouplingDampingMargin = 1.5;
 // The least coupling damping, device space, N s/m: where k T / 2 all but vanishes (a soft device,
@@ -304,7 +307,10 @@ class ProxyHand {
   // that takes the deficit back, up to kMaxPassivityDamping. The same damping acts on the
   // proxy at the next integrate(): the coupling saturates at the device's limits, so an active
   // model could otherwise carry the proxy away from the device (a two-port controller).
-  ReplyWrench reply(int j, double output_scale, double dt_since_last_s);
+  // `gated`: the frame is not to be felt (a glove's part touching nothing; output_scale is then 0):
+  // its stretch is booked unfelt and stays so after the gate opens, released only as the device
+  // backs out of it.
+  ReplyWrench reply(int j, double output_scale, double dt_since_last_s, bool gated = false);
 
   // Puts every proxy on its device pose and zeroes velocities.
   void resync();
@@ -377,6 +383,8 @@ class ProxyHand {
   // The device's motion since the last reply (world, m and rad): what the last reply, held by the
   // device, did work over.
   Eigen::Vector3d moved_p_W_[kMaxHapticHandles], moved_theta_W_[kMaxHapticHandles];
+  // A gated frame's unfelt stretch, device minus proxy (world, m and rad): reply().
+  Eigen::Vector3d unfelt_p_W_[kMaxHapticHandles], unfelt_theta_W_[kMaxHapticHandles];
   bool motion_booked_[kMaxHapticHandles]{};  // reply() has booked moved_*_W_[j]: the next sample starts anew
   double energy_in_[kMaxHapticHandles]{};    // passivity observer: work the device has done on the rendering, J
   double damped_j_[kMaxHapticHandles]{};
