@@ -15,7 +15,8 @@
 // Measured at 5ab32e3, before the three causes below were fixed, total energy and the largest swing:
 //   controller on:  60 Hz -0.062 J 0.52 N, 30 Hz -0.076 J 0.51 N, 15 Hz +0.78 J 4.2 N;
 //   controller off: 60 Hz +0.53 J 4.8 N,   30 Hz +0.011 J 1.0 N,  15 Hz +3.6 J 4.0 N.
-// Through the real server the same press gained -0.001 to +0.27 J over 4 s. The three causes, each
+// Through the real server the same press gained -0.001 to +0.27 J over 4 s (-0.048 to +0.043 J with
+// the fixes, README). The three causes, each
 // traced to a frame (controller off), and their fixes:
 //   - Contact gating worked as a relay. A finger frame whose part touches nothing is gated to zero
 //     force, but its proxy still feels the coupling to its device. The ring finger's middle
