@@ -3,6 +3,7 @@
 // the device's declared stiffness, force clamps and slew limits, faults.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <numbers>
@@ -431,6 +432,62 @@ TEST(VirtualCoupling, PassivityControllerStaysOutOfAPassiveContact) {
   hold(p, wall_model(1e5, 5.0), Eigen::Vector3d(0, 0, -0.002), 1.0, t);
   EXPECT_EQ(p.passivity_actions(), 0);
   EXPECT_GE(p.energy_in(0), 0.0);
+}
+
+// A gated frame (a glove's part touching nothing) whose device sinks 5 mm into a wall while gated:
+// its proxy stops at the wall, so the coupling is stretched by 5 mm x k_w / (k_c + k_w) = 4.17 mm
+// (series springs, k_c 1000 and k_w 5000 N/m). Felt at once when the gate opens, that stretch would
+// push the device out with 4.17 N it never pressed in with (and, gate after gate, from deeper: a
+// relay, Touch/GlovePressHold). Asserted: the gate opens at no force; pressing 2 mm deeper is felt
+// as the series stiffness times that (1.667 N); backing out to where the gate opened and 3 mm
+// farther is felt within one tick's motion of nothing, never pulls the device toward the wall (the coupling's damper on
+// the motion aside, under 0.01 N) and gives it no energy: the rendering's work on the device from the gate's opening
+// on, sum of f . dx, is <= 0.
+TEST(VirtualCoupling, AGatedFramesStretchStaysUnfeltAfterItsGateOpensAndNeverPulls) {
+  ProxyHand p = make_proxy();
+  p.set_passivity_control(false);
+  const double k_c = 1000.0, k_w = 5000.0;
+  const HapticModel wall = wall_model(k_w);
+  double t = 0, z = 0.002, least_f = 0, work = 0;
+  ReplyWrench r;
+  // Moves the device linearly to `to` over `seconds`, then holds it there for `hold_s`.
+  const auto move = [&](double to, double seconds, double hold_s, bool gated) {
+    const int ramp = static_cast<int>(std::lround(seconds / kPeriod));
+    const int ticks = ramp + static_cast<int>(std::lround(hold_s / kPeriod));
+    const double from = z;
+    for (int k = 1; k <= ticks; ++k) {
+      const double next = k <= ramp ? from + (to - from) * k / ramp : to;
+      if (!gated) work += r.f_D.z() * (next - z);  // the last reply, held while the device moved
+      z = next;
+      t += kPeriod;
+      p.set_device_pose(0, Eigen::Vector3d(0, 0, z), Eigen::Quaterniond::Identity());
+      p.commit_sample(t, 0.05);
+      r = p.reply(0, gated ? 0.0 : 1.0, kPeriod, gated);
+      if (!gated) least_f = std::min(least_f, r.f_D.z());
+      p.integrate(wall, kPeriod);
+    }
+  };
+  const double series = k_w / (k_c + k_w);
+  move(-0.005, 0.5, 0.3, true);
+  EXPECT_NEAR(r.f_D.norm(), 0.0, 1e-12) << "a gated frame is felt";
+  move(-0.005, 0.0, 0.3, false);
+  std::printf("gate open at 5 mm deep: %.6f N (felt in full: %.3f N)\n", r.f_D.z(), k_c * 0.005 * series);
+  EXPECT_LT(r.f_D.norm(), 1e-6) << "the stretch built while gated is felt when the gate opens";
+  move(-0.007, 0.2, 0.3, false);
+  std::printf("2 mm deeper: %.4f N (series stiffness: %.4f N)\n", r.f_D.z(), k_c * 0.002 * series);
+  EXPECT_NEAR(r.f_D.z(), k_c * 0.002 * series, 0.01 * k_c * 0.002 * series);
+  // Backing out, the unfelt stretch is given back as the device comes back (release_unfelt): what
+  // is felt then stays within one tick's motion (10 um on both ramps) of the series stiffness.
+  const double one_tick = k_c * series * 1e-5;
+  move(-0.005, 0.2, 0.3, false);
+  std::printf("back where the gate opened: %.6f N (one tick's motion: %.6f N)\n", r.f_D.z(), one_tick);
+  EXPECT_LT(r.f_D.norm(), one_tick) << "back where the gate opened";
+  move(-0.002, 0.3, 0.3, false);
+  std::printf("3 mm out from there: %.6f N (felt in full: %.3f N); least force %.5f N, work on the device %.3e J\n",
+              r.f_D.z(), k_c * 0.002 * series, least_f, work);
+  EXPECT_LT(r.f_D.norm(), one_tick);
+  EXPECT_GT(least_f, -0.01) << "the device was pulled toward the wall";
+  EXPECT_LE(work, 1e-9) << "the rendering gave the device energy";
 }
 
 // A device pushed 10 cm (device space) into a wall far stiffer than itself: unsaturated, the coupling
