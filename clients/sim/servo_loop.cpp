@@ -104,8 +104,8 @@ ServoResult run_servo_loop(client::Client& client, ServoDevice& device, const Se
   ServoResult r;
   r.rtt_us.reserve(ticks);
   device.begin(ticks);
-  // End of the period each sequence was sent in, indexed by sequence - first_sequence.
-  std::vector<std::uint64_t> deadline_of(ticks, std::numeric_limits<std::uint64_t>::max());
+  // End of the period each sequence was sent in, and when it was sent, indexed by sequence - first_sequence.
+  std::vector<std::uint64_t> deadline_of(ticks, std::numeric_limits<std::uint64_t>::max()), sent_at(ticks, 0);
   const std::uint64_t first_sequence = client.last_sequence_sent() + 1;
 
   protocol::PoseSample pose;
@@ -130,7 +130,8 @@ ServoResult run_servo_loop(client::Client& client, ServoDevice& device, const Se
     if (index >= deadline_of.size()) return;  // answers a pose sent before this loop
     track_force_rate(reply.sample);
     ++r.replies;
-    r.rtt_us.push_back(static_cast<double>(reply.rtt_ns()) * 1e-3);
+    // From the send, not from the pose's time stamp: the servo's own lateness is not the round trip's.
+    r.rtt_us.push_back(static_cast<double>(reply.received_ns - sent_at[index]) * 1e-3);
     if (reply.received_ns > deadline_of[index]) ++r.late;
     if (reply.sample.flags & protocol::ForceFlags::kClamped) ++r.clamped_replies;
     if (reply.sample.flags & protocol::ForceFlags::kStale) ++r.stale_replies;
@@ -159,7 +160,16 @@ ServoResult run_servo_loop(client::Client& client, ServoDevice& device, const Se
     }
 
     device.write_pose(pose);
-    pose.client_timestamp_ns = 0;  // stamped by the client as it sends
+    // The time its pose is of: the device advanced a period for this tick, to its start. Stamped as
+    // it was sent instead, a servo that woke late (a busy machine) gave the server an interval that
+    // long for a period's motion, and the next one as much too short: the device's velocity, taken
+    // over those intervals (ProxyHand::commit_sample), was off by their ratio, and the coupling's
+    // damper jerked a stylus lifting at 8 cm/s through free space toward the bunny for a tick or two
+    // (press_hold_lift_busy.sh with SERVER_PAUSE, one core busy, 13 runs: a jerk of 0.06-0.62 N
+    // above its neighbours' median, and a pull above the 0.3 N bound in 3, as on CI; stamped here,
+    // 0.00-0.21 N, and that bound held in 13 of 14, the other glued: an issue 17 fault of its own).
+    pose.client_timestamp_ns = tick_start;
+    const std::uint64_t send_ns = protocol::now_ns();
     const client::SendResult sent = client.send_pose(pose);
     if (sent == client::SendResult::kSent) {
       ++r.samples_sent;
@@ -169,7 +179,7 @@ ServoResult run_servo_loop(client::Client& client, ServoDevice& device, const Se
     if (sent == client::SendResult::kSent || sent == client::SendResult::kWouldBlock ||
         sent == client::SendResult::kFailed) {
       const std::uint64_t index = pose.sequence - first_sequence;
-      if (index < deadline_of.size()) deadline_of[index] = tick_end;
+      if (index < deadline_of.size()) deadline_of[index] = tick_end, sent_at[index] = send_ns;
     }
     while (const auto reply = client.poll_force_until(tick_end)) {
       apply(*reply);

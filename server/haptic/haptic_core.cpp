@@ -13,6 +13,10 @@ using protocol::MessageType;
 
 namespace {
 
+// How far a session's least sample wait may rise a sample, ns: 1 us, what two clocks 100 ppm apart
+// drift over a 100 Hz glove's 10 ms, ten times that over a 1 kHz device's 1 ms.
+constexpr std::int64_t kWaitFloorRise_ns = 1000;
+
 // A session's proxy counters, summed into the server's (when it closes, and at the end of a run).
 void add_proxy_counts(ServerStats& st, const ProxyHand& p) {
   st.clamps += static_cast<std::uint64_t>(p.clamps());
@@ -40,6 +44,13 @@ struct HapticCore::Session {
   protocol::SequenceWindow sequence;
   std::uint64_t last_seen_ns = 0, last_reply_ns = 0;
   std::uint64_t last_client_ns = 0;  // the last sample's client_timestamp_ns
+  // The least wait of its samples: read time less client timestamp (the clocks' offset and the
+  // link's latency), rising by at most kWaitFloorRise_ns a sample to follow the clocks' drift.
+  std::int64_t quickest_wait_ns = 0;
+  // When the proxies' integration has reached (the end of the last period integrated; 0: none yet),
+  // and when the last sample was taken, on the server's clock (its read time, or for a sample that
+  // waited in the socket while the loop was stalled, the one before it plus the device's interval).
+  std::uint64_t integrated_to_ns = 0, sample_ns = 0;
   double output_scale = 0;  // ramps 0 -> 1 when poses flow, -> 0 when the session goes silent
   bool resynced = false;    // the next reply carries the resynced flag
   // With a key: no authenticated datagram from the client yet. A pending session drives and
@@ -76,6 +87,7 @@ HapticCore::HapticCore(std::vector<DeviceLink> links, const ServerOptions& optio
       reply_(std::make_unique<protocol::Message>()) {
   if (!(options_.haptic_rate_hz >= 100 && options_.haptic_rate_hz <= 10000))
     throw std::invalid_argument("--haptic-rate: must be in [100, 10000] Hz");
+  period_ns_ = static_cast<std::uint64_t>(std::llround(1e9 / options_.haptic_rate_hz));
   if (!(options_.model_stale_after_s > 0) || !(options_.model_fade_s >= 0) || !(options_.model_contacts_hold_s >= 0))
     throw std::invalid_argument("model watchdog: stale_after must be > 0, fade and contacts_hold >= 0");
   if (options_.key) {
@@ -97,7 +109,7 @@ std::size_t HapticCore::memory_bytes() const {
          (auth_ ? sizeof(protocol::AuthKeys) + sizeof(protocol::Sealer) + sizeof(protocol::NonceCache) : 0);
 }
 
-void HapticCore::start(std::uint64_t now) { start_ns_ = snapshot_arrival_ns_ = last_watch_ns_ = now; }
+void HapticCore::start(std::uint64_t now) { start_ns_ = snapshot_arrival_ns_ = last_watch_ns_ = last_tick_ns_ = now; }
 
 void HapticCore::finish() {
   for (int i = 0; i < kMaxSessions; ++i) add_proxy_counts(*stats_, sessions_[i].proxy);
@@ -151,21 +163,52 @@ double smooth_weight(double u) { return 1.0 - u * u * (3.0 - 2.0 * u); }
 double HapticCore::model_weight(int h) const { return smooth_weight(model_fade_[h]); }
 double HapticCore::output_weight(int h) const { return smooth_weight(output_fade_[h]); }
 
+const HapticModel& HapticCore::served_model(const Session& s) const {
+  const int hand = links_[s.link].hand;
+  const HapticModel& model = snapshots_.front().model[hand];
+  return model.resyncs == hand_resyncs_[hand] ? model : no_model_;
+}
+
+void HapticCore::integrate_period(Session& s, std::uint64_t t) {
+  const HapticModel& model = served_model(s);
+  const double lookahead = 1e-9 * (static_cast<double>(model.t_end_ns) - static_cast<double>(t));
+  const double lookahead_s = model.t_end_ns ? std::clamp(lookahead, -kMaxModelLookahead_s, kMaxModelLookahead_s) : 0.0;
+  s.proxy.predict_device(1e-9 * static_cast<double>(t - start_ns_));
+  s.proxy.integrate(model, 1e-9 * static_cast<double>(period_ns_), lookahead_s, model_weight(links_[s.link].hand));
+  s.integrated_to_ns = t + period_ns_;
+}
+
+// A loop that was descheduled for a while (a busy machine) comes back to a device that moved on: held
+// where the loop stopped, the proxies were a stall's motion behind it, and the device was jerked back
+// by the coupling stiffness times that distance (1.17 N after 10 ms as a stylus lifted at 8 cm/s;
+// Touch/SampleGaps/ServerStall). The periods missed are integrated as their ticks would have been:
+// before each sample that waited through the stall is answered, up to when it was taken, under the
+// device as the samples before it put it (HapticServer::run reads them before the late tick); then by
+// the late tick up to its own time, the device carried along its velocity if its samples stopped too.
+void HapticCore::catch_up(Session& s, std::uint64_t t) {
+  if (s.integrated_to_ns == 0) return;
+  const auto most = static_cast<long>(options_.resync_gap_s * 1e9 / static_cast<double>(period_ns_) + 0.5);
+  for (long n = 0; n < most && s.integrated_to_ns < t; ++n) {
+    integrate_period(s, s.integrated_to_ns);
+    ++stats_->catch_up_ticks;
+  }
+}
+
 void HapticCore::tick(std::uint64_t now) {
   ServerStats& st = *stats_;
   ++st.ticks;
   if (snapshots_.update()) snapshot_arrival_ns_ = now;
   watch_models(now);
-  const HapticSnapshot& snap = snapshots_.front();
-  const double dt = 1.0 / options_.haptic_rate_hz;
+  last_tick_ns_ = now;
   ProxyTargets& out = targets_.back();
-  out.t_ns = now + static_cast<std::uint64_t>(1e9 * dt);  // each proxy is integrated over [now, now + dt]
+  out.t_ns = now + period_ns_;  // each proxy is integrated over [now, now + T]
   for (bool& d : out.driven) d = false;
   for (int h = 0; h < kMaxHands; ++h) out.resyncs[h] = hand_resyncs_[h];
   for (int i = 0; i < kMaxSessions; ++i) {
     Session& s = sessions_[i];
     if (!s.active) continue;
-    const double silent_s = 1e-9 * static_cast<double>(now - s.last_seen_ns);
+    // (A datagram read after `now` was taken is not silence.)
+    const double silent_s = now > s.last_seen_ns ? 1e-9 * static_cast<double>(now - s.last_seen_ns) : 0.0;
     if (s.pending) {
       if (silent_s > std::min(options_.pending_timeout_s, options_.session_timeout_s)) {
         close(s);
@@ -179,19 +222,13 @@ void HapticCore::tick(std::uint64_t now) {
       continue;
     }
     // Silence: the force fades out over ramp_s; poses bring it back at the same rate.
+    const double dt = 1.0 / options_.haptic_rate_hz;
     const double step = dt / std::max(options_.ramp_s, dt);
     s.output_scale =
         silent_s > options_.silence_s ? std::max(0.0, s.output_scale - step) : std::min(1.0, s.output_scale + step);
     const DeviceLink& link = links_[s.link];
-    // Until the visual loop has moved the hand to a re-synced proxy, its model
-    // would pull the proxy back to where the hand was: the proxy feels the device only.
-    const HapticModel& model =
-        snap.model[link.hand].resyncs == hand_resyncs_[link.hand] ? snap.model[link.hand] : no_model_;
-    const double lookahead = 1e-9 * (static_cast<double>(model.t_end_ns) - static_cast<double>(now));
-    const double lookahead_s =
-        model.t_end_ns ? std::clamp(lookahead, -kMaxModelLookahead_s, kMaxModelLookahead_s) : 0.0;
-    s.proxy.predict_device(1e-9 * static_cast<double>(now - start_ns_));
-    s.proxy.integrate(model, dt, lookahead_s, model_weight(link.hand));
+    catch_up(s, now - period_ns_);  // a tick more than a period late: the ticks missed
+    integrate_period(s, now);
     if (s.follower || !s.proxy.has_device_pose()) continue;
     out.driven[link.hand] = true;
     for (int j = 0; j < link.handles; ++j) {
@@ -580,16 +617,37 @@ void HapticCore::on_pose(const protocol::PoseSample& pose, std::uint64_t now) {
     s->proxy.set_device_pose(j, Eigen::Vector3d(f.position_m.x, f.position_m.y, f.position_m.z),
                              Eigen::Quaterniond(f.orientation.w, f.orientation.x, f.orientation.y, f.orientation.z));
   }
+  const std::uint64_t silent_ns = now - s->last_seen_ns;
   s->last_seen_ns = now;
   // The device's own interval since its last sample, if its timestamps give one a device could
   // have (later, at most the re-sync gap): its velocity is taken over that, not over how far
   // apart the samples were read (ProxyHand::commit_sample).
   double interval_s = std::numeric_limits<double>::quiet_NaN();
-  if (s->last_client_ns != 0 && pose.client_timestamp_ns > s->last_client_ns &&
-      pose.client_timestamp_ns - s->last_client_ns <= static_cast<std::uint64_t>(1e9 * options_.resync_gap_s))
-    interval_s = 1e-9 * static_cast<double>(pose.client_timestamp_ns - s->last_client_ns);
+  const std::uint64_t max_interval_ns = static_cast<std::uint64_t>(1e9 * options_.resync_gap_s);
+  const std::uint64_t interval_ns = pose.client_timestamp_ns - s->last_client_ns;
+  const bool has_interval =
+      s->last_client_ns != 0 && pose.client_timestamp_ns > s->last_client_ns && interval_ns <= max_interval_ns;
+  if (has_interval) interval_s = 1e-9 * static_cast<double>(interval_ns);
+  // How much longer than its quickest samples this one waited to be read: one from a queue waited
+  // (ProxyHand::commit_sample), however its reading was broken up.
+  double waited_s = std::numeric_limits<double>::quiet_NaN();
+  const auto wait_ns = static_cast<std::int64_t>(now - pose.client_timestamp_ns);
+  if (has_interval) {
+    s->quickest_wait_ns = std::min(wait_ns, s->quickest_wait_ns + kWaitFloorRise_ns);
+    waited_s = 1e-9 * static_cast<double>(wait_ns - s->quickest_wait_ns);
+  } else {  // a first sample, or after a gap or a jump of the client's clock
+    s->quickest_wait_ns = wait_ns;
+  }
   s->last_client_ns = pose.client_timestamp_ns;
-  if (s->proxy.commit_sample(1e-9 * static_cast<double>(now - start_ns_), options_.resync_gap_s, interval_s)) {
+  // A loop that missed ticks (more than a period since the last) reads the samples that waited in the
+  // socket meanwhile: each was taken its device's interval after the one before, and the proxies
+  // are integrated up to then before it is answered (catch_up). Read at the loop's pace, a sample
+  // was taken when it is read.
+  const bool stalled = now > last_tick_ns_ + 2 * period_ns_;
+  s->sample_ns = stalled && has_interval && s->sample_ns ? std::min(now, s->sample_ns + interval_ns) : now;
+  if (stalled && silent_ns <= max_interval_ns) catch_up(*s, s->sample_ns);
+  if (s->proxy.commit_sample(1e-9 * static_cast<double>(now - start_ns_), options_.resync_gap_s, interval_s,
+                             waited_s)) {
     s->resynced = true;
     ++st.resyncs;
     if (!s->follower) ++hand_resyncs_[links_[s->link].hand];

@@ -112,6 +112,8 @@ struct ServerStats {
   std::uint64_t contact_unconverged = 0;
   // Ticks at which a session's device was overdue and followed along its velocity (ProxyHand::predict_device).
   std::uint64_t overdue_device_ticks = 0;
+  // Periods integrated for the ticks the loop missed (HapticCore::catch_up), summed over sessions.
+  std::uint64_t catch_up_ticks = 0;
   std::uint64_t sessions_opened = 0, sessions_closed = 0, sessions_timed_out = 0, send_errors = 0;
   // Sessions replaced by the same peer's newer one; pending sessions never confirmed (a key only).
   std::uint64_t sessions_replaced = 0, pending_expired = 0;
@@ -187,6 +189,16 @@ class HapticCore {
   struct ClosedSession;
   static constexpr int kClosedRemembered = 16;
   void watch_models(std::uint64_t now_ns);
+  // The model session `s`'s proxies are integrated under: its hand's, once the visual loop has moved
+  // the hand to the proxies' last re-sync (until then the proxies feel their device only).
+  const HapticModel& served_model(const Session& s) const;
+  // One period of `s`'s proxies from `t_ns` (a tick's: the device as predict_device takes it then,
+  // the served model with its lookahead from then).
+  void integrate_period(Session& s, std::uint64_t t_ns);
+  // The periods of `s`'s proxies that begin before `t_ns` and were not integrated (a loop that
+  // missed ticks: HapticServer::run), each integrated as its tick would have been, at most the
+  // re-sync gap's worth; counted (catch_up_ticks).
+  void catch_up(Session& s, std::uint64_t t_ns);
   // The smoothstep weights of the watchdog's fades (1: none): the model's F0, K, D on the proxy, and
   // what the device feels.
   double model_weight(int hand) const;
@@ -234,7 +246,8 @@ class HapticCore {
   double model_fade_[kMaxHands]{}, output_fade_[kMaxHands]{};
   bool model_overdue_[kMaxHands]{};
   HapticModel no_model_;  // handles = 0: the proxy feels only its device
-  std::uint64_t start_ns_ = 0;
+  std::uint64_t start_ns_ = 0, period_ns_ = 0;
+  std::uint64_t last_tick_ns_ = 0;  // the time of the last tick() (start() before the first)
 };
 
 }  // namespace hapticd::haptic

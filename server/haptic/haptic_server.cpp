@@ -11,6 +11,7 @@
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/ip/address.hpp>
 #include <cstring>
+#include <limits>
 #include <stdexcept>
 
 #include "protocol/clock.hpp"
@@ -113,6 +114,38 @@ HapticServer::HapticServer(std::vector<DeviceLink> links, const ServerOptions& o
 
 HapticServer::~HapticServer() = default;
 
+bool HapticServer::drain(std::uint64_t deadline) {
+  // A batch per system call (under a flood the calls, not the datagrams, cost the most); each
+  // datagram is answered before the next one of the batch is looked at.
+  ServerStats& st = core_.stats();
+  const int fd = io_->socket.native_handle();
+  RxBatch& rx = *rx_batch_;
+  bool flooded = false;
+  for (int round = 0; round < kRxRounds; ++round) {
+    for (int k = 0; k < kRxBatch; ++k) rx.headers[k].msg_hdr.msg_namelen = sizeof(sockaddr_storage);
+    const int n = ::recvmmsg(fd, rx.headers, kRxBatch, MSG_DONTWAIT, nullptr);
+    if (n <= 0) break;
+    const std::uint64_t received = protocol::now_ns();
+    for (int k = 0; k < n; ++k) {
+      const socklen_t len = rx.headers[k].msg_hdr.msg_namelen;
+      // A source over its allowance is dropped here, before it costs a MAC or a decode.
+      if (!limiter_->allow(rx.from[k], len, received)) {
+        flooded = true;
+        ++st.packets_in;
+        ++st.rate_limited;
+        core_.reject(protocol::RejectReason::kRateLimited);
+        continue;
+      }
+      const std::size_t bytes = rx.headers[k].msg_len;
+      io_->peer.resize(len);
+      std::copy_n(reinterpret_cast<const char*>(&rx.from[k]), len, reinterpret_cast<char*>(io_->peer.data()));
+      core_.handle({rx.buffers[k].bytes.data(), bytes}, io_->peer, protocol::now_ns());
+    }
+    if (n < kRxBatch || protocol::now_ns() >= deadline) break;
+  }
+  return flooded;
+}
+
 std::size_t HapticServer::memory_bytes() const {
   // The core sits inside *this: counted once, by its own memory_bytes().
   return sizeof(*this) - sizeof(HapticCore) + core_.memory_bytes() + sizeof(Io) + sizeof(Socket) + sizeof(RxBatch) +
@@ -149,6 +182,13 @@ void HapticServer::run(const std::atomic<bool>& stop) {
     std::uint64_t now = protocol::now_ns();
     if (now >= deadline) {
       st.tick_jitter_us.add(1e-3 * static_cast<double>(now - deadline));
+      // A whole period late (the thread was descheduled): the samples that waited meanwhile are
+      // read first, so that the core integrates the proxies through the missed periods along them
+      // and answers each where it was taken (HapticCore::catch_up).
+      if (now >= deadline + period_ns) {
+        flooded = drain(std::numeric_limits<std::uint64_t>::max()) || flooded;
+        now = protocol::now_ns();  // the tick comes after every sample it read
+      }
       core_.tick(now);
       st.tick_compute_us.add(1e-3 * static_cast<double>(protocol::now_ns() - now));
       deadline += period_ns;
@@ -172,32 +212,7 @@ void HapticServer::run(const std::atomic<bool>& stop) {
       pollfd p{fd, POLLIN, 0};
       if (ppoll(&p, 1, &timeout, nullptr) <= 0) continue;
     }
-    flooded = false;
-    // Drain what arrived, a batch per system call (under a flood the calls, not the datagrams,
-    // cost the most); each datagram is answered before the next one of the batch is looked at.
-    RxBatch& rx = *rx_batch_;
-    for (int round = 0; round < kRxRounds; ++round) {
-      for (int k = 0; k < kRxBatch; ++k) rx.headers[k].msg_hdr.msg_namelen = sizeof(sockaddr_storage);
-      const int n = ::recvmmsg(fd, rx.headers, kRxBatch, MSG_DONTWAIT, nullptr);
-      if (n <= 0) break;
-      const std::uint64_t received = protocol::now_ns();
-      for (int k = 0; k < n; ++k) {
-        const socklen_t len = rx.headers[k].msg_hdr.msg_namelen;
-        // A source over its allowance is dropped here, before it costs a MAC or a decode.
-        if (!limiter_->allow(rx.from[k], len, received)) {
-          flooded = true;
-          ++st.packets_in;
-          ++st.rate_limited;
-          core_.reject(protocol::RejectReason::kRateLimited);
-          continue;
-        }
-        const std::size_t bytes = rx.headers[k].msg_len;
-        io_->peer.resize(len);
-        std::copy_n(reinterpret_cast<const char*>(&rx.from[k]), len, reinterpret_cast<char*>(io_->peer.data()));
-        core_.handle({rx.buffers[k].bytes.data(), bytes}, io_->peer, protocol::now_ns());
-      }
-      if (n < kRxBatch || protocol::now_ns() >= deadline) break;
-    }
+    flooded = drain(deadline);
   }
   st.elapsed_s = 1e-9 * static_cast<double>(protocol::now_ns() - start_ns);
   rusage usage{};

@@ -66,6 +66,10 @@ class HapticServer {
   static constexpr int kRealtimePriority = 80;
   std::unique_ptr<RxBatch> rx_batch_;
   std::unique_ptr<SourceRateLimiter> limiter_;
+  // Reads what has arrived and hands each datagram to the core, a batch per system call, up to
+  // kRxRounds calls, and stops early once `deadline` has passed. True when a source was over its
+  // allowance.
+  bool drain(std::uint64_t deadline);
 };
 
 }  // namespace hapticd::haptic

@@ -253,10 +253,12 @@ class ProxyHand {
   // rest of a stalled server's queue) re-sync onto themselves too, uncounted.
   // `sample_interval_s`: the device's own time since its last sample (its timestamps), for the
   // device velocity the coupling's damper acts on; without one (NaN) the time between reads, at
-  // least kMinSampleInterval_s.
+  // least kMinSampleInterval_s. `waited_s`: how much longer than the device's quickest samples this
+  // one waited to be read (its read time less its timestamp, over the least of those; NaN: unknown).
   void set_device_pose(int j, const Eigen::Vector3d& p_D, const Eigen::Quaterniond& q_D);
   bool commit_sample(double t_s, double resync_gap_s,
-                     double sample_interval_s = std::numeric_limits<double>::quiet_NaN());
+                     double sample_interval_s = std::numeric_limits<double>::quiet_NaN(),
+                     double waited_s = std::numeric_limits<double>::quiet_NaN());
   // Where the device is taken to be at `t_s` (commit_sample's clock) for the next integrate(). While
   // its samples come at its own pace, its last sample. Once the last sample is overdue (read at least
   // the device's own interval ago), it is carried along the device's filtered velocity by one
@@ -275,7 +277,8 @@ class ProxyHand {
   // proxy's pose extrapolated to it (x + lookahead v): evaluated at the current
   // pose, a moving hand's momentum would push the proxy along (an active force).
   // Negative: the model's step ended that long ago (a late model); it is evaluated at the
-  // proxy's pose, its anchor where the world left the hand.
+  // proxy's pose, its anchor where the world left the hand. A model whose contact operator was
+  // prepared at one lookahead (TickContacts::W_proxy) keeps that lookahead, late or not.
   // `model_weight` in [0, 1] blends the model with the safe model (the haptic loop fades a stale
   // model so): the model's influence (F0, K, D) is scaled by it, and the safe model's by
   // 1 - weight. The safe model is a damper between the proxy and its device, part of the coupling
@@ -378,6 +381,7 @@ class ProxyHand {
   double sample_interval_s_ = 0, last_interval_s_ = std::numeric_limits<double>::infinity();
   bool have_device_ = false;
   bool resync_following_ = false;  // re-synced, and every sample since came from a queue
+  double resync_t_s_ = 0;          // when the last re-sync was committed (commit_sample's clock)
   Eigen::Vector3d last_f_D_[kMaxHapticHandles], last_tau_D_[kMaxHapticHandles];
   Eigen::Vector3d last_r_D_[kMaxHapticHandles];  // the last reply's lever from the frame's origin, device space
   // The device's motion since the last reply (world, m and rad): what the last reply, held by the

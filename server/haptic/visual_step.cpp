@@ -168,7 +168,7 @@ void VisualStep::advance_world(std::uint64_t publish_ns, double dt_s) {
     hand::Hand& hand = world_.hand(h);
     if (targets.resyncs[h] != resyncs_seen_[h]) {
       resyncs_seen_[h] = targets.resyncs[h];
-      hand.place(targets.pose[h][0].p_W, targets.pose[h][0].q_W);
+      place_resynced(h, targets.pose[h][0]);
     }
     const std::vector<std::vector<hand::ClearancePlane>>& clearance = world_.clearance(h);
     double radius_m[kMaxHapticHandles];
@@ -183,6 +183,39 @@ void VisualStep::advance_world(std::uint64_t publish_ns, double dt_s) {
   }
   if (inject_) inject_();
   world_.step(dt_s);
+}
+
+// A hand whose proxies were re-synced onto their device (a gap in its samples longer than the re-sync
+// gap: a stalled server) is moved to them at once, or its first models would pull the proxies back to
+// where the hand was. Not into an object: the surfaces it touches (as planes at their gaps, about the
+// palm) and its handles' clearance planes bound the rigid move of the whole hand there. Placed all the
+// way after hapticd stopped 100-200 ms while its stylus pressed the bunny (the re-sync dropped the
+// force, and the stylus sank 8 mm in), the hand was inside the bunny and pulled the lifting stylus up
+// to 7.1 N toward it, 4.2-4.7 N still a second later, InContact (SERVER_PAUSE in
+// tests/e2e/press_hold_lift_busy.sh; ServerStalls in the lockstep runner: 5.14 N). Stopped at the
+// surface, the hand presses the proxies back out.
+void VisualStep::place_resynced(int h, const HapticPose& palm) {
+  hand::Hand& hand = world_.hand(h);
+  const std::vector<hand::HandleState>& handles = hand.handles();
+  const hand::HandleState& from = handles[0];
+  const Eigen::Vector3d move = palm.p_W - from.p_WH, turn = hand::rotation_difference(palm.q_W, from.q_WH);
+  const Eigen::Vector3d none = Eigen::Vector3d::Zero();
+  double share = 1.0;
+  for (const world::ContactRecord& c : world_.snapshot().contacts) {
+    if (c.hand != h) continue;
+    const hand::ClearancePlane touched{c.n_W, c.p_W - from.p_WH, std::max(0.0, -c.depth_m)};
+    share = std::min(share, hand::clearance_share(&touched, 1, none, none, move, turn));
+  }
+  const std::vector<std::vector<hand::ClearancePlane>>& clearance = world_.clearance(h);
+  for (std::size_t j = 0; j < std::min(handles.size(), clearance.size()); ++j) {
+    const Eigen::Vector3d move_j = move + turn.cross(handles[j].p_WH - from.p_WH);
+    const int count = std::min(static_cast<int>(clearance[j].size()), hand::kClearancePlanes);
+    share = std::min(share, hand::clearance_share(clearance[j].data(), count, none, none, move_j, turn));
+  }
+  if (share >= 1.0)
+    hand.place(palm.p_W, palm.q_W);
+  else
+    hand.place(from.p_WH + share * move, hand::rotate_by(from.q_WH, share * turn));
 }
 
 void VisualStep::build_models(std::uint64_t publish_ns, double dt_s) {

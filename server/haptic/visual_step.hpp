@@ -122,6 +122,9 @@ class VisualStep {
   hand::HandleLinearization scratch_;
   std::uint32_t resyncs_seen_[kMaxHands]{};
   std::function<void()> inject_;
+  // Places hand h, whose proxies were re-synced onto their device, at the palm pose `palm`, or the
+  // share of the way there its contacts and clearance planes leave free.
+  void place_resynced(int h, const HapticPose& palm);
 };
 
 }  // namespace hapticd::haptic

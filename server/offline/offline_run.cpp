@@ -59,10 +59,11 @@ OfflineLoops::OfflineLoops(world::SceneDesc scene, const OfflineOptions& options
     throw std::invalid_argument(
         "offline run: visual_every_ticks >= 1, 0 <= model_delay_ticks < visual_every_ticks, late_model_max_ticks >= 0 "
         "with model_delay_ticks + late_model_max_ticks <= visual_every_ticks, haptic_period_s > 0");
-  for (const auto* windows : {&options_.withheld_samples_s, &options_.visual_stalls_s})
+  for (const auto* windows : {&options_.withheld_samples_s, &options_.visual_stalls_s, &options_.haptic_stalls_s})
     for (const auto& [from, to] : *windows)
       if (!(std::isfinite(from) && std::isfinite(to) && from < to))
-        throw std::invalid_argument("offline run: a withheld-samples or visual-stall window needs finite from < to");
+        throw std::invalid_argument(
+            "offline run: a withheld-samples, visual-stall or haptic-stall window needs finite from < to");
   if (options_.device < 0 || options_.device >= static_cast<int>(scene.devices.size()))
     throw std::runtime_error(scene.name + ": no device " + std::to_string(options_.device) + " to serve");
   period_ns_ = static_cast<std::uint64_t>(std::llround(1e9 * options_.haptic_period_s));
@@ -119,8 +120,9 @@ OfflineLoops::OfflineLoops(world::SceneDesc scene, const OfflineOptions& options
 OfflineLoops::~OfflineLoops() = default;
 
 // Simulated time starts at 1 s, so no time of the run is the core's "never" (0).
-std::uint64_t OfflineLoops::now_ns() const {
-  return 1'000'000'000ull + static_cast<std::uint64_t>(ticks_) * period_ns_;
+std::uint64_t OfflineLoops::now_ns() const { return tick_ns(ticks_); }
+std::uint64_t OfflineLoops::tick_ns(long tick) const {
+  return 1'000'000'000ull + static_cast<std::uint64_t>(tick) * period_ns_;
 }
 
 void OfflineLoops::send(const protocol::EncodeResult& encoded) {
@@ -158,10 +160,21 @@ void OfflineLoops::tick(const DeviceFrames& sample, DeviceReply& reply) {
   // The model of the last visual step reaches the haptic side `model_delay_ticks` after its step.
   if (pending_ && ticks_ >= publish_at_ && !stalled) visual_->publish(), pending_ = false;
   reply = DeviceReply{};
-  if (ticks_ == 0 || !within(options_.withheld_samples_s)) answer(sample, now, reply);
-  // The haptic tick: the proxies integrated over [now, now + T] under the newest model.
-  core_->tick(now);
-  haptic_us_.push_back(elapsed_us(c0, Clock::now()));
+  const bool sent = ticks_ == 0 || !within(options_.withheld_samples_s);
+  if (ticks_ > 0 && within(options_.haptic_stalls_s)) {
+    // The haptic thread does not run: the sample waits in the socket, unanswered.
+    if (sent) queued_.emplace_back(sample, ticks_);
+  } else {
+    // After a stall, as HapticServer::run: the samples that waited are read at once (a microsecond
+    // apart) and each answered in turn before the late tick; the device applies the answer to its newest.
+    for (std::size_t i = 0; i < queued_.size(); ++i)
+      answer(queued_[i].first, queued_[i].second, now - 1000 * (queued_.size() - i), reply);
+    queued_.clear();
+    if (sent) answer(sample, ticks_, now, reply);
+    // The haptic tick: the proxies integrated over [now, now + T] under the newest model.
+    core_->tick(now);
+    haptic_us_.push_back(elapsed_us(c0, Clock::now()));
+  }
   if (ticks_ >= next_visual_tick_ && !stalled) {
     visual_step();
     next_visual_tick_ = ticks_ + options_.visual_every_ticks;
@@ -169,11 +182,11 @@ void OfflineLoops::tick(const DeviceFrames& sample, DeviceReply& reply) {
   ++ticks_;
 }
 
-void OfflineLoops::answer(const DeviceFrames& sample, std::uint64_t now, DeviceReply& reply) {
+void OfflineLoops::answer(const DeviceFrames& sample, long tick, std::uint64_t read_ns, DeviceReply& reply) {
   // The device's sample, answered at once from the proxies (HapticCore::handle).
   protocol::PoseSample& p = pose_->pose_sample;
-  p.sequence = static_cast<std::uint64_t>(ticks_) + 1;
-  p.client_timestamp_ns = now;
+  p.sequence = static_cast<std::uint64_t>(tick) + 1;
+  p.client_timestamp_ns = tick_ns(tick);
   p.poses.clear();
   for (int j = 0; j < sample.frames; ++j) {
     protocol::FramePose f;
@@ -185,7 +198,7 @@ void OfflineLoops::answer(const DeviceFrames& sample, std::uint64_t now, DeviceR
                      static_cast<float>(q.z())};
     p.poses.push_back(f);
   }
-  wire_->now_ns = now;
+  wire_->now_ns = read_ns;
   send(encoder_.encode(p));
   if (wire_->reply_bytes > 0 && protocol::decode({wire_->reply.bytes.data(), wire_->reply_bytes}, *received_).ok() &&
       received_->type == protocol::MessageType::kForceSample) {

@@ -53,6 +53,12 @@ struct OfflineOptions {
   // last, up to haptic::detail::kMaxStep_s, as VisualLoop's; the world does not make up the rest
   // (VisualLoop lengthens its next steps to).
   std::vector<std::pair<double, double>> visual_stalls_s;
+  // Windows [from, to) of simulated time, s, in which hapticd's haptic thread does not run (its core
+  // descheduled on a busy machine; HapticServer::run): no tick, and the device's samples queue unread
+  // while the device, sent no reply, holds the last one. At the first tick after a window the core
+  // reads the queue and answers each sample in turn, then ticks late, as HapticServer::run does; the
+  // device feels the answer to its newest. The visual loop runs on.
+  std::vector<std::pair<double, double>> haptic_stalls_s;
   haptic::HandleModelKind model = haptic::HandleModelKind::linearized;
   int device = 0;  // the scene device served
   // Before the first tick, the scene's rigid bodies (ODE alone) settle this long
@@ -139,9 +145,11 @@ class OfflineLoops {
  private:
   struct Wire;
   std::uint64_t now_ns() const;
+  std::uint64_t tick_ns(long tick) const;  // the simulated time of tick `tick`
   void visual_step();
-  // tick()'s sample sent at `now` and the core's reply decoded into `reply`.
-  void answer(const DeviceFrames& sample, std::uint64_t now, DeviceReply& reply);
+  // A sample taken at tick `tick` (sent at its time), read by the core at `read_ns`, and the core's
+  // reply decoded into `reply`.
+  void answer(const DeviceFrames& sample, long tick, std::uint64_t read_ns, DeviceReply& reply);
   void send(const protocol::EncodeResult& encoded);
 
   OfflineOptions options_;
@@ -161,6 +169,7 @@ class OfflineLoops {
   long publish_at_ = 0, ticks_ = 0, next_visual_tick_ = 0;
   std::uint64_t late_draws_;  // the late models' generator (a 64-bit LCG), from late_model_seed
   std::vector<double> haptic_us_, visual_ms_;
+  std::vector<std::pair<DeviceFrames, long>> queued_;  // samples sent while the haptic thread stalled
 };
 
 // --- Devices -------------------------------------------------------------------------------------

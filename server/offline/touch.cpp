@@ -42,7 +42,7 @@ constexpr double kClosedDeg[hand::kHandJointDofs] = {-30, 30, 20, 60, -4, 5, 70,
 // The commanded tripod curls the thumb, index and middle kTripodSqueeze times as far, into the box,
 // so the hand grips it. At box_grasp's posture itself (1.0) the world stepped every tick (a 1 kHz
 // visual rate) lifted the box 12.9 mm of the palm's 50 (its contacts squeezed it by 2.6 N); at 1.1,
-// 47.9 mm (4.4 N): Touch/GraspRelease's glove_grasp_1000Hz. The lockstep runner at 30 and 60 Hz
+// 47.9 mm (4.4 N): haptic-bench touch's reference row. The lockstep runner at 30 and 60 Hz
 // lifted it 40-60 mm at 1.0 only while the tick's contact rows let the proxies sink past them late
 // in each step (the world's contacts squeezed it by 7.5-10.9 N).
 constexpr int kTripodFingers = 3;

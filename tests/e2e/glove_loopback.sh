@@ -2,27 +2,38 @@
 # End to end on loopback: hapticd on the glove scene and a simulated 16-frame
 # glove closing into a power grasp over the box. Asserts: no loss, every pose
 # answered, no reset, the grasp touches the box with at least three fingers,
-# the palm (which touches nothing) gets no force, and no frame's force exceeds
-# the device limit. It does not assert passivity: with the virtual hand's
-# flesh joints a grasp still puts net energy into the glove (README, Gloves).
-# Usage: glove_loopback.sh BIN_DIR SCENE [SECONDS]
+# the palm (which touches nothing) gets no force, no frame's force exceeds
+# the device limit, and, with hapticd's visual loop at 14 Hz or more (below),
+# the rendering put no energy into the glove (issue 17;
+# the work of the replies on its palm and joints, which the glove's own
+# simulation books: the run ends pressing into the box, so what the coupling
+# holds stretched then is on the glove's side of the account).
+# BUSY=1: a CPU-bound process competes for one of the two cores all the while (a loaded machine:
+# hapticd's visual loop then steps the FEM hand at 13-15 Hz instead of 16-20, its models late).
+# Usage: [BUSY=1] glove_loopback.sh BIN_DIR SCENE [SECONDS]
 set -euo pipefail
 bin=$1
 scene=$2
 seconds=${3:-4}
 work=$(mktemp -d)
 server_pid=""
-trap 'kill "$server_pid" 2>/dev/null || true; rm -rf "$work"' EXIT
+busy_pid=""
+trap 'kill "$server_pid" $busy_pid 2>/dev/null || true; rm -rf "$work"' EXIT
 source "$(dirname "$0")/lib.sh"
+if [ "${BUSY:-0}" = 1 ]; then
+  bash -c 'while :; do :; done' &
+  busy_pid=$!
+fi
 start_hapticd "$bin" "$scene" "$seconds" "$work"
 
-"$bin/haptic-device" --server "127.0.0.1:$port" --device glove --frames 16 --trajectory grasp --rate 1000 \
+set_device_priority
+"${device_priority[@]}" "$bin/haptic-device" --server "127.0.0.1:$port" --device glove --frames 16 --trajectory grasp --rate 1000 \
   --duration "$seconds" --report "$work/device.json" --trace "$work/trace.csv"
 kill -INT "$server_pid"
 wait "$server_pid"
 
 python3 - "$work/device.json" "$work/server.json" "$work/trace.csv" <<'PY'
-import csv, json, math, sys
+import csv, json, math, os, sys
 d = json.load(open(sys.argv[1]))
 s = json.load(open(sys.argv[2]))
 fingers = d["fingers"]
@@ -52,6 +63,19 @@ with open(sys.argv[3]) as f:
             worst = max(worst, math.sqrt(sum(float(row[base + a]) ** 2 for a in ("_x_n", "_y_n", "_z_n"))))
 if not cols: failures.append("the trace has no per-frame forces")
 if worst > limit + 1e-3: failures.append(f"a frame felt {worst} N over the {limit} N limit")
+# The bound is asserted where the lockstep runner's held press is passive and comes to rest with its
+# models late as a busy machine delivers them: a visual loop at 14 Hz and up (GloveLateModels/
+# GlovePressHold, 14 and 16 Hz). At 13 Hz with late models it still swings after 5 s; at 12 Hz it is
+# a known fault (Issue17KnownFault/GlovePressHold: +0.024 J; a loaded host ran this busy run at
+# 9.3 Hz once and it gave +0.028 J): reported, not asserted. Under a sanitizer (the asan and tsan
+# presets set these) the FEM hand steps several times slower: left to the Release run.
+rate = s["visual"]["rate_hz_achieved"]
+if any(k in os.environ for k in ("ASAN_OPTIONS", "TSAN_OPTIONS")):
+    print("instrumented build: the passivity check is left to the Release run")
+elif rate < 14:
+    print(f"visual loop at {rate:.1f} Hz, below 14 Hz (issue 17): passivity not asserted")
+elif d["passivity_energy_j"] > 0:
+    failures.append(f"the rendering put {d['passivity_energy_j']} J into the glove")
 if failures:
     print("FAILED: " + "; ".join(failures)); sys.exit(1)
 PY

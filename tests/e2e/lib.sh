@@ -19,3 +19,11 @@ start_hapticd() {
   done
   echo "hapticd did not print its port within 60 s"; exit 1
 }
+
+# set_device_priority: sets device_priority to the command prefix that runs a simulated device's
+# servo loop at real-time priority where that is permitted, as a real device's driver runs (empty
+# where it is not, or with DEVICE_REALTIME=0): the load a test puts on the machine is the server's.
+set_device_priority() {
+  device_priority=()
+  if [ "${DEVICE_REALTIME:-1}" != 0 ] && chrt -f 20 true 2>/dev/null; then device_priority=(chrt -f 20); fi
+}

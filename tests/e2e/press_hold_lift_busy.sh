@@ -16,7 +16,11 @@
 # VISUAL_STALL=AT:SECONDS stalls hapticd's visual thread AT s after the device starts, for SECONDS:
 # the thread, pinned to the competitor's core at SCHED_IDLE, gets no CPU (a descheduled visual loop,
 # as a busy CI machine gave one: a 0.43 N pull in the lift before the lockstep VisualStalls fixes).
-# Usage: [DEVICE_REALTIME=0] [VISUAL_STALL=3.6:0.3] press_hold_lift_busy.sh BIN_DIR SCENE [hapticd options, e.g. --no-passivity-control]
+# SERVER_PAUSE=AT:SECONDS stops the whole hapticd process (SIGSTOP) AT s after the device starts, for
+# SECONDS, then lets it go on (SIGCONT): a server descheduled mid-lift, its haptic thread finding the
+# samples of the pause waiting in its socket (the spring hand's CI failure: a 0.58 N pull in the lift
+# while the loop was 12 ms late).
+# Usage: [DEVICE_REALTIME=0] [VISUAL_STALL=3.6:0.3] [SERVER_PAUSE=3.72:0.02] press_hold_lift_busy.sh BIN_DIR SCENE [hapticd options, e.g. --no-passivity-control]
 set -euo pipefail
 bin=$1
 scene=$2
@@ -32,8 +36,7 @@ source "$(dirname "$0")/lib.sh"
 trajectory="$(dirname "$0")/../../scenes/trajectories/stylus_press_hold_lift.csv"
 lift_end=4.0
 
-device_priority=()
-if [ "${DEVICE_REALTIME:-1}" != 0 ] && chrt -f 20 true 2>/dev/null; then device_priority=(chrt -f 20); fi
+set_device_priority
 bash -c 'while :; do :; done' &
 busy_pid=$!
 start_hapticd "$bin" "$scene" "$seconds" "$work" "${@:3}"
@@ -51,8 +54,15 @@ if [ -n "${VISUAL_STALL:-}" ]; then
   ) &
   stall_pid=$!
 fi
+if [ -n "${SERVER_PAUSE:-}" ]; then
+  (sleep "${SERVER_PAUSE%%:*}" && kill -STOP "$server_pid" && sleep "${SERVER_PAUSE##*:}" && kill -CONT "$server_pid") &
+  pause_pid=$!
+fi
 "${device_priority[@]}" "$bin/haptic-device" --server "127.0.0.1:$port" --device stylus --trajectory "$trajectory" \
   --rate 1000 --duration "$seconds" --report "$work/device.json" --trace "$work/trace.csv"
+if [ -n "${SERVER_PAUSE:-}" ]; then
+  wait "$pause_pid" || { echo "could not pause hapticd"; exit 1; }
+fi
 if [ -n "${VISUAL_STALL:-}" ]; then
   wait "$stall_pid" || true
   # ctest's SKIP_RETURN_CODE: a machine that does not let the script starve the thread tests nothing here.
@@ -63,12 +73,13 @@ busy_pid=""
 kill -INT "$server_pid"
 wait "$server_pid"
 
-python3 - "$work/device.json" "$work/server.json" "$work/trace.csv" "$lift_end" "${#device_priority[@]}" <<'PY'
+python3 - "$work/device.json" "$work/server.json" "$work/trace.csv" "$lift_end" "${#device_priority[@]}" "${SERVER_PAUSE:-}" <<'PY'
 import csv, json, sys
 d = json.load(open(sys.argv[1]))
 s = json.load(open(sys.argv[2]))
 lift_end = float(sys.argv[4])
 device_realtime = int(sys.argv[5]) > 0
+pause_s = float(sys.argv[6].split(":")[1]) if sys.argv[6] else 0.0
 rows = [{k: float(v) for k, v in r.items()} for r in csv.DictReader(open(sys.argv[3]))]
 touched = [r for r in rows if r["in_contact"]]
 first_contact_z = touched[0]["p_z_m"] if touched else None
@@ -85,7 +96,8 @@ print(f"visual {s['visual']['rate_hz_achieved']:.1f} Hz with one core busy; ener
       f"largest pull while lifting {max(pull, 0.0):.3f} N{'' if device_realtime else ' (device not real-time)'}; "
       f"a second after the lift {after_force:.3f} N, "
       f"{after_flagged} ticks InContact; resets proxy {s['proxy_resets']} hand {s['visual']['hand_resets']}; "
-      f"models overdue up to {1e3 * s['haptic']['model_watchdog']['overdue_max_s']:.0f} ms ({s['haptic']['model_watchdog']['stale_models']} faded)")
+      f"models overdue up to {1e3 * s['haptic']['model_watchdog']['overdue_max_s']:.0f} ms ({s['haptic']['model_watchdog']['stale_models']} faded); "
+      f"longest round trip {1e-3 * d['rtt_us']['max']:.1f} ms, {s['haptic']['catch_up_ticks']} periods caught up")
 failures = []
 if not touched: failures.append("the stylus never touched the bunny")
 if not d["passivity_energy_j"] <= 0: failures.append(f"the rendering put {d['passivity_energy_j']} J into the device")
@@ -94,6 +106,8 @@ if not after: failures.append("the run ended before a second after the lift")
 if not after_force <= 0.3: failures.append(f"{after_force} N a second after the lift (glued)")
 if after_flagged: failures.append(f"InContact for {after_flagged} ticks a second after the lift")
 if s["proxy_resets"] or s["visual"]["hand_resets"]: failures.append("resets")
+# The pause was real: some sample waited through most of it for its answer.
+if pause_s and not 1e-6 * d["rtt_us"]["max"] >= 0.8 * pause_s: failures.append("the server was not paused")
 if failures:
     # What CI keeps of a failure: the ticks around the largest pull while lifting.
     lifting = [i for i, r in enumerate(rows) if above and r["t_s"] >= above[0] + grace]

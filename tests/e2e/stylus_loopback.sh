@@ -25,13 +25,13 @@ work=$(mktemp -d)
 server_pid=""
 busy_pids=()
 trap 'kill "$server_pid" "${busy_pids[@]}" 2>/dev/null || true; rm -rf "$work"' EXIT
+source "$(dirname "$0")/lib.sh"
 device_priority=()
-if [ "$competitors" -gt 0 ] && chrt -f 20 true 2>/dev/null; then device_priority=(chrt -f 20); fi
+if [ "$competitors" -gt 0 ]; then set_device_priority; fi
 for _ in $(seq 1 "$competitors"); do
   nice -n -10 bash -c 'while :; do :; done' &
   busy_pids+=($!)
 done
-source "$(dirname "$0")/lib.sh"
 
 # One run; exits 0 if it passes, 1 if it fails, 3 if it passed every bound but timing while the
 # device was starved (the caller repeats it).

@@ -5,12 +5,14 @@
 #include <poll.h>
 
 #include <atomic>
-#include <chrono>
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/ip/udp.hpp>
+#include <chrono>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <thread>
+#include <utility>
 
 #include "haptic_server_test_util.hpp"
 
@@ -110,23 +112,43 @@ TEST(HapticServer, PosesReadInABurstMoveTheCouplingByTheDevicesOwnVelocity) {
   EXPECT_EQ(s.server.stats().resets, 0u);
 }
 
-TEST(HapticServer, AQueueReadAfterAGapResyncsOnceOntoItsNewestPose) {
-  // A stylus at rest on the wall's surface, then 200 ms of silence, then 30 poses of a 15 mm slide
-  // along x sent at once (a device's queue behind a stalled server). The first re-syncs (counted
-  // once); the rest carry the proxy with them, so the device feels nothing of the slide: without
-  // that, the proxy waited 14.5 mm behind and the coupling pulled the device back with up to 2.3 N.
+// A stylus at rest on the wall's surface, then 200 ms of silence, then 30 poses of a 15 mm slide along
+// x sent at once (a device's queue behind a stalled server), the last ten 5 ms after the first twenty
+// if `interrupted`, then held at the slide's end: the largest force, and the re-syncs counted.
+std::pair<double, std::uint64_t> slide_queued_after_a_gap(bool interrupted) {
   RunningServer s;
   TestClient c(s.server.port());
-  ASSERT_NE(c.hello(), 0u);
+  if (c.hello() == 0) return {std::numeric_limits<double>::infinity(), 0};
   SlidingStylus stylus{c};
   stylus.paced(0.0, 100);
   const std::uint64_t resyncs_before = s.server.stats().resyncs;
   std::this_thread::sleep_for(std::chrono::milliseconds(200));
-  for (int k = 0; k < 30; ++k) stylus.send(5e-4 * k);
+  for (int k = 0; k < 30; ++k) {
+    if (interrupted && k == 20) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    stylus.send(5e-4 * k);
+  }
   const double f_max = std::max(stylus.largest_force(30), stylus.paced(5e-4 * 29, 50));
   s.halt();
-  EXPECT_EQ(s.server.stats().resyncs - resyncs_before, 1u);
+  return {f_max, s.server.stats().resyncs - resyncs_before};
+}
+
+TEST(HapticServer, AQueueReadAfterAGapResyncsOnceOntoItsNewestPose) {
+  // The first pose of the queue re-syncs (counted once); the rest carry the proxy with them, so the
+  // device feels nothing of the slide: without that, the proxy waited 14.5 mm behind and the coupling
+  // pulled the device back with up to 2.3 N.
+  const auto [f_max, resyncs] = slide_queued_after_a_gap(false);
+  EXPECT_EQ(resyncs, 1u);
   EXPECT_LT(f_max, 0.5) << "the proxy stayed behind the queue's oldest pose";
+}
+
+TEST(HapticServer, AQueueWhoseReadingIsInterruptedCarriesTheProxyToItsNewestPose) {
+  // The last ten poses of the queue come 5 ms after the first twenty (as when the server is
+  // descheduled while it reads them, a busy machine): they waited longer than the device's poses
+  // before the gap, and carry the proxy with them too. Taken by read times alone, the queue ended
+  // with the first of them, the proxy was left behind, and the device was pulled back with 0.94 N.
+  const auto [f_max, resyncs] = slide_queued_after_a_gap(true);
+  EXPECT_EQ(resyncs, 1u);
+  EXPECT_LT(f_max, 0.5) << "the proxy stayed behind the queue's first part";
 }
 
 // A float's bytes in a datagram, replaced (the codec refuses to encode a NaN).

@@ -129,6 +129,46 @@ TEST(VirtualCoupling, AResyncFollowsTheSamplesOfAQueue) {
   EXPECT_EQ(p.proxy(0).p_W.x(), 0.004);
 }
 
+TEST(VirtualCoupling, AResyncFollowsAQueueWhoseReadingWasInterrupted) {
+  // A stalled server's queue of eleven samples taken 1 ms apart, the device sliding 0.2 mm a sample:
+  // the first re-syncs, four are read 8 us apart, then the server is descheduled 3 ms before it reads
+  // the other six. Those waited 3-8 ms longer than the device's quickest samples: they carry the
+  // proxy onto each in turn too (by read times alone the sixth ended the following, and the proxy
+  // was left 1.2 mm behind). A sample that waited no longer than the quickest (the device at its
+  // pace) ends it, and so does the re-sync gap: samples at the device's pace that all waited 5 ms
+  // longer (its clock set back) are followed for 50 ms after the re-sync, no longer.
+  ProxyHand p = make_proxy();
+  const HapticModel none;
+  const auto sample = [&](double x, double at, double waited) {
+    p.set_device_pose(0, Eigen::Vector3d(x, 0, 0), Eigen::Quaterniond::Identity());
+    return p.commit_sample(at, 0.05, 1e-3, waited);
+  };
+  double t = 0;
+  EXPECT_TRUE(sample(0.0, t, 0.0));
+  t += 0.2;
+  EXPECT_TRUE(sample(0.001, t, 0.01));
+  for (int k = 1; k <= 10; ++k) {
+    const double x = 0.001 + 2e-4 * k, read = k < 5 ? 8e-6 * k : 3e-3 + 8e-6 * k;
+    if (k == 5) p.integrate(none, kPeriod), p.integrate(none, kPeriod), p.integrate(none, kPeriod);
+    EXPECT_FALSE(sample(x, t + read, 1e-3 * (10 - k) + read)) << k;
+    EXPECT_EQ(p.proxy(0).p_W.x(), x) << k;
+  }
+  p.integrate(none, kPeriod);
+  EXPECT_FALSE(sample(0.0034, t + 4e-3, 0.0));
+  EXPECT_EQ(p.proxy(0).p_W.x(), 0.003);
+  EXPECT_EQ(p.device(0).p_W.x(), 0.0034);
+  t += 0.2;
+  EXPECT_TRUE(sample(0.004, t, 0.0));
+  for (int k = 1; k <= 60; ++k) {
+    const double x = 0.004 + 1e-5 * k;
+    EXPECT_FALSE(sample(x, t + 1e-3 * k, 5e-3)) << k;
+    if (k <= 50)
+      EXPECT_EQ(p.proxy(0).p_W.x(), x) << k;
+    else
+      EXPECT_LT(p.proxy(0).p_W.x(), x - 1e-6) << k;
+  }
+}
+
 TEST(VirtualCoupling, AnOverdueDeviceIsFollowedAlongItsVelocityForAtMostTwentyMilliseconds) {
   // A device moving along x at 5 cm/s, sampled every 1 ms, its proxy free. `followed` is told the
   // tick's time before each integration (predict_device), `held` is not. While the samples come on

@@ -43,6 +43,7 @@
 #include <Eigen/Core>
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <memory>
 #include <string>
@@ -62,10 +63,20 @@ constexpr double kStillSwing_N = 0.05;
 struct PressCase {
   int visual_hz;
   bool passivity_control;
+  // A busy machine's models (OfflineOptions::model_delay_ticks, late_model_max_ticks): each reaches
+  // the haptic loop `delay` ticks after its step plus 0 .. late - 1 more, drawn from `seed`.
+  int delay = 0, late = 0;
+  std::uint64_t seed = 12345;
+  double end_s = kEnd_s;  // the run's length: the hold lasts from kHoldFrom_s to here
 };
 
 std::string case_name(const ::testing::TestParamInfo<PressCase>& info) {
-  return std::to_string(info.param.visual_hz) + "Hz" + (info.param.passivity_control ? "" : "_no_controller");
+  const PressCase& c = info.param;
+  return std::to_string(c.visual_hz) + "Hz" +
+         (c.late > 0 ? "_late" + std::to_string(c.delay) + "to" + std::to_string(c.delay + c.late - 1) + "_seed" +
+                           std::to_string(c.seed)
+                     : "") +
+         (c.passivity_control ? "" : "_no_controller");
 }
 
 class GlovePressHold : public ::testing::TestWithParam<PressCase> {};
@@ -74,15 +85,18 @@ TEST_P(GlovePressHold, AStillHoldPutsNoEnergyIntoTheGloveAndHoldsStill) {
   const PressCase& c = GetParam();
   const Interaction press =
       glove_grasp(with_rigid_bodies_fixed(world::load_scene(std::string(HAPTICD_SCENES_DIR) + "/glove_grasp.json")),
-                  kEnd_s, sim::kGloveFramesAll);
+                  c.end_s, sim::kGloveFramesAll);
   OfflineOptions options;
   options.haptic_period_s = kPeriod;
   options.visual_every_ticks = static_cast<int>(std::lround(1.0 / (c.visual_hz * kPeriod)));
   options.passivity_control = c.passivity_control;
+  options.model_delay_ticks = c.delay;
+  options.late_model_max_ticks = c.late;
+  options.late_model_seed = c.seed;
   OfflineLoops loops(press.scene, options);
   const std::unique_ptr<OfflineDevice> device = press.device(loops);
   const auto& glove = dynamic_cast<const SimulatedGlove&>(*device);
-  const long hold_tick = std::lround(kHoldFrom_s / kPeriod), end_tick = std::lround(kEnd_s / kPeriod);
+  const long hold_tick = std::lround(kHoldFrom_s / kPeriod), end_tick = std::lround(c.end_s / kPeriod);
   double at_hold = 0;
   const OfflineTrace trace = run_offline(loops, *device, end_tick, [&](long tick) {
     if (tick + 1 == hold_tick) at_hold = glove.simulation().passivity_energy_j();
@@ -100,10 +114,11 @@ TEST_P(GlovePressHold, AStillHoldPutsNoEnergyIntoTheGloveAndHoldsStill) {
       swing = std::max(swing, (trace.replies[k].wrench[j].f_D - mean).norm());
   }
   std::printf(
-      "glove press on the fixed box at %d Hz, controller %s: energy %+.4f J (%+.4f J at %.1f s, %+.4f J over "
-      "the still hold), largest swing of a frame's force over the last %.1f s %.4f N, resets %ld\n",
-      c.visual_hz, c.passivity_control ? "on" : "off", energy, at_hold, kHoldFrom_s, energy - at_hold, kStillFor_s,
-      swing, trace.resets);
+      "glove press on the fixed box at %d Hz, models %d + 0..%d ticks late, controller %s: energy %+.4f J (%+.4f J "
+      "at %.1f s, %+.4f J over the still hold), largest swing of a frame's force over the last %.1f s %.4f N, "
+      "resets %ld\n",
+      c.visual_hz, c.delay, std::max(c.late - 1, 0), c.passivity_control ? "on" : "off", energy, at_hold, kHoldFrom_s,
+      energy - at_hold, kStillFor_s, swing, trace.resets);
   EXPECT_EQ(trace.resets, 0);
   EXPECT_LE(energy, 0.0) << "the rendering put energy into the glove";
   EXPECT_LT(swing, kStillSwing_N) << "the glove does not hold still";
@@ -113,6 +128,46 @@ INSTANTIATE_TEST_SUITE_P(Touch, GlovePressHold,
                          ::testing::Values(PressCase{60, true}, PressCase{30, true}, PressCase{15, true},
                                            PressCase{60, false}, PressCase{30, false}, PressCase{15, false}),
                          case_name);
+
+// The same through a busy machine's visual loop (GloveLateModels/GlovePressHold): the scene's 1.7k-tet hand
+// steps in ~50 ms on a loaded 2-core machine, so hapticd runs its visual loop at ~16 Hz and each
+// model reaches the haptic loop 45-59 ms after its step began (through the real server, this press
+// gave -0.085 to +0.023 J in four quiet runs, tests/e2e/glove_loopback.sh); at 30 Hz, 10-24 ms.
+// Measured before a prepared model was served at its operator's lookahead past its step's end too
+// (ProxyHand::integrate), the first four cases in order: +0.028, +0.079, +0.0036 and +0.24 J, the
+// frames' forces swinging 0.7-1.4 N over the last 0.5 s (a pressed phalanx's force ramped ~0.3 N
+// through each step and dropped at the next model, its finger pushed out along it ~2 mm a step).
+// After, seeds 1-9 at 16 Hz: -0.039 to -0.054 J at 4 s. Seed 1's hold settles slowly (its frames'
+// forces wander by up to 0.3 N until ~5 s, the glove taking back 3 mJ of its -0.043 J), so these
+// runs last 5.5 s: the glove must be still from 5.0 s.
+constexpr double kLateEnd_s = 5.5;
+INSTANTIATE_TEST_SUITE_P(GloveLateModels, GlovePressHold,
+                         ::testing::Values(PressCase{16, true, 45, 15, 1, kLateEnd_s},
+                                           PressCase{16, true, 45, 15, 2, kLateEnd_s},
+                                           PressCase{30, true, 10, 15, 2, kLateEnd_s},
+                                           PressCase{16, false, 45, 15, 2, kLateEnd_s},
+                                           // The slowest rates measured passive and still (12 Hz is not:
+                                           // below). 13 Hz with models 57-75 ticks late (seed 2) ends at
+                                           // -0.0082 J but its frames still swing 0.11 N at 5.5 s, having
+                                           // gained +0.6 mJ over the hold.
+                                           PressCase{13, true, 0, 0, 12345, kLateEnd_s},
+                                           PressCase{14, true, 53, 17, 2, kLateEnd_s}),
+                         case_name);
+
+// A known fault of issue 17 (tests/CMakeLists.txt runs it as one ctest expected to fail): at 12 Hz
+// (83 ms steps, models on time) the held press gains +0.024 J with the controller, +0.145 J without
+// it (a temporary diagnostic: 10 Hz -0.039 and +0.11 J, 8 Hz +0.012 and +0.14 J). Without the controller: the ring
+// finger's middle phalanx (frame 11) touches nothing, so it is gated (unfelt), while its pressing
+// neighbours' flesh holds its proxy 17 mm from its device with the coupling saturated at the
+// device's 5 N and 0.2 N m. From 3.16 s the proxy turns against its device at up to 23 rad/s, half
+// a turn by 3.44 s; its gate opens at 3.32 s at the torque limit and drags the finger; at 3.57 s it
+// spins at up to 2000 rad/s and is thrown 20 mm, into the box, its force at the 5 N limit.
+// Tried, not kept: leaving a gated frame's coupling unsaturated passes these (-0.018 J either way;
+// 8 Hz -0.003 / +0.006 J) but leaves frames swinging 0.1-0.45 N in the 15 Hz and late-model
+// holds, and the 5 Hz box grasp lifts 8 mm; holding a proxy past 200 rad/s still for the tick
+// gives -0.017 / +0.019 J here, and +0.025 J at 8 Hz.
+INSTANTIATE_TEST_SUITE_P(Issue17KnownFault, GlovePressHold,
+                         ::testing::Values(PressCase{12, true}, PressCase{12, false}), case_name);
 
 }  // namespace
 }  // namespace hapticd::offline

@@ -71,11 +71,12 @@ GraspRun run_grasp(const GraspCase& c) {
 // 5 Hz: 200 ms steps, beyond the longest the visual loop takes (kMaxStep_s, 150 ms). There the
 // glove's released box went through the table to the floor (ended 750 mm below its start) until a
 // held body's supports were looked for as far as gravity takes it over the step.
-// 1000 Hz: the world stepped every tick, the reference the slower rates approximate; it shows the
-// grasp itself lifts the box (touch.cpp, kTripodSqueeze). About 100 s.
+// That the commanded grasp itself lifts the box, with the world stepped every tick (the reference the
+// slower rates approximate; touch.cpp, kTripodSqueeze), is `haptic-bench touch`'s reference row
+// (grasp_release at 1000 Hz, its lift_mm): ~110 s, too long for `make test`.
 const auto kGraspCases = ::testing::Values(
     GraspCase{"glove_grasp", 5}, GraspCase{"glove_grasp", 15}, GraspCase{"glove_grasp", 30},
-    GraspCase{"glove_grasp", 60}, GraspCase{"glove_grasp", 1000}, GraspCase{"two_hands", 30},
+    GraspCase{"glove_grasp", 60}, GraspCase{"two_hands", 30},
     GraspCase{"glove_grasp", 30, GraspKind::power_ball, world::HandModelKind::fem, "fem"},
     GraspCase{"glove_grasp", 30, GraspKind::power_ball, world::HandModelKind::spring, "spring"},
     GraspCase{"glove_grasp", 30, GraspKind::power_ball, world::HandModelKind::contact_point, "contact_point"});
