@@ -7,6 +7,8 @@
 #include <random>
 #include <stdexcept>
 
+#include "clients/cpp/reply_watchdog.hpp"
+
 namespace hapticd::haptic {
 
 using protocol::MessageType;
@@ -16,6 +18,10 @@ namespace {
 // How far a session's least sample wait may rise a sample, ns: 1 us, what two clocks 100 ppm apart
 // drift over a 100 Hz glove's 10 ms, ten times that over a 1 kHz device's 1 ms.
 constexpr std::int64_t kWaitFloorRise_ns = 1000;
+
+// How a device fades a held reply when the server goes silent: the client library's default
+// (client::ReplyWatchdog, used by haptic-device's servo loop).
+constexpr client::ReplyWatchdogOptions kDeviceWatchdog{};
 
 // A session's proxy counters, summed into the server's (when it closes, and at the end of a run).
 void add_proxy_counts(ServerStats& st, const ProxyHand& p) {
@@ -51,6 +57,9 @@ struct HapticCore::Session {
   // and when the last sample was taken, on the server's clock (its read time, or for a sample that
   // waited in the socket while the loop was stalled, the one before it plus the device's interval).
   std::uint64_t integrated_to_ns = 0, sample_ns = 0;
+  // The last silence of the server longer than the device's watchdog holds a reply
+  // (client::ReplyWatchdog): samples taken in (from, to] were taken while it faded the reply out.
+  std::uint64_t unheld_from_ns = 0, unheld_to_ns = 0;
   double output_scale = 0;  // ramps 0 -> 1 when poses flow, -> 0 when the session goes silent
   bool resynced = false;    // the next reply carries the resynced flag
   // With a key: no authenticated datagram from the client yet. A pending session drives and
@@ -641,11 +650,12 @@ void HapticCore::on_pose(const protocol::PoseSample& pose, std::uint64_t now) {
   s->last_client_ns = pose.client_timestamp_ns;
   // A loop that missed ticks (more than a period since the last) reads the samples that waited in the
   // socket meanwhile: each was taken its device's interval after the one before, and the proxies
-  // are integrated up to then before it is answered (catch_up). Read at the loop's pace, a sample
+  // are integrated up to then before it is answered (catch_up), however long the loop was stopped
+  // (a sample its device took at its pace is no gap to re-sync on). Read at the loop's pace, a sample
   // was taken when it is read.
   const bool stalled = now > last_tick_ns_ + 2 * period_ns_;
   s->sample_ns = stalled && has_interval && s->sample_ns ? std::min(now, s->sample_ns + interval_ns) : now;
-  if (stalled && silent_ns <= max_interval_ns) catch_up(*s, s->sample_ns);
+  if (stalled && (has_interval || silent_ns <= max_interval_ns)) catch_up(*s, s->sample_ns);
   if (s->proxy.commit_sample(1e-9 * static_cast<double>(now - start_ns_), options_.resync_gap_s, interval_s,
                              waited_s)) {
     s->resynced = true;
@@ -653,6 +663,22 @@ void HapticCore::on_pose(const protocol::PoseSample& pose, std::uint64_t now) {
     if (!s->follower) ++hand_resyncs_[links_[s->link].hand];
   }
   const double since_reply = s->last_reply_ns ? 1e-9 * static_cast<double>(now - s->last_reply_ns) : 1e-3;
+  // A device holds each reply until the next, and fades it out once none has come for its watchdog's
+  // hold, over its ramp (client::ReplyWatchdog, DESIGN section 5). A server stopped longer than
+  // both (a descheduled process) left the device pressing on, feeling nothing; the stretch it built
+  // meanwhile, in the share the device did not feel, is unfelt (ProxyHand::reply's `unfelt_share`),
+  // not given back as it lifts: a deeper press is
+  // felt from there, and backing out of it neither pulls nor pushes; the stretch it felt before comes
+  // back as the device's watchdog and the session's ramp bring the force back. Given in full, the proxies caught up
+  // on the bunny's surface pushed the stylus that had sunk 8 mm out with +1.3e-2 to +2.0e-2 J
+  // (ServerStalls), and the observer, booking the queue's replies the device never felt, let it.
+  const auto hold_ns = static_cast<std::uint64_t>(kDeviceWatchdog.hold.count());
+  if (s->last_reply_ns && now > s->last_reply_ns + hold_ns)
+    s->unheld_from_ns = s->last_reply_ns + hold_ns, s->unheld_to_ns = now;
+  double unfelt_share = 0;  // of the held reply, when the device took this sample
+  if (s->sample_ns > s->unheld_from_ns && s->sample_ns <= s->unheld_to_ns)
+    unfelt_share = std::min(1.0, static_cast<double>(s->sample_ns - s->unheld_from_ns) /
+                                     static_cast<double>(std::max<std::int64_t>(kDeviceWatchdog.ramp.count(), 1)));
   protocol::ForceSample& out = reply_->force_sample;
   out.session_id = s->id;
   out.sequence = pose.sequence;
@@ -669,7 +695,7 @@ void HapticCore::on_pose(const protocol::PoseSample& pose, std::uint64_t now) {
   ReplyWrench replies[kMaxHapticHandles];
   for (int j = 0; j < s->frames; ++j) {
     const bool gated = link.contact_gated && !(model.handles == s->frames && model.handle_in_contact[j]);
-    replies[j] = s->proxy.reply(j, gated || s->lost[j] ? 0.0 : scale, since_reply, gated);
+    replies[j] = s->proxy.reply(j, gated || s->lost[j] ? 0.0 : scale, since_reply, gated, unfelt_share);
   }
   if (link.output == ForceOutput::finger_lines) {
     HapticPose device_W[kMaxHapticHandles];

@@ -269,6 +269,7 @@ void ProxyHand::configure(int handles, const double* mass_kg, const Eigen::Matri
     last_f_D_[j].setZero(), last_tau_D_[j].setZero(), last_r_D_[j].setZero();
     moved_p_W_[j].setZero(), moved_theta_W_[j].setZero();
     unfelt_p_W_[j].setZero(), unfelt_theta_W_[j].setZero();
+    last_stretch_p_W_[j].setZero(), last_twist_W_[j].setZero();
     energy_in_[j] = 0, damped_j_[j] = 0, passivity_b_[j] = 0;
   }
 }
@@ -288,6 +289,7 @@ void ProxyHand::resync() {
     proxy_[j] = predicted_[j] = device_[j];
     v_[j].setZero(), w_[j].setZero(), v_dev_[j].setZero(), w_dev_[j].setZero();
     unfelt_p_W_[j].setZero(), unfelt_theta_W_[j].setZero();
+    last_stretch_p_W_[j].setZero(), last_twist_W_[j].setZero();
     moved_p_W_[j].setZero(), moved_theta_W_[j].setZero();
   }
 }
@@ -298,14 +300,19 @@ void ProxyHand::set_device_pose(int j, const Eigen::Vector3d& p_D, const Eigen::
 
 bool ProxyHand::commit_sample(double t_s, double resync_gap_s, double sample_interval_s, double waited_s) {
   const double dt = t_s - t_dev_;
-  const bool resync_now = !have_device_ || !(dt <= resync_gap_s) || dt < 0;
+  // A gap is the device's: a sample it took within the re-sync gap of the one before is none, however
+  // late it was read (a server stopped meanwhile, whose haptic loop catches the proxies up along the
+  // samples that waited: HapticCore::catch_up). Re-synced there, the proxies dropped the force they
+  // held and a pressing stylus sank into the bunny, to be pushed back out with energy (ServerStalls).
+  const bool has_interval = std::isfinite(sample_interval_s) && sample_interval_s > 0;
+  const bool device_paced = has_interval && sample_interval_s <= resync_gap_s;
+  const bool resync_now = !have_device_ || dt < 0 || (!(dt <= resync_gap_s) && !device_paced);
   // The device's velocity is its motion over its own interval between the two samples. When they
   // are read is no measure of it: a server that was stalled reads the samples queued meanwhile
   // microseconds apart (8 us after 50 ms stopped made a tip moving at 0.01 m/s look like up to
   // 212 m/s, and the coupling's damper pushed the device at its force limit).
-  const double dt_v = std::isfinite(sample_interval_s) && sample_interval_s > 0
-                          ? std::max(sample_interval_s, kMinSampleInterval_s)
-                          : std::max(dt, kMinSampleInterval_s);
+  const double dt_v =
+      has_interval ? std::max(sample_interval_s, kMinSampleInterval_s) : std::max(dt, kMinSampleInterval_s);
   for (int j = 0; j < handles_; ++j) {
     if (!resync_now && dt > 0) {
       const Eigen::Vector3d moved = pending_[j].p_W - device_[j].p_W;
@@ -328,15 +335,14 @@ bool ProxyHand::commit_sample(double t_s, double resync_gap_s, double sample_int
   // Samples read faster than the device took them (under half its interval, or kMinSampleInterval_s
   // without one), or that waited to be read half an interval longer than its quickest samples did,
   // come from a queue: after a re-sync they re-sync the proxies onto themselves too, until one comes
-  // at the device's pace (or the re-sync gap has passed since the re-sync). A server that was stalled
-  // re-syncs on the oldest pose of its queue and reads the rest at once, and the proxies are to start
-  // where the device is now (from 50 ms back they were 26 mm behind a stroking stylus, and rang on the
-  // coupling at up to 8 m/s). Read times alone miss a queue whose reading was interrupted (the server
-  // descheduled again midway, a busy machine): the rest of it, read at once a few milliseconds later,
-  // left the proxies behind the device by their count of samples' motion (0.84-2.54 N in 16 of 120
-  // runs of HapticServer.AQueueReadAfterAGapResyncsOnceOntoItsNewestPose with both cores busy, none
-  // in 100 since).
-  const bool has_interval = std::isfinite(sample_interval_s) && sample_interval_s > 0;
+  // at the device's pace (or the re-sync gap has passed since the re-sync). A device whose samples
+  // stopped and then came as a queue (time-stamped with the gap: its driver or link held them; or a
+  // server stalled past the gap with no time stamps to tell) re-syncs on the oldest pose of the queue,
+  // the rest are read at once, and the proxies are to start where the device is now (from 50 ms back
+  // they were 26 mm behind a stroking stylus, and rang on the coupling at up to 8 m/s). Read times alone miss a queue
+  // whose reading was interrupted (the server descheduled again midway, a busy machine): the rest of it, read at once a
+  // few milliseconds later, left the proxies behind the device by their count of samples' motion (0.84-2.54 N in 16 of
+  // 120 runs of HapticServer.AQueueReadAfterAGapResyncsOnceOntoItsNewestPose with both cores busy, none in 100 since).
   const bool read_at_once = has_interval ? dt < 0.5 * sample_interval_s : dt < kMinSampleInterval_s;
   const bool waited = has_interval && std::isfinite(waited_s) && waited_s > 0.5 * sample_interval_s;
   if (resync_now) resync_t_s_ = t_s;
@@ -824,7 +830,7 @@ void release_unfelt(Eigen::Vector3d& u, const Eigen::Vector3d& s) {
 
 }  // namespace
 
-ReplyWrench ProxyHand::reply(int j, double output_scale, double dt_since_last_s, bool gated) {
+ReplyWrench ProxyHand::reply(int j, double output_scale, double dt_since_last_s, bool gated, double unfelt_share) {
   ReplyWrench r;
   if (j < 0 || j >= handles_ || !have_device_) return r;
   // The coupling wrench on the proxy; the device feels it reversed (f_D = s R^T f_W keeps power equal).
@@ -839,10 +845,14 @@ ReplyWrench ProxyHand::reply(int j, double output_scale, double dt_since_last_s,
   const Eigen::Vector3d twist = hand::rotation_difference(device_[j].q_W, proxy_[j].q_W);
   if (gated) {
     unfelt_p_W_[j] = stretch, unfelt_theta_W_[j] = twist;
+  } else if (unfelt_share > 0) {  // that share of what the stretch grew by since the last reply went unfelt
+    unfelt_p_W_[j] += unfelt_share * (stretch - last_stretch_p_W_[j]);
+    unfelt_theta_W_[j] += unfelt_share * (twist - last_twist_W_[j]);
   } else {
     release_unfelt(unfelt_p_W_[j], stretch);
     release_unfelt(unfelt_theta_W_[j], twist);
   }
+  last_stretch_p_W_[j] = stretch, last_twist_W_[j] = twist;
   const double b_c = gains_.b_ns_m + safe_share_ * safe_b_ns_m_[j];
   const double b_c_rot = gains_.b_nms_rad + safe_share_ * safe_b_nms_rad_[j];
   const Eigen::Vector3d f_W = gains_.k_n_m * (stretch - unfelt_p_W_[j]) + b_c * (v_dev_[j] - v_[j]);

@@ -312,8 +312,10 @@ class ProxyHand {
   // model could otherwise carry the proxy away from the device (a two-port controller).
   // `gated`: the frame is not to be felt (a glove's part touching nothing; output_scale is then 0):
   // its stretch is booked unfelt and stays so after the gate opens, released only as the device
-  // backs out of it.
-  ReplyWrench reply(int j, double output_scale, double dt_since_last_s, bool gated = false);
+  // backs out of it. `unfelt_share`: how much of its held reply the device was not feeling when it
+  // took this sample (its watchdog fading the reply out: a server silent that long); that share of
+  // what the stretch grew by since the last reply is booked unfelt too, released the same way.
+  ReplyWrench reply(int j, double output_scale, double dt_since_last_s, bool gated = false, double unfelt_share = 0);
 
   // Puts every proxy on its device pose and zeroes velocities.
   void resync();
@@ -389,6 +391,8 @@ class ProxyHand {
   Eigen::Vector3d moved_p_W_[kMaxHapticHandles], moved_theta_W_[kMaxHapticHandles];
   // A gated frame's unfelt stretch, device minus proxy (world, m and rad): reply().
   Eigen::Vector3d unfelt_p_W_[kMaxHapticHandles], unfelt_theta_W_[kMaxHapticHandles];
+  // The stretch and twist at the last reply (reply(): `unfelt_share` of their growth is unfelt).
+  Eigen::Vector3d last_stretch_p_W_[kMaxHapticHandles], last_twist_W_[kMaxHapticHandles];
   bool motion_booked_[kMaxHapticHandles]{};  // reply() has booked moved_*_W_[j]: the next sample starts anew
   double energy_in_[kMaxHapticHandles]{};    // passivity observer: work the device has done on the rendering, J
   double damped_j_[kMaxHapticHandles]{};

@@ -247,10 +247,12 @@ SimulatedStylus::SimulatedStylus(const Eigen::Vector3d& start_D, Command command
 }
 
 void SimulatedStylus::advance(long tick, double t_s, DeviceFrames& out) {
+  t_ns_ = static_cast<std::uint64_t>(std::llround(1e9 * t_s));
   if (tick > 0) {
     constexpr double h = 1e-6;  // as sim::Trajectory::velocity
     const Eigen::Vector3d v_C = (command_(t_s + h) - command_(t_s - h)) / (2 * h);
-    energy_j_ += sim::step(params_, state_, to_sim(start_D_ + command_(t_s)), to_sim(v_C), to_sim(f_D_), period_s_);
+    const Eigen::Vector3d f_D = watchdog_.scale(t_ns_) * f_D_;  // as sim::run_servo_loop
+    energy_j_ += sim::step(params_, state_, to_sim(start_D_ + command_(t_s)), to_sim(v_C), to_sim(f_D), period_s_);
   }
   out.frames = 1;
   out.p_D[0] = to_eigen(state_.p_DT_m);
@@ -258,21 +260,28 @@ void SimulatedStylus::advance(long tick, double t_s, DeviceFrames& out) {
 }
 
 void SimulatedStylus::receive(const DeviceReply& reply) {
-  if (reply.frames > 0) f_D_ = reply.wrench[0].f_D;  // no reply: the DAC holds its command
+  if (reply.frames == 0) return;  // no reply: the DAC holds its command
+  f_D_ = reply.wrench[0].f_D;
+  watchdog_.on_reply(t_ns_);
 }
 
 SimulatedGlove::SimulatedGlove(sim::GloveTrajectory trajectory, int frames, bool left, double period_s,
                                const sim::GloveParams& params)
     : sim_(std::move(trajectory), params, frames, left, period_s) {}
 
-void SimulatedGlove::advance(long tick, double, DeviceFrames& out) {
-  if (tick > 0) sim_.advance();
+void SimulatedGlove::advance(long tick, double t_s, DeviceFrames& out) {
+  t_ns_ = static_cast<std::uint64_t>(std::llround(1e9 * t_s));
+  if (tick > 0) {
+    sim_.set_output_scale(watchdog_.scale(t_ns_));  // as sim::GloveServo
+    sim_.advance();
+  }
   const auto poses = sim_.frame_poses();
   out.frames = sim_.frames();
   for (int j = 0; j < out.frames; ++j) out.p_D[j] = poses[j].p_m, out.q_D[j] = poses[j].q;
 }
 
 void SimulatedGlove::receive(const DeviceReply& reply) {
+  if (reply.frames > 0) watchdog_.on_reply(t_ns_);
   for (int j = 0; j < reply.frames; ++j)
     sim_.set_wrench(j, to_sim(reply.wrench[j].f_D), to_sim(reply.wrench[j].tau_D), reply.in_contact[j]);
   sim_.record_tick();

@@ -15,6 +15,7 @@
 #include <utility>
 #include <vector>
 
+#include "clients/cpp/reply_watchdog.hpp"
 #include "clients/sim/device_model.hpp"
 #include "clients/sim/glove_model.hpp"
 #include "clients/sim/glove_simulation.hpp"
@@ -183,7 +184,10 @@ class OfflineDevice {
   // received (not at tick 0: the device starts where it is), then write the
   // frames' poses.
   virtual void advance(long tick, double t_s, DeviceFrames& out) = 0;
-  // This tick's reply, held until the next (a device's DAC holds its command).
+  // This tick's reply, held until the next (a device's DAC holds its command). The simulated stylus
+  // and glove fade a held reply once none has come for 20 ms, over 50 ms, as haptic-device's servo
+  // loop does (client::ReplyWatchdog, DESIGN section 5): a stopped server's stylus holding its last
+  // force for 300 ms was no device hapticd serves.
   virtual void receive(const DeviceReply& reply) = 0;
 };
 
@@ -210,6 +214,8 @@ class SimulatedStylus final : public OfflineDevice {
   sim::DeviceState state_;
   Eigen::Vector3d f_D_ = Eigen::Vector3d::Zero();
   double energy_j_ = 0;
+  client::ReplyWatchdog watchdog_;
+  std::uint64_t t_ns_ = 0;  // this tick's time (advance), when its reply came (receive)
 };
 
 // The simulated glove (clients/sim/glove_simulation.hpp: 20 joints on their
@@ -225,6 +231,8 @@ class SimulatedGlove final : public OfflineDevice {
 
  private:
   sim::GloveSimulation sim_;
+  client::ReplyWatchdog watchdog_;
+  std::uint64_t t_ns_ = 0;  // as SimulatedStylus's
 };
 
 // Poses recorded from another run, replayed tick by tick whatever the replies:

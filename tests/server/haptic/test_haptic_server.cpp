@@ -56,11 +56,13 @@ TEST(HapticServer, AnswersEveryPoseWithTheEchoedSequenceAndTheWallForce) {
 }
 
 // A stylus on the wall's surface (z = 0, where the wall pulls nothing) sliding along x, each pose
-// stamped 1 ms after the last whenever it is sent (a device's own clock), as a queue would carry them.
+// stamped 1 ms after the last whenever it is sent (a device's own clock), as a queue would carry them;
+// `gap` moves that clock on by a gap in the device's samples.
 struct SlidingStylus {
   TestClient& c;
   std::uint64_t seq = 0;
   std::uint64_t t0 = protocol::now_ns();
+  void gap(std::chrono::nanoseconds d) { t0 += static_cast<std::uint64_t>(d.count()); }
   void send(double x) {
     protocol::PoseSample p = c.pose_at(0.0, ++seq);
     p.client_timestamp_ns = t0 + 1'000'000ull * seq;
@@ -112,9 +114,10 @@ TEST(HapticServer, PosesReadInABurstMoveTheCouplingByTheDevicesOwnVelocity) {
   EXPECT_EQ(s.server.stats().resets, 0u);
 }
 
-// A stylus at rest on the wall's surface, then 200 ms of silence, then 30 poses of a 15 mm slide along
-// x sent at once (a device's queue behind a stalled server), the last ten 5 ms after the first twenty
-// if `interrupted`, then held at the slide's end: the largest force, and the re-syncs counted.
+// A stylus at rest on the wall's surface, then a 200 ms gap in its samples (in their time stamps too),
+// then 30 poses of a 15 mm slide along x sent at once (a queue its driver or link held), the last ten
+// 5 ms after the first twenty if `interrupted`, then held at the slide's end: the largest force, and
+// the re-syncs counted.
 std::pair<double, std::uint64_t> slide_queued_after_a_gap(bool interrupted) {
   RunningServer s;
   TestClient c(s.server.port());
@@ -123,6 +126,7 @@ std::pair<double, std::uint64_t> slide_queued_after_a_gap(bool interrupted) {
   stylus.paced(0.0, 100);
   const std::uint64_t resyncs_before = s.server.stats().resyncs;
   std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  stylus.gap(std::chrono::milliseconds(200));
   for (int k = 0; k < 30; ++k) {
     if (interrupted && k == 20) std::this_thread::sleep_for(std::chrono::milliseconds(5));
     stylus.send(5e-4 * k);

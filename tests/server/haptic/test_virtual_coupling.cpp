@@ -93,16 +93,18 @@ TEST(VirtualCoupling, SamplesReadInABurstGiveTheDevicesVelocityNotTheRateTheyWer
 }
 
 TEST(VirtualCoupling, AResyncFollowsTheSamplesOfAQueue) {
-  // After a 200 ms gap the first sample re-syncs; the ten read with it, 8 us apart though taken
-  // 1 ms apart (a stalled server's queue, the device sliding 0.2 mm a sample), carry the proxy onto
+  // After a 200 ms gap in the device's samples the first re-syncs; the ten read with it, 8 us apart
+  // though taken 1 ms apart (a queue its driver or link held, the device sliding 0.2 mm a sample;
+  // HapticServer.AQueueReadAfterAGapResyncsOnceOntoItsNewestPose), carry the proxy onto
   // each in turn, uncounted, a tick in their midst or not; a sample read at the device's pace moves
   // the device only, as does one read 1 ms after a re-sync.
   ProxyHand p = make_proxy();
   const HapticModel none;
   double t = 0;
-  const auto sample = [&](double x, double at) {
+  // The device's own interval since its last sample: 1 ms, but 200 ms across its gaps.
+  const auto sample = [&](double x, double at, double interval = 1e-3) {
     p.set_device_pose(0, Eigen::Vector3d(x, 0, 0), Eigen::Quaterniond::Identity());
-    return p.commit_sample(at, 0.05, 1e-3);
+    return p.commit_sample(at, 0.05, interval);
   };
   EXPECT_TRUE(sample(0.0, t));
   for (int k = 0; k < 5; ++k) {
@@ -110,7 +112,7 @@ TEST(VirtualCoupling, AResyncFollowsTheSamplesOfAQueue) {
     EXPECT_FALSE(sample(0.0, t += kPeriod));
   }
   t += 0.2;
-  EXPECT_TRUE(sample(0.001, t));
+  EXPECT_TRUE(sample(0.001, t, 0.2));
   for (int k = 1; k <= 10; ++k) {
     const double x = 0.001 + 2e-4 * k;
     if (k == 5) p.integrate(none, kPeriod);
@@ -124,14 +126,15 @@ TEST(VirtualCoupling, AResyncFollowsTheSamplesOfAQueue) {
   EXPECT_EQ(p.proxy(0).p_W.x(), proxy_x);
   EXPECT_EQ(p.device(0).p_W.x(), 0.0032);
   t += 0.2;
-  EXPECT_TRUE(sample(0.004, t));
+  EXPECT_TRUE(sample(0.004, t, 0.2));
   EXPECT_FALSE(sample(0.005, t + 1e-3));
   EXPECT_EQ(p.proxy(0).p_W.x(), 0.004);
 }
 
 TEST(VirtualCoupling, AResyncFollowsAQueueWhoseReadingWasInterrupted) {
-  // A stalled server's queue of eleven samples taken 1 ms apart, the device sliding 0.2 mm a sample:
-  // the first re-syncs, four are read 8 us apart, then the server is descheduled 3 ms before it reads
+  // A queue of eleven samples taken 1 ms apart after a 200 ms gap in the device's samples, the device
+  // sliding 0.2 mm a sample: the first re-syncs, four are read 8 us apart, then the server is
+  // descheduled 3 ms before it reads
   // the other six. Those waited 3-8 ms longer than the device's quickest samples: they carry the
   // proxy onto each in turn too (by read times alone the sixth ended the following, and the proxy
   // was left 1.2 mm behind). A sample that waited no longer than the quickest (the device at its
@@ -139,14 +142,15 @@ TEST(VirtualCoupling, AResyncFollowsAQueueWhoseReadingWasInterrupted) {
   // longer (its clock set back) are followed for 50 ms after the re-sync, no longer.
   ProxyHand p = make_proxy();
   const HapticModel none;
-  const auto sample = [&](double x, double at, double waited) {
+  // The device's own interval since its last sample: 1 ms, but 200 ms across its gaps.
+  const auto sample = [&](double x, double at, double waited, double interval = 1e-3) {
     p.set_device_pose(0, Eigen::Vector3d(x, 0, 0), Eigen::Quaterniond::Identity());
-    return p.commit_sample(at, 0.05, 1e-3, waited);
+    return p.commit_sample(at, 0.05, interval, waited);
   };
   double t = 0;
   EXPECT_TRUE(sample(0.0, t, 0.0));
   t += 0.2;
-  EXPECT_TRUE(sample(0.001, t, 0.01));
+  EXPECT_TRUE(sample(0.001, t, 0.01, 0.2));
   for (int k = 1; k <= 10; ++k) {
     const double x = 0.001 + 2e-4 * k, read = k < 5 ? 8e-6 * k : 3e-3 + 8e-6 * k;
     if (k == 5) p.integrate(none, kPeriod), p.integrate(none, kPeriod), p.integrate(none, kPeriod);
@@ -158,7 +162,7 @@ TEST(VirtualCoupling, AResyncFollowsAQueueWhoseReadingWasInterrupted) {
   EXPECT_EQ(p.proxy(0).p_W.x(), 0.003);
   EXPECT_EQ(p.device(0).p_W.x(), 0.0034);
   t += 0.2;
-  EXPECT_TRUE(sample(0.004, t, 0.0));
+  EXPECT_TRUE(sample(0.004, t, 0.0, 0.2));
   for (int k = 1; k <= 60; ++k) {
     const double x = 0.004 + 1e-5 * k;
     EXPECT_FALSE(sample(x, t + 1e-3 * k, 5e-3)) << k;
@@ -167,6 +171,34 @@ TEST(VirtualCoupling, AResyncFollowsAQueueWhoseReadingWasInterrupted) {
     else
       EXPECT_LT(p.proxy(0).p_W.x(), x - 1e-6) << k;
   }
+}
+
+TEST(VirtualCoupling, ASampleItsDeviceTookAtItsPaceIsNoGapHoweverLateItWasRead) {
+  // A server stopped for 100 ms (a descheduled process) next reads a sample its device took 1 ms after
+  // the one before: no gap in the device's samples, so no re-sync; the proxy keeps its place behind
+  // the sliding device, and with it the force the device feels (HapticCore catches the proxy up along
+  // the samples that waited). Time-stamped 100 ms after the last (the device's own gap) or without a
+  // time stamp, the same sample re-syncs the proxy onto the device.
+  ProxyHand stopped = make_proxy(), gap = make_proxy(), untimed = make_proxy();
+  const double v = 0.1;
+  double t = 0;
+  for (int k = 0; k < 20; ++k, t += kPeriod)
+    for (ProxyHand* p : {&stopped, &gap, &untimed}) {
+      p->set_device_pose(0, Eigen::Vector3d(v * t, 0, 0), Eigen::Quaterniond::Identity());
+      p->commit_sample(t, 0.05, kPeriod);
+      p->integrate(HapticModel{}, kPeriod);
+    }
+  const double proxy_x = stopped.proxy(0).p_W.x(), device_x = v * t;
+  ASSERT_GT(device_x - proxy_x, 1e-5);  // the proxy lags the device: the device feels the coupling
+  for (ProxyHand* p : {&stopped, &gap, &untimed})
+    p->set_device_pose(0, Eigen::Vector3d(device_x, 0, 0), Eigen::Quaterniond::Identity());
+  EXPECT_FALSE(stopped.commit_sample(t + 0.1, 0.05, kPeriod));
+  EXPECT_EQ(stopped.proxy(0).p_W.x(), proxy_x);
+  EXPECT_EQ(stopped.device(0).p_W.x(), device_x);
+  EXPECT_TRUE(gap.commit_sample(t + 0.1, 0.05, 0.1));
+  EXPECT_EQ(gap.proxy(0).p_W.x(), device_x);
+  EXPECT_TRUE(untimed.commit_sample(t + 0.1, 0.05));
+  EXPECT_EQ(untimed.proxy(0).p_W.x(), device_x);
 }
 
 TEST(VirtualCoupling, AnOverdueDeviceIsFollowedAlongItsVelocityForAtMostTwentyMilliseconds) {
