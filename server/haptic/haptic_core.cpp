@@ -664,14 +664,15 @@ void HapticCore::on_pose(const protocol::PoseSample& pose, std::uint64_t now) {
   }
   const double since_reply = s->last_reply_ns ? 1e-9 * static_cast<double>(now - s->last_reply_ns) : 1e-3;
   // A device holds each reply until the next, and fades it out once none has come for its watchdog's
-  // hold, over its ramp (client::ReplyWatchdog, DESIGN section 5). A server stopped longer than
-  // both (a descheduled process) left the device pressing on, feeling nothing; the stretch it built
-  // meanwhile, in the share the device did not feel, is unfelt (ProxyHand::reply's `unfelt_share`),
-  // not given back as it lifts: a deeper press is
-  // felt from there, and backing out of it neither pulls nor pushes; the stretch it felt before comes
-  // back as the device's watchdog and the session's ramp bring the force back. Given in full, the proxies caught up
-  // on the bunny's surface pushed the stylus that had sunk 8 mm out with +1.3e-2 to +2.0e-2 J
-  // (ServerStalls), and the observer, booking the queue's replies the device never felt, let it.
+  // hold, over its ramp (client::ReplyWatchdog, DESIGN section 5). A server silent longer than the
+  // hold (a descheduled process) left the device pressing on while its force faded: the share of
+  // the stretch it built meanwhile that it did not feel is unfelt (ProxyHand::reply's
+  // `unfelt_share`), not given back as it lifts. A deeper press is felt from there, backing out of
+  // it neither pulls nor pushes, and the stretch it felt before comes back as the device's watchdog
+  // and the session's ramp bring the force back. Given in full, the proxies caught up on the
+  // bunny's surface pushed the stylus that had sunk 8 mm out with +1.3e-2 to +2.0e-2 J (hapticd
+  // stopped 100-200 ms; ServerStalls), and the observer, booking replies to the queue that the
+  // device never felt, let them.
   const auto hold_ns = static_cast<std::uint64_t>(kDeviceWatchdog.hold.count());
   if (s->last_reply_ns && now > s->last_reply_ns + hold_ns)
     s->unheld_from_ns = s->last_reply_ns + hold_ns, s->unheld_to_ns = now;

@@ -337,12 +337,14 @@ bool ProxyHand::commit_sample(double t_s, double resync_gap_s, double sample_int
   // come from a queue: after a re-sync they re-sync the proxies onto themselves too, until one comes
   // at the device's pace (or the re-sync gap has passed since the re-sync). A device whose samples
   // stopped and then came as a queue (time-stamped with the gap: its driver or link held them; or a
-  // server stalled past the gap with no time stamps to tell) re-syncs on the oldest pose of the queue,
-  // the rest are read at once, and the proxies are to start where the device is now (from 50 ms back
-  // they were 26 mm behind a stroking stylus, and rang on the coupling at up to 8 m/s). Read times alone miss a queue
-  // whose reading was interrupted (the server descheduled again midway, a busy machine): the rest of it, read at once a
-  // few milliseconds later, left the proxies behind the device by their count of samples' motion (0.84-2.54 N in 16 of
-  // 120 runs of HapticServer.AQueueReadAfterAGapResyncsOnceOntoItsNewestPose with both cores busy, none in 100 since).
+  // server stalled past the gap with no time stamps to tell) re-syncs on the oldest pose of the
+  // queue, the rest are read at once, and the proxies are to start where the device is now (from
+  // 50 ms back they were 26 mm behind a stroking stylus, and rang on the coupling at up to 8 m/s).
+  // Read times alone miss a queue whose reading was interrupted (the server descheduled again
+  // midway, a busy machine): the rest of it, read at once a few milliseconds later, left the proxies
+  // behind the device by their count of samples' motion (0.84-2.54 N in 16 of 120 runs of
+  // HapticServer.AQueueReadAfterAGapResyncsOnceOntoItsNewestPose with both cores busy, none in 100
+  // since).
   const bool read_at_once = has_interval ? dt < 0.5 * sample_interval_s : dt < kMinSampleInterval_s;
   const bool waited = has_interval && std::isfinite(waited_s) && waited_s > 0.5 * sample_interval_s;
   if (resync_now) resync_t_s_ = t_s;
