@@ -100,10 +100,11 @@ namespace {
 //   farther than its contacts and clearance planes let it (VisualStep::place_resynced), the re-sync
 //   still dropped the force the proxies held, the stylus sank, and the hand pushed it back out:
 //   +1.7e-2 to +2.0e-2 J for the three stops while pressing and holding;
-// - caught up but felt in full, the proxies on the surface pushed the sunk stylus out as much.
-// Now -1.7e-3 to -4.5e-3 J, pulls up to 0.18 N. A gap in the device's own samples as long (withheld_samples_s: its
-// samples resume with the gap in their time stamps) still re-syncs, and the visual step places the
-// hand at the proxies (place_resynced keeps it out of the bunny).
+// - caught up but felt in full, the proxies on the surface pushed the sunk stylus out as much:
+//   +1.4e-2 to +1.7e-2 J, the force at the device's 8 N limit.
+// Now -1.7e-3 to -4.5e-3 J, pulls up to 0.18 N. A gap in the device's own samples as long
+// (withheld_samples_s: its samples resume with the gap in their time stamps) still re-syncs, and
+// the visual step places the hand at the proxies (place_resynced keeps it out of the bunny).
 const PressSchedule kStopSchedule(Press{0.02, 0.05, 0.08});
 constexpr double kVisualAfter_s = 0.03;
 
