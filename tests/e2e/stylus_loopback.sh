@@ -8,13 +8,10 @@
 # static: the shipped scene's rigid bunny rests on one vertex, and tipping it
 # under the stylus releases its potential energy (a few mJ) into the device,
 # which no passive rendering may prevent; the bound is the rendering's alone.
-# The timing bounds (late replies, RTT) hold in one of up to three runs; every
-# other bound holds on every run. A run that misses them measured the machine
-# as much as the server: one in which the simulated device itself missed more
-# than 2 % of its ticks, or one on a host whose other guests took the CPU (late
-# replies 0.2-17.6 % in 28 runs of two revisions' binaries, interleaved, within
-# an hour on this project's 2-core machine, worsening with the hour for both).
-# A server that stalls misses them in every run.
+# A run in which the simulated device itself missed more than 2 % of its ticks
+# measured the machine, not the server: its timing bounds (late replies, RTT)
+# are not judged and the run is repeated, up to three runs; every other bound
+# holds on every run.
 # With COMPETITORS (by hand, not in make test: a loaded machine, issue 17), that many CPU-bound
 # processes run at nice -10 beside the server, and the simulated device's servo loop runs at real-time
 # priority where permitted (as a device driver's), so that the server, not the device, is starved.
@@ -36,8 +33,8 @@ for _ in $(seq 1 "$competitors"); do
   busy_pids+=($!)
 done
 
-# One run; exits 0 if it passes, 1 if it fails, 3 if it passed every bound but timing (the caller
-# repeats it).
+# One run; exits 0 if it passes, 1 if it fails, 3 if it passed every bound but timing while the
+# device was starved (the caller repeats it).
 run_once() {
   rm -f "$work"/*
   start_hapticd "$bin" "$scene" "$seconds" "$work"
@@ -72,11 +69,10 @@ if s["replies"] < d["samples_sent"]: failures.append(f"server replied {s['replie
 if not d["passivity_energy_j"] <= 0: failures.append(f"the rendering put {d['passivity_energy_j']} J into the device")
 if not d.get("contact_fraction", 0) > 0.2: failures.append("the stylus never pressed on the bunny")
 if s["proxy_resets"] or s["visual"]["hand_resets"]: failures.append("resets")
-if failures:
+if failures or (timing and missed <= 0.02):
     print("FAILED: " + "; ".join(failures + timing)); sys.exit(1)
 if timing:
-    starved = f"the device starved (it missed {100 * missed:.2f} % of its ticks)" if missed > 0.02 else "the device on time"
-    print(f"TIMING ({starved}), run again: " + "; ".join(timing)); sys.exit(3)
+    print(f"STARVED: the device missed {100 * missed:.2f} % of its ticks; not judged: " + "; ".join(timing)); sys.exit(3)
 PY
 }
 
@@ -85,5 +81,5 @@ for attempt in 1 2 3; do
   run_once || status=$?
   [ "$status" -ne 3 ] && exit "$status"
 done
-echo "FAILED: the timing bounds were missed in 3 of 3 runs"
+echo "FAILED: the machine starved the device in 3 of 3 runs"
 exit 1
