@@ -101,7 +101,7 @@ HapticServer::HapticServer(std::vector<DeviceLink> links, const ServerOptions& o
   bind_socket(io_->socket, options_);
   boost::system::error_code ec;
   io_->socket.non_blocking(true, ec);
-  // Room for ~15 ms of a one-core flood (~5000 small datagrams): the loop is late now and then
+  // Room for ~8 ms of a one-core flood (~1M small datagrams/s): the loop is late now and then
   // (a softirq on its core, a wake-up), and a full buffer drops good datagrams with the flood's.
   // Beyond net.core.rmem_max only with CAP_NET_ADMIN (FORCE); else as much as it allows.
   const int fd = io_->socket.native_handle();
@@ -114,23 +114,24 @@ HapticServer::HapticServer(std::vector<DeviceLink> links, const ServerOptions& o
 
 HapticServer::~HapticServer() = default;
 
-bool HapticServer::drain(std::uint64_t deadline) {
+HapticServer::Drained HapticServer::drain(std::uint64_t deadline) {
   // A batch per system call (under a flood the calls, not the datagrams, cost the most); each
   // datagram is answered before the next one of the batch is looked at.
   ServerStats& st = core_.stats();
   const int fd = io_->socket.native_handle();
   RxBatch& rx = *rx_batch_;
-  bool flooded = false;
+  Drained d;
   for (int round = 0; round < kRxRounds; ++round) {
     for (int k = 0; k < kRxBatch; ++k) rx.headers[k].msg_hdr.msg_namelen = sizeof(sockaddr_storage);
     const int n = ::recvmmsg(fd, rx.headers, kRxBatch, MSG_DONTWAIT, nullptr);
+    d.backlog = n == kRxBatch;
     if (n <= 0) break;
     const std::uint64_t received = protocol::now_ns();
     for (int k = 0; k < n; ++k) {
       const socklen_t len = rx.headers[k].msg_hdr.msg_namelen;
       // A source over its allowance is dropped here, before it costs a MAC or a decode.
       if (!limiter_->allow(rx.from[k], len, received)) {
-        flooded = true;
+        d.flooded = true;
         ++st.packets_in;
         ++st.rate_limited;
         core_.reject(protocol::RejectReason::kRateLimited);
@@ -143,7 +144,7 @@ bool HapticServer::drain(std::uint64_t deadline) {
     }
     if (n < kRxBatch || protocol::now_ns() >= deadline) break;
   }
-  return flooded;
+  return d;
 }
 
 std::size_t HapticServer::memory_bytes() const {
@@ -177,7 +178,7 @@ void HapticServer::run(const std::atomic<bool>& stop) {
   const std::uint64_t start_ns = protocol::now_ns();
   core_.start(start_ns);
   std::uint64_t deadline = start_ns + period_ns;
-  bool flooded = false;  // the last drain found a source over its allowance
+  Drained drained;  // what the last drain found
   while (!stop.load(std::memory_order_relaxed)) {
     std::uint64_t now = protocol::now_ns();
     if (now >= deadline) {
@@ -186,7 +187,8 @@ void HapticServer::run(const std::atomic<bool>& stop) {
       // read first, so that the core integrates the proxies through the missed periods along them
       // and answers each where it was taken (HapticCore::catch_up).
       if (now >= deadline + period_ns) {
-        flooded = drain(std::numeric_limits<std::uint64_t>::max()) || flooded;
+        const Drained d = drain(std::numeric_limits<std::uint64_t>::max());
+        drained = {drained.flooded || d.flooded, d.backlog};
         now = protocol::now_ns();  // the tick comes after every sample it read
       }
       core_.tick(now);
@@ -199,7 +201,11 @@ void HapticServer::run(const std::atomic<bool>& stop) {
       }
       continue;
     }
-    if (!options_.busy_poll && flooded) {
+    if (drained.backlog) {
+      // The socket was not emptied: read on at once. A pause now would let a flood (~1M datagrams/s
+      // from one core) outrun the reads, queue the others' datagrams behind milliseconds of it and,
+      // with the buffer full, drop them.
+    } else if (!options_.busy_poll && drained.flooded) {
       // A source is over its allowance: waking for each of its datagrams would cost this thread
       // (and the sender's core) a context switch each, so the loop reads what arrived in the
       // next kFloodCoalesce_ns at once. Others' round trips grow by at most that while it lasts.
@@ -212,7 +218,7 @@ void HapticServer::run(const std::atomic<bool>& stop) {
       pollfd p{fd, POLLIN, 0};
       if (ppoll(&p, 1, &timeout, nullptr) <= 0) continue;
     }
-    flooded = drain(deadline);
+    drained = drain(deadline);
   }
   st.elapsed_s = 1e-9 * static_cast<double>(protocol::now_ns() - start_ns);
   rusage usage{};

@@ -58,7 +58,8 @@ class HapticServer {
   // Datagrams are read kRxBatch per system call, at most kRxRounds calls before the tick deadline is checked.
   static constexpr int kRxBatch = 32, kRxRounds = 8;
   // While a source is over its allowance, the loop drains the socket this often instead of waking
-  // for every datagram (a bound on what a flood adds to the others' round trips), ns.
+  // for every datagram (a bound on what a flood adds to the others' round trips), ns; not while a
+  // batch comes back full (then it reads on).
   static constexpr std::uint64_t kFloodCoalesce_ns = 50'000;
   // The socket's receive buffer asked for (the kernel counts its own overhead in it), bytes.
   static constexpr int kReceiveBufferBytes = 4 << 20;
@@ -66,10 +67,13 @@ class HapticServer {
   static constexpr int kRealtimePriority = 80;
   std::unique_ptr<RxBatch> rx_batch_;
   std::unique_ptr<SourceRateLimiter> limiter_;
+  struct Drained {
+    bool flooded = false;  // a source was over its allowance
+    bool backlog = false;  // the last call filled its batch: more may be waiting
+  };
   // Reads what has arrived and hands each datagram to the core, a batch per system call, up to
-  // kRxRounds calls, and stops early once `deadline` has passed. True when a source was over its
-  // allowance.
-  bool drain(std::uint64_t deadline);
+  // kRxRounds calls, and stops early once `deadline` has passed.
+  Drained drain(std::uint64_t deadline);
 };
 
 }  // namespace hapticd::haptic
