@@ -214,6 +214,7 @@ int main(int argc, char** argv) {
           {"contact_holds", st.contact_holds},
           {"contact_unconverged", st.contact_unconverged},
           {"overdue_device_ticks", st.overdue_device_ticks},
+          {"bridged_gaps", st.bridged_gaps},
           {"catch_up_ticks", st.catch_up_ticks},
           {"model_watchdog",
            {{"stale_after_s", options.model_stale_after_s},

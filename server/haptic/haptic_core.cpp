@@ -33,6 +33,7 @@ void add_proxy_counts(ServerStats& st, const ProxyHand& p) {
   st.contact_holds += static_cast<std::uint64_t>(p.contact_holds());
   st.contact_unconverged += static_cast<std::uint64_t>(p.contact_unconverged());
   st.overdue_device_ticks += static_cast<std::uint64_t>(p.overdue_device_ticks());
+  st.bridged_gaps += static_cast<std::uint64_t>(p.bridged_gaps());
 }
 
 }  // namespace

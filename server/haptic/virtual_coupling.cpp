@@ -64,6 +64,12 @@ bool clamp_norm(Eigen::Vector3d& v, double limit) {
   return true;
 }
 
+// Shortens v by `by`, to zero at least.
+void shrink_norm(Eigen::Vector3d& v, double by) {
+  const double n = v.norm();
+  v *= n > by ? (n - by) / n : 0.0;
+}
+
 }  // namespace
 
 DeviceMap::DeviceMap() {
@@ -270,8 +276,10 @@ void ProxyHand::configure(int handles, const double* mass_kg, const Eigen::Matri
     moved_p_W_[j].setZero(), moved_theta_W_[j].setZero();
     unfelt_p_W_[j].setZero(), unfelt_theta_W_[j].setZero();
     last_stretch_p_W_[j].setZero(), last_twist_W_[j].setZero();
+    clutch_p_W_[j].setZero(), clutch_theta_W_[j].setZero();
     energy_in_[j] = 0, damped_j_[j] = 0, passivity_b_[j] = 0;
   }
+  near_contact_ = bridging_ = false;
 }
 
 void ProxyHand::reset() {
@@ -291,6 +299,7 @@ void ProxyHand::resync() {
     unfelt_p_W_[j].setZero(), unfelt_theta_W_[j].setZero();
     last_stretch_p_W_[j].setZero(), last_twist_W_[j].setZero();
     moved_p_W_[j].setZero(), moved_theta_W_[j].setZero();
+    clutch_p_W_[j].setZero(), clutch_theta_W_[j].setZero();
   }
 }
 
@@ -306,36 +315,28 @@ bool ProxyHand::commit_sample(double t_s, double resync_gap_s, double sample_int
   // held and a pressing stylus sank into the bunny, to be pushed back out with energy (ServerStalls).
   const bool has_interval = std::isfinite(sample_interval_s) && sample_interval_s > 0;
   const bool device_paced = has_interval && sample_interval_s <= resync_gap_s;
-  const bool resync_now = !have_device_ || dt < 0 || (!(dt <= resync_gap_s) && !device_paced);
-  // The device's velocity is its motion over its own interval between the two samples. When they
-  // are read is no measure of it: a server that was stalled reads the samples queued meanwhile
-  // microseconds apart (8 us after 50 ms stopped made a tip moving at 0.01 m/s look like up to
-  // 212 m/s, and the coupling's damper pushed the device at its force limit).
-  const double dt_v =
-      has_interval ? std::max(sample_interval_s, kMinSampleInterval_s) : std::max(dt, kMinSampleInterval_s);
-  for (int j = 0; j < handles_; ++j) {
-    if (!resync_now && dt > 0) {
-      const Eigen::Vector3d moved = pending_[j].p_W - device_[j].p_W;
-      const Eigen::Vector3d turned = hand::rotation_difference(pending_[j].q_W, device_[j].q_W);
-      v_dev_[j] += kVelocityFilter * (moved / dt_v - v_dev_[j]);
-      w_dev_[j] += kVelocityFilter * (turned / dt_v - w_dev_[j]);
-      if (motion_booked_[j]) moved_p_W_[j].setZero(), moved_theta_W_[j].setZero(), motion_booked_[j] = false;
-      moved_p_W_[j] += moved;
-      moved_theta_W_[j] += turned;
-    }
-    device_[j] = pending_[j];
-    predicted_[j] = device_[j];
-  }
-  t_dev_ = t_s;
-  // The device's pace: the shorter of its last two intervals, so that the sample after a gap does not
-  // make the gap its pace.
-  sample_interval_s_ = std::min(dt_v, last_interval_s_);
-  last_interval_s_ = dt_v;
-  have_device_ = true;
+  const bool gap = have_device_ && dt >= 0 && !(dt <= resync_gap_s) && !device_paced;
+  // A gap is bridged, not re-synced, when the device came back within kMaxBridgedStretch_m (and _rad)
+  // of where it was. Its reply faded out meanwhile (its watchdog) and, pressing, it sank into the
+  // object unfelt; re-synced onto it, the proxies were inside the object and the hand pushed them,
+  // and the stylus, back out: +1.1e-2 to +1.8e-2 J (ServerStalls: a stylus pressing into the movable
+  // bunny through a 100-300 ms gap), and +0.4e-3 to +2.8e-3 J for a gap that began just above it.
+  // Bridged, the device's motion across the gap is a clutch: the proxies are coupled to the device
+  // less it, as if it had stayed where the gap began, and the device feels that coupling. A deeper
+  // press is felt from there; the clutch shrinks as the device backs out, the force it feels never
+  // growing meanwhile (reply()), and drifts out while the hand is near nothing (integrate()). A gap
+  // farther than the bound re-syncs.
+  bool bridge = gap;
+  for (int j = 0; j < handles_ && bridge; ++j)
+    bridge = (clutch_p_W_[j] + pending_[j].p_W - device_[j].p_W).norm() <= kMaxBridgedStretch_m &&
+             (clutch_theta_W_[j] + hand::rotation_difference(pending_[j].q_W, device_[j].q_W)).norm() <=
+                 kMaxBridgedStretch_rad;
+  const bool resync_now = !have_device_ || dt < 0 || (gap && !bridge);
   // Samples read faster than the device took them (under half its interval, or kMinSampleInterval_s
   // without one), or that waited to be read half an interval longer than its quickest samples did,
-  // come from a queue: after a re-sync they re-sync the proxies onto themselves too, until one comes
-  // at the device's pace (or the re-sync gap has passed since the re-sync). A device whose samples
+  // come from a queue: after a re-sync they re-sync the proxies onto themselves too, and after a
+  // bridged gap their motion joins the clutch, until one comes at the device's pace (or the re-sync
+  // gap has passed since the gap). A device whose samples
   // stopped and then came as a queue (time-stamped with the gap: its driver or link held them; or a
   // server stalled past the gap with no time stamps to tell) re-syncs on the oldest pose of the
   // queue, the rest are read at once, and the proxies are to start where the device is now (from
@@ -347,8 +348,42 @@ bool ProxyHand::commit_sample(double t_s, double resync_gap_s, double sample_int
   // since).
   const bool read_at_once = has_interval ? dt < 0.5 * sample_interval_s : dt < kMinSampleInterval_s;
   const bool waited = has_interval && std::isfinite(waited_s) && waited_s > 0.5 * sample_interval_s;
-  if (resync_now) resync_t_s_ = t_s;
-  if (resync_now || (resync_following_ && (read_at_once || waited) && t_s - resync_t_s_ <= resync_gap_s))
+  if (resync_now || bridge) gap_t_s_ = t_s;
+  const bool queued = (read_at_once || waited) && t_s - gap_t_s_ <= resync_gap_s;
+  bridging_ = !resync_now && (bridge || (bridging_ && queued));
+  if (bridge) ++bridged_gaps_;
+  // The device's velocity is its motion over its own interval between the two samples. When they
+  // are read is no measure of it: a server that was stalled reads the samples queued meanwhile
+  // microseconds apart (8 us after 50 ms stopped made a tip moving at 0.01 m/s look like up to
+  // 212 m/s, and the coupling's damper pushed the device at its force limit).
+  const double dt_v =
+      has_interval ? std::max(sample_interval_s, kMinSampleInterval_s) : std::max(dt, kMinSampleInterval_s);
+  for (int j = 0; j < handles_; ++j) {
+    if (!resync_now && dt > 0) {
+      const Eigen::Vector3d moved = pending_[j].p_W - device_[j].p_W;
+      const Eigen::Vector3d turned = hand::rotation_difference(pending_[j].q_W, device_[j].q_W);
+      if (motion_booked_[j]) moved_p_W_[j].setZero(), moved_theta_W_[j].setZero(), motion_booked_[j] = false;
+      if (bridging_) {
+        // Into the clutch, as if the device had not moved (no velocity either). It held a reply
+        // that faded out at a pace only it knew: the observer books none of that motion (a press
+        // into the faded reply is no work it did).
+        clutch_p_W_[j] += moved, clutch_theta_W_[j] += turned;
+      } else {
+        v_dev_[j] += kVelocityFilter * (moved / dt_v - v_dev_[j]);
+        w_dev_[j] += kVelocityFilter * (turned / dt_v - w_dev_[j]);
+        moved_p_W_[j] += moved, moved_theta_W_[j] += turned;
+      }
+    }
+    device_[j] = pending_[j];
+    predicted_[j] = device_[j];
+  }
+  t_dev_ = t_s;
+  // The device's pace: the shorter of its last two intervals, so that the sample after a gap does not
+  // make the gap its pace.
+  sample_interval_s_ = std::min(dt_v, last_interval_s_);
+  last_interval_s_ = dt_v;
+  have_device_ = true;
+  if (resync_now || (resync_following_ && queued))
     resync();
   else
     resync_following_ = false;
@@ -397,6 +432,19 @@ void ProxyHand::integrate(const HapticModel& model, double dt, double lookahead_
   // far outside it. Its K (x - x0) is taken at the proxy's pose of the first late tick (frozen until
   // the next model; the contact rows keep the proxy's live pose): a stylus lifting away from the
   // bunny during a 300 ms stall was pulled 0.37-0.57 N toward it (press_hold_lift_busy.sh).
+  near_contact_ = model.handles == handles_ && (model.in_contact || model.contacts.count > 0);
+  // Near nothing, a bridged gap's clutch drifts out and carries the proxies with it: the stretch, and
+  // so the force, stays as it was (let go of the proxies, they rang on the lightly damped coupling:
+  // 0.31 N at 5 cm/s). Without a clutch nothing is touched (not even the proxies' bits).
+  if (!near_contact_)
+    for (int j = 0; j < handles_; ++j) {
+      if (clutch_p_W_[j].isZero(0) && clutch_theta_W_[j].isZero(0)) continue;
+      const Eigen::Vector3d c_p = clutch_p_W_[j], c_theta = clutch_theta_W_[j];
+      shrink_norm(clutch_p_W_[j], kClutchDrift_m_s * dt);
+      shrink_norm(clutch_theta_W_[j], kClutchDrift_rad_s * dt);
+      proxy_[j].p_W += c_p - clutch_p_W_[j];
+      proxy_[j].q_W = hand::rotate_by(proxy_[j].q_W, c_theta - clutch_theta_W_[j]);
+    }
   const bool late = lookahead_s < 0;
   TickSolve solve = solve_velocities(model, dt, tau, weight, late);
   if (solve != TickSolve::solved && contacts_on && tau > dt) {
@@ -479,8 +527,8 @@ ProxyHand::TickSolve ProxyHand::solve_velocities(const HapticModel& model, doubl
     const double b = safe * safe_b_ns_m_[j], b_rot = safe * safe_b_nms_rad_[j];
     a_lin_[j] += dt * b;
     a_rot_[j].diagonal().array() += dt * b_rot;
-    const Eigen::Vector3d dp = predicted_[j].p_W - proxy_[j].p_W;
-    const Eigen::Vector3d dq = hand::rotation_difference(predicted_[j].q_W, proxy_[j].q_W);
+    const Eigen::Vector3d dp = predicted_[j].p_W - proxy_[j].p_W - clutch_p_W_[j];
+    const Eigen::Vector3d dq = hand::rotation_difference(predicted_[j].q_W, proxy_[j].q_W) - clutch_theta_W_[j];
     const Eigen::Vector3d f_c = gains_.k_n_m * dp + (gains_.b_ns_m + b) * (v_dev_[j] - v_[j]);
     const Eigen::Vector3d tau_c = gains_.k_nm_rad * dq + (gains_.b_nms_rad + b_rot) * (w_dev_[j] - w_[j]);
     const double f_max = limits_.max_force_n / map_.scale;
@@ -843,8 +891,13 @@ ReplyWrench ProxyHand::reply(int j, double output_scale, double dt_since_last_s,
   // proxy built while its device sank in unfelt pushed the device out each time the gate opened,
   // from deeper each time (a relay: ~12 mJ a cycle on a glove's phalanx resting on a box's edge,
   // Touch/GlovePressHold).
-  const Eigen::Vector3d stretch = device_[j].p_W - proxy_[j].p_W;
-  const Eigen::Vector3d twist = hand::rotation_difference(device_[j].q_W, proxy_[j].q_W);
+  // A bridged gap's clutch is released as the device backs out (as a gated frame's unfelt stretch,
+  // below), and the device feels the coupling to itself less what is left of it.
+  const Eigen::Vector3d full_stretch = device_[j].p_W - proxy_[j].p_W;
+  const Eigen::Vector3d full_twist = hand::rotation_difference(device_[j].q_W, proxy_[j].q_W);
+  release_unfelt(clutch_p_W_[j], full_stretch);
+  release_unfelt(clutch_theta_W_[j], full_twist);
+  const Eigen::Vector3d stretch = full_stretch - clutch_p_W_[j], twist = full_twist - clutch_theta_W_[j];
   if (gated) {
     unfelt_p_W_[j] = stretch, unfelt_theta_W_[j] = twist;
   } else if (unfelt_share > 0) {  // that share of what the stretch grew by since the last reply went unfelt

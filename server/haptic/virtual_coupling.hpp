@@ -226,6 +226,15 @@ constexpr double kMaxModelLookahead_s = 0.1;
 // times this off (the error that holding it makes, the other way, for one that moved on).
 constexpr double kMaxDevicePrediction_s = 0.02;
 
+// How far a device may come back from a gap in its samples from where it was for the gap to be bridged
+// instead of re-synced (ProxyHand::commit_sample), world m and rad: a press's depth several times
+// over, and what the clutch drifts out of in 0.3 s.
+constexpr double kMaxBridgedStretch_m = 0.03, kMaxBridgedStretch_rad = 0.5;
+// How fast what a bridged gap left between the device and the device the proxies follow is taken out
+// while the hand is near nothing (no contact, no contact rows), carrying the proxies along, m/s and
+// rad/s.
+constexpr double kClutchDrift_m_s = 0.1, kClutchDrift_rad_s = 1.0;
+
 struct ReplyWrench {
   Eigen::Vector3d f_D = Eigen::Vector3d::Zero(), tau_D = Eigen::Vector3d::Zero();  // on the device, device frame
   bool clamped = false;
@@ -349,6 +358,8 @@ class ProxyHand {
   long lookahead_fallbacks() const { return lookahead_fallbacks_; }
   // Ticks at which predict_device carried an overdue device on.
   long overdue_device_ticks() const { return overdue_device_ticks_; }
+  // Gaps in the device's samples bridged while touching, not re-synced (commit_sample).
+  long bridged_gaps() const { return bridged_gaps_; }
   long contact_holds() const { return contact_holds_; }
   // Replies the passivity controller added damping to.
   long passivity_actions() const { return passivity_actions_; }
@@ -383,7 +394,15 @@ class ProxyHand {
   double sample_interval_s_ = 0, last_interval_s_ = std::numeric_limits<double>::infinity();
   bool have_device_ = false;
   bool resync_following_ = false;  // re-synced, and every sample since came from a queue
-  double resync_t_s_ = 0;          // when the last re-sync was committed (commit_sample's clock)
+  bool bridging_ = false;          // bridged a gap, and every sample since came from a queue
+  double gap_t_s_ = 0;             // the last gap, re-synced or bridged (commit_sample's clock)
+  // The last integrate()'s model had the hand touching something or contact rows near it (a bridged
+  // gap's clutch drifts out only when not).
+  bool near_contact_ = false;
+  // The device's motion across bridged gaps (world, m and rad; commit_sample): the proxies are coupled
+  // to the device less it, and the device feels the coupling so; it shrinks as the device backs out
+  // (reply()) and drifts out while nothing is touched (integrate()).
+  Eigen::Vector3d clutch_p_W_[kMaxHapticHandles], clutch_theta_W_[kMaxHapticHandles];
   Eigen::Vector3d last_f_D_[kMaxHapticHandles], last_tau_D_[kMaxHapticHandles];
   Eigen::Vector3d last_r_D_[kMaxHapticHandles];  // the last reply's lever from the frame's origin, device space
   // The device's motion since the last reply (world, m and rad): what the last reply, held by the
@@ -441,6 +460,7 @@ class ProxyHand {
   bool warm_start_valid_ = false;  // lambda_ may start the next tick under the same model
   int contact_sweeps_ = 0;
   long contact_unconverged_ = 0, lookahead_fallbacks_ = 0, contact_holds_ = 0, overdue_device_ticks_ = 0;
+  long bridged_gaps_ = 0;
   // Workspace of the implicit step, sized once. The block diagonal part of A per handle:
   // translational (a multiple of the identity) and rotational.
   double a_lin_[kMaxHapticHandles]{};

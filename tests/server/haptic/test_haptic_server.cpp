@@ -114,14 +114,19 @@ TEST(HapticServer, PosesReadInABurstMoveTheCouplingByTheDevicesOwnVelocity) {
   EXPECT_EQ(s.server.stats().resets, 0u);
 }
 
-// A stylus at rest on the wall's surface, then a 200 ms gap in its samples (in their time stamps too),
-// then 30 poses of a 15 mm slide along x sent at once (a queue its driver or link held), the last ten
-// 5 ms after the first twenty if `interrupted`, then held at the slide's end: the largest force, and
-// the re-syncs counted.
-std::pair<double, std::uint64_t> slide_queued_after_a_gap(bool interrupted) {
+struct QueuedSlide {
+  double f_max;
+  std::uint64_t resyncs, bridged_gaps;
+};
+
+// A stylus at rest on the wall's surface, then a 200 ms gap in its samples (in their time stamps too)
+// across which it moves `away` along x, then 30 poses of a 15 mm slide along x from there sent at once
+// (a queue its driver or link held), the last ten 5 ms after the first twenty if `interrupted`, then
+// held at the slide's end: the largest force, the re-syncs and the bridged gaps counted.
+QueuedSlide slide_queued_after_a_gap(bool interrupted, double away) {
   RunningServer s;
   TestClient c(s.server.port());
-  if (c.hello() == 0) return {std::numeric_limits<double>::infinity(), 0};
+  if (c.hello() == 0) return {std::numeric_limits<double>::infinity(), 0, 0};
   SlidingStylus stylus{c};
   stylus.paced(0.0, 100);
   const std::uint64_t resyncs_before = s.server.stats().resyncs;
@@ -129,30 +134,42 @@ std::pair<double, std::uint64_t> slide_queued_after_a_gap(bool interrupted) {
   stylus.gap(std::chrono::milliseconds(200));
   for (int k = 0; k < 30; ++k) {
     if (interrupted && k == 20) std::this_thread::sleep_for(std::chrono::milliseconds(5));
-    stylus.send(5e-4 * k);
+    stylus.send(away + 5e-4 * k);
   }
-  const double f_max = std::max(stylus.largest_force(30), stylus.paced(5e-4 * 29, 50));
+  const double f_max = std::max(stylus.largest_force(30), stylus.paced(away + 5e-4 * 29, 50));
   s.halt();
-  return {f_max, s.server.stats().resyncs - resyncs_before};
+  return {f_max, s.server.stats().resyncs - resyncs_before, s.server.stats().bridged_gaps};
 }
 
+// How far the stylus moves across the gap: farther than a gap is bridged over (re-synced), or not at
+// all (bridged: ProxyHand::commit_sample).
+constexpr double kAways[] = {2 * haptic::kMaxBridgedStretch_m, 0.0};
+
 TEST(HapticServer, AQueueReadAfterAGapResyncsOnceOntoItsNewestPose) {
-  // The first pose of the queue re-syncs (counted once); the rest carry the proxy with them, so the
-  // device feels nothing of the slide: without that, the proxy waited 14.5 mm behind and the coupling
-  // pulled the device back with up to 2.3 N.
-  const auto [f_max, resyncs] = slide_queued_after_a_gap(false);
-  EXPECT_EQ(resyncs, 1u);
-  EXPECT_LT(f_max, 0.5) << "the proxy stayed behind the queue's oldest pose";
+  // Back from afar, the first pose of the queue re-syncs (counted once); the rest carry the proxy
+  // with them, so the device feels nothing of the slide: without that, the proxy waited 14.5 mm
+  // behind and the coupling pulled the device back with up to 2.3 N. Back where it was, the gap is
+  // bridged instead: the queue's slide joins the clutch, and is not felt either.
+  for (const double away : kAways) {
+    const QueuedSlide r = slide_queued_after_a_gap(false, away);
+    EXPECT_EQ(r.resyncs, away > 0 ? 1u : 0u) << away;
+    EXPECT_EQ(r.bridged_gaps, away > 0 ? 0u : 1u) << away;
+    EXPECT_LT(r.f_max, 0.5) << "the proxy stayed behind the queue's oldest pose; away " << away;
+  }
 }
 
 TEST(HapticServer, AQueueWhoseReadingIsInterruptedCarriesTheProxyToItsNewestPose) {
   // The last ten poses of the queue come 5 ms after the first twenty (as when the server is
   // descheduled while it reads them, a busy machine): they waited longer than the device's poses
-  // before the gap, and carry the proxy with them too. Taken by read times alone, the queue ended
-  // with the first of them, the proxy was left behind, and the device was pulled back with 0.94 N.
-  const auto [f_max, resyncs] = slide_queued_after_a_gap(true);
-  EXPECT_EQ(resyncs, 1u);
-  EXPECT_LT(f_max, 0.5) << "the proxy stayed behind the queue's first part";
+  // before the gap, and carry the proxy with them too (or join the clutch of a bridged gap). Taken by
+  // read times alone, the queue ended with the first of them, the proxy was left behind, and the
+  // device was pulled back with 0.94 N.
+  for (const double away : kAways) {
+    const QueuedSlide r = slide_queued_after_a_gap(true, away);
+    EXPECT_EQ(r.resyncs, away > 0 ? 1u : 0u) << away;
+    EXPECT_EQ(r.bridged_gaps, away > 0 ? 0u : 1u) << away;
+    EXPECT_LT(r.f_max, 0.5) << "the proxy stayed behind the queue's first part; away " << away;
+  }
 }
 
 // A float's bytes in a datagram, replaced (the codec refuses to encode a NaN).

@@ -93,7 +93,8 @@ TEST(VirtualCoupling, SamplesReadInABurstGiveTheDevicesVelocityNotTheRateTheyWer
 }
 
 TEST(VirtualCoupling, AResyncFollowsTheSamplesOfAQueue) {
-  // After a 200 ms gap in the device's samples the first re-syncs; the ten read with it, 8 us apart
+  // After a 200 ms gap in the device's samples across which it moved farther than a gap is bridged
+  // over (kMaxBridgedStretch_m) the first re-syncs; the ten read with it, 8 us apart
   // though taken 1 ms apart (a queue its driver or link held, the device sliding 0.2 mm a sample;
   // HapticServer.AQueueReadAfterAGapResyncsOnceOntoItsNewestPose), carry the proxy onto
   // each in turn, uncounted, a tick in their midst or not; a sample read at the device's pace moves
@@ -111,10 +112,11 @@ TEST(VirtualCoupling, AResyncFollowsTheSamplesOfAQueue) {
     p.integrate(none, kPeriod);
     EXPECT_FALSE(sample(0.0, t += kPeriod));
   }
+  const double far = 2 * kMaxBridgedStretch_m;
   t += 0.2;
-  EXPECT_TRUE(sample(0.001, t, 0.2));
+  EXPECT_TRUE(sample(far + 0.001, t, 0.2));
   for (int k = 1; k <= 10; ++k) {
-    const double x = 0.001 + 2e-4 * k;
+    const double x = far + 0.001 + 2e-4 * k;
     if (k == 5) p.integrate(none, kPeriod);
     EXPECT_FALSE(sample(x, t + 8e-6 * k)) << k;
     EXPECT_EQ(p.proxy(0).p_W.x(), x) << k;
@@ -122,18 +124,19 @@ TEST(VirtualCoupling, AResyncFollowsTheSamplesOfAQueue) {
   }
   p.integrate(none, kPeriod);
   const double proxy_x = p.proxy(0).p_W.x();
-  EXPECT_FALSE(sample(0.0032, t + 1e-3));
+  EXPECT_FALSE(sample(far + 0.0032, t + 1e-3));
   EXPECT_EQ(p.proxy(0).p_W.x(), proxy_x);
-  EXPECT_EQ(p.device(0).p_W.x(), 0.0032);
+  EXPECT_EQ(p.device(0).p_W.x(), far + 0.0032);
   t += 0.2;
-  EXPECT_TRUE(sample(0.004, t, 0.2));
-  EXPECT_FALSE(sample(0.005, t + 1e-3));
-  EXPECT_EQ(p.proxy(0).p_W.x(), 0.004);
+  EXPECT_TRUE(sample(2 * far + 0.004, t, 0.2));
+  EXPECT_FALSE(sample(2 * far + 0.005, t + 1e-3));
+  EXPECT_EQ(p.proxy(0).p_W.x(), 2 * far + 0.004);
+  EXPECT_EQ(p.bridged_gaps(), 0);
 }
 
 TEST(VirtualCoupling, AResyncFollowsAQueueWhoseReadingWasInterrupted) {
-  // A queue of eleven samples taken 1 ms apart after a 200 ms gap in the device's samples, the device
-  // sliding 0.2 mm a sample: the first re-syncs, four are read 8 us apart, then the server is
+  // A queue of eleven samples taken 1 ms apart after a 200 ms gap in the device's samples across which
+  // it moved farther than a gap is bridged over, the device sliding 0.2 mm a sample: the first re-syncs, four are read 8 us apart, then the server is
   // descheduled 3 ms before it reads
   // the other six. Those waited 3-8 ms longer than the device's quickest samples: they carry the
   // proxy onto each in turn too (by read times alone the sixth ended the following, and the proxy
@@ -147,24 +150,25 @@ TEST(VirtualCoupling, AResyncFollowsAQueueWhoseReadingWasInterrupted) {
     p.set_device_pose(0, Eigen::Vector3d(x, 0, 0), Eigen::Quaterniond::Identity());
     return p.commit_sample(at, 0.05, interval, waited);
   };
+  const double far = 2 * kMaxBridgedStretch_m;
   double t = 0;
   EXPECT_TRUE(sample(0.0, t, 0.0));
   t += 0.2;
-  EXPECT_TRUE(sample(0.001, t, 0.01, 0.2));
+  EXPECT_TRUE(sample(far + 0.001, t, 0.01, 0.2));
   for (int k = 1; k <= 10; ++k) {
-    const double x = 0.001 + 2e-4 * k, read = k < 5 ? 8e-6 * k : 3e-3 + 8e-6 * k;
+    const double x = far + 0.001 + 2e-4 * k, read = k < 5 ? 8e-6 * k : 3e-3 + 8e-6 * k;
     if (k == 5) p.integrate(none, kPeriod), p.integrate(none, kPeriod), p.integrate(none, kPeriod);
     EXPECT_FALSE(sample(x, t + read, 1e-3 * (10 - k) + read)) << k;
     EXPECT_EQ(p.proxy(0).p_W.x(), x) << k;
   }
   p.integrate(none, kPeriod);
-  EXPECT_FALSE(sample(0.0034, t + 4e-3, 0.0));
-  EXPECT_EQ(p.proxy(0).p_W.x(), 0.003);
-  EXPECT_EQ(p.device(0).p_W.x(), 0.0034);
+  EXPECT_FALSE(sample(far + 0.0034, t + 4e-3, 0.0));
+  EXPECT_EQ(p.proxy(0).p_W.x(), far + 0.001 + 2e-4 * 10);
+  EXPECT_EQ(p.device(0).p_W.x(), far + 0.0034);
   t += 0.2;
-  EXPECT_TRUE(sample(0.004, t, 0.0, 0.2));
+  EXPECT_TRUE(sample(2 * far + 0.004, t, 0.0, 0.2));
   for (int k = 1; k <= 60; ++k) {
-    const double x = 0.004 + 1e-5 * k;
+    const double x = 2 * far + 0.004 + 1e-5 * k;
     EXPECT_FALSE(sample(x, t + 1e-3 * k, 5e-3)) << k;
     if (k <= 50)
       EXPECT_EQ(p.proxy(0).p_W.x(), x) << k;
@@ -178,7 +182,7 @@ TEST(VirtualCoupling, ASampleItsDeviceTookAtItsPaceIsNoGapHoweverLateItWasRead) 
   // the one before: no gap in the device's samples, so no re-sync; the proxy keeps its place behind
   // the sliding device, and with it the force the device feels (HapticCore catches the proxy up along
   // the samples that waited). Time-stamped 100 ms after the last (the device's own gap) or without a
-  // time stamp, the same sample re-syncs the proxy onto the device.
+  // time stamp, the same sample is a gap in the device's samples (ProxyHand::commit_sample).
   ProxyHand stopped = make_proxy(), gap = make_proxy(), untimed = make_proxy();
   const double v = 0.1;
   double t = 0;
@@ -195,10 +199,22 @@ TEST(VirtualCoupling, ASampleItsDeviceTookAtItsPaceIsNoGapHoweverLateItWasRead) 
   EXPECT_FALSE(stopped.commit_sample(t + 0.1, 0.05, kPeriod));
   EXPECT_EQ(stopped.proxy(0).p_W.x(), proxy_x);
   EXPECT_EQ(stopped.device(0).p_W.x(), device_x);
-  EXPECT_TRUE(gap.commit_sample(t + 0.1, 0.05, 0.1));
-  EXPECT_EQ(gap.proxy(0).p_W.x(), device_x);
-  EXPECT_TRUE(untimed.commit_sample(t + 0.1, 0.05));
-  EXPECT_EQ(untimed.proxy(0).p_W.x(), device_x);
+  EXPECT_EQ(stopped.bridged_gaps(), 0);
+  // A gap: bridged, the proxy keeps its place too, and the device's motion across the gap (one
+  // sample's, v T) is a clutch the device does not feel.
+  EXPECT_FALSE(gap.commit_sample(t + 0.1, 0.05, 0.1));
+  EXPECT_FALSE(untimed.commit_sample(t + 0.1, 0.05));
+  const double k = stopped.gains().k_n_m, f_stopped = stopped.reply(0, 1.0, 1.0).f_D.x();
+  for (ProxyHand* p : {&gap, &untimed}) {
+    EXPECT_EQ(p->proxy(0).p_W.x(), proxy_x);
+    EXPECT_EQ(p->bridged_gaps(), 1);
+    EXPECT_NEAR(p->reply(0, 1.0, 1.0).f_D.x() - f_stopped, k * v * kPeriod, 1e-6);
+  }
+  // Back farther than a gap is bridged over: re-synced onto the device.
+  const double far = device_x + 2 * kMaxBridgedStretch_m;
+  gap.set_device_pose(0, Eigen::Vector3d(far, 0, 0), Eigen::Quaterniond::Identity());
+  EXPECT_TRUE(gap.commit_sample(t + 0.2, 0.05, 0.1));
+  EXPECT_EQ(gap.proxy(0).p_W.x(), far);
 }
 
 TEST(VirtualCoupling, AnOverdueDeviceIsFollowedAlongItsVelocityForAtMostTwentyMilliseconds) {
@@ -772,15 +788,83 @@ TEST(VirtualCoupling, StreamResumedAfterATwoSecondGapResyncsWithoutAForceJump) {
   double t = 0;
   const ReplyWrench before = hold(p, wall, Eigen::Vector3d(0, 0, -0.002), 0.5, t);
   ASSERT_GT(before.f_D.z(), 0.5);
-  // The device comes back 2 s later, 3 cm deeper in the wall.
+  // The device comes back 2 s later, 4 cm deeper in the wall (farther than a gap is bridged over,
+  // kMaxBridgedStretch_m).
   t += 2.0;
-  p.set_device_pose(0, Eigen::Vector3d(0, 0, -0.032), Eigen::Quaterniond::Identity());
+  p.set_device_pose(0, Eigen::Vector3d(0, 0, -0.042), Eigen::Quaterniond::Identity());
   EXPECT_TRUE(p.commit_sample(t, 0.05));
   const ReplyWrench first = p.reply(0, 1.0, kPeriod);
   EXPECT_LE(std::abs(first.f_D.z() - before.f_D.z()), 1000.0 * kPeriod + 1e-9);  // no step beyond the slew limit
   // Then it settles to the wall's answer at the new depth.
-  const ReplyWrench settled = hold(p, wall, Eigen::Vector3d(0, 0, -0.032), 1.0, t);
-  EXPECT_NEAR(settled.f_D.z(), std::min(8.0, 1000.0 * 3000.0 / 4000.0 * 0.032), 1e-3);
+  const ReplyWrench settled = hold(p, wall, Eigen::Vector3d(0, 0, -0.042), 1.0, t);
+  EXPECT_NEAR(settled.f_D.z(), std::min(8.0, 1000.0 * 3000.0 / 4000.0 * 0.042), 1e-3);
+}
+
+TEST(VirtualCoupling, AGapWhileTouchingIsBridgedAndWhatTheDeviceSankMeanwhileIsUnfelt) {
+  // A stylus pressing 2 mm into a wall (3000 N/m in series with the 1000 N/m coupling: 1.5 N), then
+  // a 100 ms gap in its samples (its time stamps too) through which it sank 5 mm deeper unfelt (its
+  // watchdog faded the held reply out). Against a wall it touches the gap is bridged: no re-sync,
+  // the proxy stays where it was, and the device feels what it felt before, not the 5 mm: pressing
+  // 1 mm deeper adds the series stiffness times 1 mm, and backing out the 5 mm it sank gives no
+  // more than it felt before at any point (released as it backs out). The same gap in free space,
+  // or one the device came back from farther than kMaxBridgedStretch_m, re-syncs.
+  const HapticModel wall = wall_model(3000.0);
+  const double k_series = 1000.0 * 3000.0 / 4000.0;
+  ProxyHand p = make_proxy();
+  p.set_passivity_control(false);
+  double t = 0;
+  const ReplyWrench before = hold(p, wall, Eigen::Vector3d(0, 0, -0.002), 0.5, t);
+  ASSERT_NEAR(before.f_D.z(), k_series * 0.002, 1e-3);
+  const double proxy_z = p.proxy(0).p_W.z();
+  t += 0.1;
+  p.set_device_pose(0, Eigen::Vector3d(0, 0, -0.007), Eigen::Quaterniond::Identity());
+  EXPECT_FALSE(p.commit_sample(t, 0.05, 0.1));
+  EXPECT_EQ(p.proxy(0).p_W.z(), proxy_z);
+  EXPECT_EQ(p.bridged_gaps(), 1);
+  const ReplyWrench first = p.reply(0, 1.0, kPeriod);
+  EXPECT_NEAR(first.f_D.z(), before.f_D.z(), 1e-9);
+  p.integrate(wall, kPeriod);
+  const ReplyWrench deeper = hold(p, wall, Eigen::Vector3d(0, 0, -0.008), 0.5, t);
+  EXPECT_NEAR(deeper.f_D.z(), before.f_D.z() + k_series * 0.001, 2e-3);
+  double most = 0;
+  for (int k = 1; k <= 60; ++k) {
+    const ReplyWrench r = hold(p, wall, Eigen::Vector3d(0, 0, -0.008 + 1e-4 * k), 0.005, t);
+    most = std::max(most, r.f_D.z());
+    EXPECT_GE(r.f_D.z(), -1e-9) << k;  // never a pull
+  }
+  EXPECT_LE(most, deeper.f_D.z() + 1e-9);
+  // Backed out past where it pressed, the clutch is all released: 1 mm above the wall the device
+  // feels the model (linear, so it pulls there) as if there had been no gap.
+  const ReplyWrench lifted = hold(p, wall, Eigen::Vector3d(0, 0, 0.001), 0.5, t);
+  EXPECT_NEAR(lifted.f_D.z(), -k_series * 0.001, 1e-6);
+
+  // In free space the gap is bridged too, and the clutch drifts out at kClutchDrift_m_s, carrying the
+  // proxy: it comes onto its still device 5 mm off within 5 mm / kClutchDrift_m_s, and the device
+  // feels nothing of it.
+  ProxyHand free = make_proxy();
+  free.set_passivity_control(false);
+  t = 0;
+  hold(free, HapticModel{}, Eigen::Vector3d(0, 0, 0.01), 0.1, t);
+  t += 0.1;
+  free.set_device_pose(0, Eigen::Vector3d(0, 0, 0.005), Eigen::Quaterniond::Identity());
+  EXPECT_FALSE(free.commit_sample(t, 0.05, 0.1));
+  EXPECT_NEAR(free.proxy(0).p_W.z(), 0.01, 1e-9);
+  double drift_force = 0;
+  for (int k = 0; k < 150; ++k)
+    drift_force = std::max(drift_force, hold(free, HapticModel{}, Eigen::Vector3d(0, 0, 0.005), kPeriod, t).f_D.norm());
+  std::printf("free space: the drift felt as %.2e N at most; the proxy %.2e m off its device after 0.15 s\n",
+              drift_force, std::abs(free.proxy(0).p_W.z() - 0.005));
+  EXPECT_LE(drift_force, 1e-9);
+  EXPECT_NEAR(free.proxy(0).p_W.z(), 0.005, 1e-12);
+  // Back farther than the bound from where the gap began: re-synced.
+  ProxyHand far = make_proxy();
+  t = 0;
+  hold(far, wall, Eigen::Vector3d(0, 0, -0.002), 0.1, t);
+  const double beyond = -0.002 - kMaxBridgedStretch_m - 1e-3;
+  far.set_device_pose(0, Eigen::Vector3d(0, 0, beyond), Eigen::Quaterniond::Identity());
+  EXPECT_TRUE(far.commit_sample(t + 0.1, 0.05, 0.1));
+  EXPECT_EQ(far.proxy(0).p_W.z(), beyond);
+  EXPECT_EQ(far.bridged_gaps(), 0);
 }
 
 // The safe model (integrate's model_weight < 1, what the haptic loop fades a stale model to): a

@@ -102,9 +102,7 @@ namespace {
 //   +1.7e-2 to +2.0e-2 J for the three stops while pressing and holding;
 // - caught up but felt in full, the proxies on the surface pushed the sunk stylus out as much:
 //   +1.4e-2 to +1.7e-2 J, the force at the device's 8 N limit.
-// Now -1.7e-3 to -4.5e-3 J, pulls up to 0.18 N. A gap in the device's own samples as long
-// (withheld_samples_s: its samples resume with the gap in their time stamps) still re-syncs, and
-// the visual step places the hand at the proxies (place_resynced keeps it out of the bunny).
+// Now -1.7e-3 to -4.5e-3 J, pulls up to 0.18 N.
 const PressSchedule kStopSchedule(Press{0.02, 0.05, 0.08});
 constexpr double kVisualAfter_s = 0.03;
 
@@ -156,18 +154,23 @@ TEST(ServerStalls, AStylusThroughAStoppedServerIsNeitherGluedToTheBunnyNorGivenE
   }
 }
 
-TEST(ServerStalls, AStylusThroughAGapInItsDevicesSamplesIsNotGluedToTheBunny) {
-  for (const Stall& s : {kPressing, kHolding[0], kHolding[1], kLifting}) expect_not_glued(stop(s, Stop::device), s);
-}
+// A gap as long in the device's own samples (its link lost them: they resume with the gap in their
+// time stamps) is bridged (ProxyHand::commit_sample): the device's motion across it is a clutch,
+// released as it backs out. Re-synced onto the sunk device instead, the proxies were inside the bunny
+// and the hand pushed them and the stylus back out: +1.8e-2 J pressing, +1.6e-2 J holding 100 ms,
+// +1.1e-2 J holding 300 ms (a known fault of issue 17 until bridged), and +3.8e-4 and +2.8e-3 J for
+// the gaps that began just above the bunny and ended in it.
+const Stall kApproaching[] = {
+    {"approaching the bunny", kStopSchedule.down_start + 0.3 * kStopDown, 0.1},
+    {"just above the bunny", kStopSchedule.down_start + 0.4 * kStopDown, 0.1},
+};
 
-// A known fault of issue 17 (tests/CMakeLists.txt runs it as one ctest expected to fail): a gap in the
-// device's own samples while pressing re-syncs the proxies onto the sunk device, and the hand pushes
-// them and the stylus back out: +1.8e-2 J pressing, +1.6e-2 J holding 100 ms, +1.1e-2 J holding
-// 300 ms. The stretch built while the device felt nothing could be left unfelt there too, with the
-// proxies kept on the surface, as for a stopped server.
-TEST(Issue17KnownFault, AStylusPressingThroughAGapInItsDevicesSamplesGetsNoEnergy) {
-  for (const Stall& s : {kPressing, kHolding[0], kHolding[1]})
-    EXPECT_LE(stop(s, Stop::device).run.energy_j, 0.0) << "device gap " << s.when;
+TEST(ServerStalls, AStylusThroughAGapInItsDevicesSamplesIsNeitherGluedToTheBunnyNorGivenEnergy) {
+  for (const Stall& s : {kApproaching[0], kApproaching[1], kPressing, kHolding[0], kHolding[1], kLifting}) {
+    const Stopped r = stop(s, Stop::device);
+    expect_not_glued(r, s);
+    EXPECT_LE(r.run.energy_j, 0.0) << s.when;
+  }
 }
 
 }  // namespace
