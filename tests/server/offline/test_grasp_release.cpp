@@ -152,3 +152,34 @@ TEST(Touch, TheBoxGraspPutsNoEnergyIntoTheGloveWithoutThePassivityController) {
 
 }  // namespace
 }  // namespace hapticd::offline
+namespace hapticd::offline {
+namespace {
+
+// A 100 ms gap in the glove's samples (its link lost them; they resume with the gap in their time
+// stamps) while it closes, grips, lifts, holds (and 300 ms holding) and opens, glove_grasp.json at
+// 30 Hz, the controller on as in hapticd: a gap is bridged (ProxyHand::commit_sample), no reset, and
+// the glove gets no more than the controller's budget (kPassivityBudget_J); the released box falls
+// back to the table and the open hand is quiet. Re-synced instead (each finger's proxy onto its
+// device), the gap while gripping gave +9.0e-3 J and a reset. What the glove squeezed during a gap
+// while gripping is a clutch, not a tighter grip: the box then slips (lifted 9 mm of 50).
+TEST(GloveGaps, AGapInTheGlovesSamplesResetsNothingAndPutsNoEnergyIntoIt) {
+  const world::SceneDesc scene =
+      grasp_scene(world::load_scene(std::string(HAPTICD_SCENES_DIR) + "/glove_grasp.json"));
+  const std::pair<double, double> gaps[] = {{1.0, 1.1}, {1.2, 1.3}, {1.7, 1.8}, {2.0, 2.1}, {2.0, 2.3}, {3.2, 3.3}};
+  for (const auto& gap : gaps) {
+    OfflineOptions options;
+    options.visual_every_ticks = 33;
+    options.withheld_samples_s = {gap};
+    const GraspRun run = run_grasp_release(scene, options);
+    std::printf("gap %.1f-%.1f s: energy %+.2e J, resets %ld, lifted %.1f mm, ends %+.2f mm, a second after %.4f N\n",
+                gap.first, gap.second, run.energy_j, run.trace.resets, 1e3 * (run.object_top - run.object_z0),
+                1e3 * (run.object_end.p_WO.z() - run.object_z0), run.after_n);
+    EXPECT_EQ(run.trace.resets, 0) << gap.first;
+    EXPECT_LE(run.energy_j, haptic::kPassivityBudget_J) << gap.first;
+    EXPECT_NEAR(run.object_end.p_WO.z(), run.object_z0, 0.002) << gap.first;
+    EXPECT_LT(run.after_n, kQuietN) << gap.first;
+  }
+}
+
+}  // namespace
+}  // namespace hapticd::offline
