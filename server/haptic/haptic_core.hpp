@@ -112,7 +112,7 @@ struct ServerStats {
   std::uint64_t contact_unconverged = 0;
   // Ticks at which a session's device was overdue and followed along its velocity (ProxyHand::predict_device).
   std::uint64_t overdue_device_ticks = 0;
-  // Gaps in a device's samples bridged while it touched something (ProxyHand::commit_sample).
+  // Gaps in a device's samples bridged by a clutch, not re-synced (ProxyHand::commit_sample).
   std::uint64_t bridged_gaps = 0;
   // Periods integrated for the ticks the loop missed (HapticCore::catch_up), summed over sessions.
   std::uint64_t catch_up_ticks = 0;

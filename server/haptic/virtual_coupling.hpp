@@ -256,10 +256,12 @@ class ProxyHand {
 
   // A pose sample: the device pose of every handle in device space (set_device_pose
   // for each, then commit_sample with the time the sample was read). A first sample, or one
-  // after a gap longer than `resync_gap_s`, re-syncs: the proxies jump onto the
+  // after a gap longer than `resync_gap_s` that the device came back from farther than
+  // kMaxBridgedStretch_m, re-syncs: the proxies jump onto the
   // device so the coupling force starts from zero (no force jump); commit_sample
   // returns true then; the samples after it that were read faster than the device took them (the
-  // rest of a stalled server's queue) re-sync onto themselves too, uncounted.
+  // rest of a stalled server's queue) re-sync onto themselves too, uncounted. A nearer gap is
+  // bridged: the device's motion across it (and its queue's) is a clutch, not felt.
   // `sample_interval_s`: the device's own time since its last sample (its timestamps), for the
   // device velocity the coupling's damper acts on; without one (NaN) the time between reads, at
   // least kMinSampleInterval_s. `waited_s`: how much longer than the device's quickest samples this
@@ -358,7 +360,7 @@ class ProxyHand {
   long lookahead_fallbacks() const { return lookahead_fallbacks_; }
   // Ticks at which predict_device carried an overdue device on.
   long overdue_device_ticks() const { return overdue_device_ticks_; }
-  // Gaps in the device's samples bridged while touching, not re-synced (commit_sample).
+  // Gaps in the device's samples bridged by a clutch, not re-synced (commit_sample).
   long bridged_gaps() const { return bridged_gaps_; }
   long contact_holds() const { return contact_holds_; }
   // Replies the passivity controller added damping to.
@@ -401,7 +403,7 @@ class ProxyHand {
   bool near_contact_ = false;
   // The device's motion across bridged gaps (world, m and rad; commit_sample): the proxies are coupled
   // to the device less it, and the device feels the coupling so; it shrinks as the device backs out
-  // (reply()) and drifts out while nothing is touched (integrate()).
+  // (reply()) and drifts out while the hand is near nothing (integrate()).
   Eigen::Vector3d clutch_p_W_[kMaxHapticHandles], clutch_theta_W_[kMaxHapticHandles];
   Eigen::Vector3d last_f_D_[kMaxHapticHandles], last_tau_D_[kMaxHapticHandles];
   Eigen::Vector3d last_r_D_[kMaxHapticHandles];  // the last reply's lever from the frame's origin, device space

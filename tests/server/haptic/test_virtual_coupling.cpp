@@ -806,8 +806,8 @@ TEST(VirtualCoupling, AGapWhileTouchingIsBridgedAndWhatTheDeviceSankMeanwhileIsU
   // watchdog faded the held reply out). Against a wall it touches the gap is bridged: no re-sync,
   // the proxy stays where it was, and the device feels what it felt before, not the 5 mm: pressing
   // 1 mm deeper adds the series stiffness times 1 mm, and backing out the 5 mm it sank gives no
-  // more than it felt before at any point (released as it backs out). The same gap in free space,
-  // or one the device came back from farther than kMaxBridgedStretch_m, re-syncs.
+  // more than it felt before at any point (released as it backs out). In free space the gap is
+  // bridged too (below); one the device came back from farther than kMaxBridgedStretch_m re-syncs.
   const HapticModel wall = wall_model(3000.0);
   const double k_series = 1000.0 * 3000.0 / 4000.0;
   ProxyHand p = make_proxy();
