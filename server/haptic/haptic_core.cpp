@@ -50,6 +50,8 @@ struct HapticCore::Session {
   ProxyHand proxy;
   protocol::SequenceWindow sequence;
   std::uint64_t last_seen_ns = 0, last_reply_ns = 0;
+  // The last reply to a sample that did not wait long to be read: the device holds replies from then.
+  std::uint64_t held_reply_ns = 0;
   std::uint64_t last_client_ns = 0;  // the last sample's client_timestamp_ns
   // The least wait of its samples: read time less client timestamp (the clocks' offset and the
   // link's latency), rising by at most kWaitFloorRise_ns a sample to follow the clocks' drift.
@@ -629,15 +631,19 @@ void HapticCore::on_pose(const protocol::PoseSample& pose, std::uint64_t now) {
   }
   const std::uint64_t silent_ns = now - s->last_seen_ns;
   s->last_seen_ns = now;
-  // The device's own interval since its last sample, if its timestamps give one a device could
-  // have (later, at most the re-sync gap): its velocity is taken over that, not over how far
-  // apart the samples were read (ProxyHand::commit_sample).
-  double interval_s = std::numeric_limits<double>::quiet_NaN();
+  // The device's own interval since its last sample (its time stamps, if they went forward): its
+  // velocity is taken over that, not over how far apart the samples were read, and a gap in its
+  // samples is one in its time stamps, however soon after the last sample it is read
+  // (ProxyHand::commit_sample). Found by read times alone, a gap was hidden by a sample that waited
+  // in the link before it and was read late, just before the first after it: the force the device
+  // had faded out of came back in full at the depth it sank to (+2.2e-3 to +1.75e-2 J: ServerStalls,
+  // a stopped machine). At most the re-sync gap long, it is the device's pace.
+  const bool stamps_forward = s->last_client_ns != 0 && pose.client_timestamp_ns > s->last_client_ns;
   const std::uint64_t max_interval_ns = static_cast<std::uint64_t>(1e9 * options_.resync_gap_s);
   const std::uint64_t interval_ns = pose.client_timestamp_ns - s->last_client_ns;
-  const bool has_interval =
-      s->last_client_ns != 0 && pose.client_timestamp_ns > s->last_client_ns && interval_ns <= max_interval_ns;
-  if (has_interval) interval_s = 1e-9 * static_cast<double>(interval_ns);
+  const double interval_s =
+      stamps_forward ? 1e-9 * static_cast<double>(interval_ns) : std::numeric_limits<double>::quiet_NaN();
+  const bool has_interval = stamps_forward && interval_ns <= max_interval_ns;
   // How much longer than its quickest samples this one waited to be read: one from a queue waited
   // (ProxyHand::commit_sample), however its reading was broken up.
   double waited_s = std::numeric_limits<double>::quiet_NaN();
@@ -665,18 +671,25 @@ void HapticCore::on_pose(const protocol::PoseSample& pose, std::uint64_t now) {
   }
   const double since_reply = s->last_reply_ns ? 1e-9 * static_cast<double>(now - s->last_reply_ns) : 1e-3;
   // A device holds each reply until the next, and fades it out once none has come for its watchdog's
-  // hold, over its ramp (client::ReplyWatchdog, DESIGN section 5). A server silent longer than the
-  // hold (a descheduled process) left the device pressing on while its force faded: the share of
-  // the stretch it built meanwhile that it did not feel is unfelt (ProxyHand::reply's
+  // hold, over its ramp (client::ReplyWatchdog, DESIGN section 5). Silent longer than the hold (a
+  // descheduled server, a stopped machine), the device pressed on holding the reply from before,
+  // then less: the stretch it built meanwhile, none of which it felt, is unfelt (ProxyHand::reply's
   // `unfelt_share`), not given back as it lifts. A deeper press is felt from there, backing out of
   // it neither pulls nor pushes, and the stretch it felt before comes back as the device's watchdog
-  // and the session's ramp bring the force back. Given in full, the proxies caught up on the
-  // bunny's surface pushed the stylus that had sunk 8 mm out with +1.3e-2 to +2.0e-2 J (hapticd
-  // stopped 100-200 ms; ServerStalls), and the observer, booking replies to the queue that the
-  // device never felt, let them.
+  // and the session's ramp bring the force back (a device held still through a short stall feels its
+  // press again). Given in full, the proxies caught up on the bunny's surface pushed the stylus that
+  // had sunk 8 mm out with +1.3e-2 to +2.0e-2 J (hapticd stopped 100-200 ms; ServerStalls), and the
+  // observer, booking replies to the queue that the device never felt, let them. After a bridged gap
+  // in the device's own samples, that share of all it felt is unfelt (ProxyHand::reply).
   const auto hold_ns = static_cast<std::uint64_t>(kDeviceWatchdog.hold.count());
-  if (s->last_reply_ns && now > s->last_reply_ns + hold_ns)
-    s->unheld_from_ns = s->last_reply_ns + hold_ns, s->unheld_to_ns = now;
+  // A reply to a sample that waited to be read (a queue read after a stall, a link that held it)
+  // reaches the device no sooner than the replies to the samples after it: it ends no silence of the
+  // device for them (the last sample before a stopped machine's gap, answered just before the first
+  // after it). Waited: half the watchdog's hold longer than the quickest samples, so that a step in
+  // the link's latency, which the quickest wait follows only slowly, is not taken for a silence.
+  const bool waited = has_interval && waited_s > 0.5e-9 * static_cast<double>(hold_ns);
+  if (s->held_reply_ns && now > s->held_reply_ns + hold_ns)
+    s->unheld_from_ns = s->held_reply_ns + hold_ns, s->unheld_to_ns = now;
   double unfelt_share = 0;  // of the held reply, when the device took this sample
   if (s->sample_ns > s->unheld_from_ns && s->sample_ns <= s->unheld_to_ns)
     unfelt_share = std::min(1.0, static_cast<double>(s->sample_ns - s->unheld_from_ns) /
@@ -720,6 +733,7 @@ void HapticCore::on_pose(const protocol::PoseSample& pose, std::uint64_t now) {
   if (s->resynced) out.flags |= protocol::ForceFlags::kResynced, s->resynced = false;
   if (model.handles == 0 || model_fade_[link.hand] > 0) out.flags |= protocol::ForceFlags::kStale;
   s->last_reply_ns = now;
+  if (!waited) s->held_reply_ns = now;
   out.server_send_ns = transport_.send_time_ns();
   const protocol::EncodeResult encoded = encoder_.encode(out);
   // Compute per sample: from the datagram read to the reply encoded (the send syscall is I/O).

@@ -324,8 +324,10 @@ class ProxyHand {
   // `gated`: the frame is not to be felt (a glove's part touching nothing; output_scale is then 0):
   // its stretch is booked unfelt and stays so after the gate opens, released only as the device
   // backs out of it. `unfelt_share`: how much of its held reply the device was not feeling when it
-  // took this sample (its watchdog fading the reply out: a server silent that long); that share of
-  // what the stretch grew by since the last reply is booked unfelt too, released the same way.
+  // took this sample (its watchdog fading the reply out: no reply for that long); when > 0, what the
+  // stretch grew by since the last reply is booked unfelt too (the device held an older reply),
+  // released the same way, and at the sample that bridged a gap in the device's samples
+  // (commit_sample) that share of the whole stretch.
   ReplyWrench reply(int j, double output_scale, double dt_since_last_s, bool gated = false, double unfelt_share = 0);
 
   // Puts every proxy on its device pose and zeroes velocities.
@@ -397,6 +399,7 @@ class ProxyHand {
   bool have_device_ = false;
   bool resync_following_ = false;  // re-synced, and every sample since came from a queue
   bool bridging_ = false;          // bridged a gap, and every sample since came from a queue
+  bool bridged_now_ = false;       // the last sample committed bridged a gap
   double gap_t_s_ = 0;             // the last gap, re-synced or bridged (commit_sample's clock)
   // The last integrate()'s model had the hand touching something or contact rows near it (a bridged
   // gap's clutch drifts out only when not).

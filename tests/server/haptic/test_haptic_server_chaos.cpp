@@ -17,14 +17,18 @@
 // With 10 % loss both ways, reordering, duplication and 1 ms jitter the strict bound does not hold,
 // with the passivity controller on (the default for every device):
 //  - loss and jitter hold each force longer than the 1 ms the coupling's damping was sized for,
-//    which eats its margin: +3.3e-6 to +8.5e-6 J in 10 runs on a quiet machine (0.05-0.13 % of the
-//    energy stored; 33-87x what float32 accounts for);
+//    which eats its margin: +2.1e-5 to +2.7e-5 J in 15 runs, quiet or with one or both cores busy
+//    (0.31-0.40 % of the energy stored; as much at 220deb1);
 //  - the passivity controller does not take that back: it damps only past kPassivityBudget_J
 //    (1e-4 J, 1.5 % of the energy stored here) of deficit, and its observer sums the work of the
 //    replies the server sent, not of those the device applied (10 % of them lost, others held
-//    longer): in those runs it read -1.3e-4 to +2.8e-3 J (the rendering absorbing, mostly) while
-//    the device received +3.3e-6 to +8.5e-6 J; it acted in 1 of the 10 (211 replies, 4e-6 J damped)
-//    and that run's work was still positive (with both cores busy it acted 250-300 times).
+//    longer): in those runs it read +3.3e-6 to +7.8e-6 J and never acted.
+// A stopped process (this test's server, relay and device are one: a paused virtual machine, a
+// busy host) left the device pressing on while its reply faded, and the force it had felt came back
+// where it had sunk to: +2.6e-4 J (3.9 %) on CI at b2c1d3d. scripts/chaos-process-stops stops it
+// four times: 80 ms (a gap in the device's samples, then hidden by its last sample before the gap,
+// read late), up to +8.7e-2 J then, -6.7e-3 to -1.3e-2 J now; 30 ms, up to +5.6e-4 J then,
+// -2.7e-4 to -7.1e-4 J now (the stopped machine of ServerStalls holds both).
 // So that test bounds the work by 1 % of the energy stored (f^2 / 2k at the bottom), and that bound
 // is weak: a coupling without damping (+3.9e-5 J, 0.58 %) or with negative damping -k T / 2
 // (+6.1e-5 J, 0.91 %) passes it. The 20 s run, with its bound (<= 0), is
@@ -145,10 +149,14 @@ ChaosRun run_through(const chaos::ChaosConfig& config) {
     if (run.server.rejected[i])
       std::printf(" %s %llu", to_string(static_cast<RejectReason>(i)).data(),
                   static_cast<unsigned long long>(run.server.rejected[i]));
-  std::printf("; stale %llu, gaps %llu, resyncs %llu, timed out %llu\n",
-              static_cast<unsigned long long>(run.server.stale), static_cast<unsigned long long>(run.server.gaps),
-              static_cast<unsigned long long>(run.server.resyncs),
-              static_cast<unsigned long long>(run.server.sessions_timed_out));
+  std::printf(
+      "; stale %llu, gaps %llu, resyncs %llu, bridged gaps %llu, timed out %llu; the device missed %llu "
+      "ticks, faded %llu\n",
+      static_cast<unsigned long long>(run.server.stale), static_cast<unsigned long long>(run.server.gaps),
+      static_cast<unsigned long long>(run.server.resyncs), static_cast<unsigned long long>(run.server.bridged_gaps),
+      static_cast<unsigned long long>(run.server.sessions_timed_out),
+      static_cast<unsigned long long>(run.result.missed_ticks),
+      static_cast<unsigned long long>(run.result.faded_ticks));
   return run;
 }
 

@@ -578,6 +578,72 @@ TEST(VirtualCoupling, AGatedFramesStretchStaysUnfeltAfterItsGateOpensAndNeverPul
   EXPECT_LE(work, 1e-9) << "the rendering gave the device energy";
 }
 
+// A device pressing 5 mm into a wall (felt: 5 mm x k_c k_w / (k_c + k_w) = 4.17 N) whose samples
+// stop for 100 ms (a gap: a stopped machine, a lost link) while its watchdog fades the reply it held
+// (client::ReplyWatchdog) and it sinks 3 mm deeper. The gap is bridged (commit_sample: its 3 mm are
+// a clutch), and the server, answering the first sample after it, is told what share of the held
+// reply the device no longer felt (HapticCore::on_pose: 0.6, or all of it). That share of all it
+// would feel stays unfelt: the reply is the faded force the device had (0.4 of 4.17 N, or none), so
+// the force it had stopped feeling does not come back to push it out of where it sank. Pressing
+// 2 mm deeper from there is felt as the series stiffness times that (1.667 N more); backing out to
+// where the gap began and 3 mm farther never pulls the device toward the wall and gives it no
+// energy (sum of f . dx from the gap on <= 0). A short silence (no gap), the device held still,
+// keeps its press: that share of only what the stretch grew by is unfelt.
+TEST(VirtualCoupling, AfterABridgedGapWhatTheDevicesFadedReplyNoLongerGaveItStaysUnfelt) {
+  const double k_c = 1000.0, k_w = 5000.0, series = k_w / (k_c + k_w);
+  const HapticModel wall = wall_model(k_w);
+  for (const double share : {0.6, 1.0}) {
+    ProxyHand p = make_proxy();
+    p.set_passivity_control(false);
+    double t = 0, z = 0.002, least_f = 0, work = 0;
+    bool after_gap = false;
+    ReplyWrench r;
+    const auto sample = [&](double next, double dt, double unfelt_share) {
+      if (after_gap) work += r.f_D.z() * (next - z);  // the last reply, held while the device moved
+      z = next;
+      t += dt;
+      p.set_device_pose(0, Eigen::Vector3d(0, 0, z), Eigen::Quaterniond::Identity());
+      p.commit_sample(t, 0.05);
+      r = p.reply(0, 1.0, dt, false, unfelt_share);
+      if (after_gap) least_f = std::min(least_f, r.f_D.z());
+      p.integrate(wall, kPeriod);
+    };
+    const auto move = [&](double to, double seconds, double hold_s) {
+      const int ramp = static_cast<int>(std::lround(seconds / kPeriod));
+      const int ticks = ramp + static_cast<int>(std::lround(hold_s / kPeriod));
+      const double from = z;
+      for (int k = 1; k <= ticks; ++k) sample(k <= ramp ? from + (to - from) * k / ramp : to, kPeriod, 0.0);
+    };
+    move(-0.005, 0.5, 0.5);
+    const double held = r.f_D.z();
+    EXPECT_NEAR(held, k_c * 0.005 * series, 0.01 * k_c * 0.005 * series);
+    if (share == 1.0) {  // a short silence first: 30 ms, held still, the reply 20 % faded
+      sample(z, 0.03, 0.2);
+      move(z, 0.0, 0.1);
+      std::printf("after 30 ms of silence, held still: %.4f N (pressed: %.4f N)\n", r.f_D.z(), held);
+      EXPECT_NEAR(r.f_D.z(), held, 1e-3 * held) << "a short silence took the press away";
+    }
+    work = 0;
+    after_gap = true;
+    sample(-0.008, 0.1, share);  // the gap: 100 ms, 3 mm deeper
+    ASSERT_EQ(p.bridged_gaps(), 1);
+    move(z, 0.0, 0.1);  // the reply's slew limit reaches it
+    std::printf("faded by %.1f over a bridged gap: %.4f N (%.1f of the press: %.4f N)\n", share, r.f_D.z(), 1 - share,
+                (1 - share) * held);
+    EXPECT_NEAR(r.f_D.z(), (1 - share) * held, 1e-3 * held) << "the force the device had stopped feeling came back";
+    move(-0.010, 0.2, 0.3);
+    EXPECT_NEAR(r.f_D.z(), (1 - share) * held + k_c * 0.002 * series, 0.01 * k_c * 0.002 * series);
+    move(-0.005, 0.4, 0.3);
+    move(-0.002, 0.3, 0.3);
+    std::printf(
+        "2 mm deeper, then out to 3 mm above where the gap began: least force %.5f N, work on the device "
+        "%.3e J\n",
+        least_f, work);
+    EXPECT_GT(least_f, -0.01) << "the device was pulled toward the wall";
+    EXPECT_LE(work, 1e-9) << "the rendering gave the device energy";
+  }
+}
+
 // A device pushed 10 cm (device space) into a wall far stiffer than itself: unsaturated, the coupling
 // would press the proxy into the wall with k_W x 20 cm = 50 N (world) while the device feels its
 // 8 N limit. Saturated at that limit on both sides (issue 17, item 3), the wall holds the proxy
