@@ -367,8 +367,10 @@ bool ProxyHand::commit_sample(double t_s, double resync_gap_s, double sample_int
       if (bridging_) {
         // Into the clutch, as if the device had not moved (no velocity either). It held a reply
         // that faded out at a pace only it knew: the observer books none of that motion (a press
-        // into the faded reply is no work it did).
-        clutch_p_W_[j] += moved, clutch_theta_W_[j] += turned;
+        // into the faded reply is no work it did). From where the proxies were coupled to: the
+        // device carried along its velocity while its samples were overdue (predict_device).
+        clutch_p_W_[j] += pending_[j].p_W - predicted_[j].p_W;
+        clutch_theta_W_[j] += hand::rotation_difference(pending_[j].q_W, predicted_[j].q_W);
       } else {
         v_dev_[j] += kVelocityFilter * (moved / dt_v - v_dev_[j]);
         w_dev_[j] += kVelocityFilter * (turned / dt_v - w_dev_[j]);
