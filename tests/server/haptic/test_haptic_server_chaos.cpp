@@ -28,7 +28,7 @@
 // where it had sunk to: +2.6e-4 J (3.9 %) on CI at b2c1d3d. scripts/chaos-process-stops stops it
 // four times: 80 ms (a gap in the device's samples, then hidden by its last sample before the gap,
 // read late), up to +8.7e-2 J then, -6.7e-3 to -1.3e-2 J now; 30 ms, up to +5.6e-4 J then,
-// -2.7e-4 to -7.1e-4 J now (the stopped machine of ServerStalls holds both).
+// -2.5e-4 to -1.7e-3 J now (the stopped machine of ServerStalls holds both).
 // So that test bounds the work by 1 % of the energy stored (f^2 / 2k at the bottom), and that bound
 // is weak: a coupling without damping (+3.9e-5 J, 0.58 %) or with negative damping -k T / 2
 // (+6.1e-5 J, 0.91 %) passes it. The 20 s run, with its bound (<= 0), is

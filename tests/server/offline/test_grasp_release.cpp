@@ -161,7 +161,8 @@ namespace {
 // the glove gets no more than the controller's budget (kPassivityBudget_J); the released box falls
 // back to the table and the open hand is quiet. Re-synced instead (each finger's proxy onto its
 // device), the gap while gripping gave +9.0e-3 J and a reset. What the glove squeezed during a gap
-// while gripping is a clutch, not a tighter grip: the box then slips (lifted 9 mm of 50).
+// while gripping is a clutch, not a tighter grip: the box then slips (lifted 30 mm of 51; 9 mm while
+// the clutch was taken from the last sample, not from the device carried along while overdue).
 TEST(GloveGaps, AGapInTheGlovesSamplesResetsNothingAndPutsNoEnergyIntoIt) {
   const world::SceneDesc scene =
       grasp_scene(world::load_scene(std::string(HAPTICD_SCENES_DIR) + "/glove_grasp.json"));

@@ -102,7 +102,8 @@ namespace {
 //   +1.7e-2 to +2.0e-2 J for the three stops while pressing and holding;
 // - caught up but felt in full, the proxies on the surface pushed the sunk stylus out as much:
 //   +1.4e-2 to +1.7e-2 J, the force at the device's 8 N limit.
-// Now -1.7e-3 to -4.5e-3 J, pulls up to 0.18 N.
+// Now -1.6e-3 to -5.6e-3 J, pulls up to 0.18 N (-1.7e-3 to -4.5e-3 J while only the faded share of
+// the stretch grown through the stop was unfelt).
 const PressSchedule kStopSchedule(Press{0.02, 0.05, 0.08});
 constexpr double kVisualAfter_s = 0.03;
 constexpr double kSocketWait_s = 0.0025;  // Stop::machine: the server stops this long before the device
