@@ -20,7 +20,9 @@
 # SECONDS, then lets it go on (SIGCONT): a server descheduled mid-lift, its haptic thread finding the
 # samples of the pause waiting in its socket (the spring hand's CI failure: a 0.58 N pull in the lift
 # while the loop was 12 ms late).
-# Usage: [DEVICE_REALTIME=0] [VISUAL_STALL=3.6:0.3] [SERVER_PAUSE=3.72:0.02] press_hold_lift_busy.sh BIN_DIR SCENE [hapticd options, e.g. --no-passivity-control]
+# MACHINE_PAUSE=AT:SECONDS stops hapticd and, 3 ms later, haptic-device too, for SECONDS: the whole
+# machine stopped (a paused virtual machine), the device's last sample waiting in hapticd's socket.
+# Usage: [DEVICE_REALTIME=0] [VISUAL_STALL=3.6:0.3] [SERVER_PAUSE=3.72:0.02] [MACHINE_PAUSE=1.5:0.1] press_hold_lift_busy.sh BIN_DIR SCENE [hapticd options, e.g. --no-passivity-control]
 set -euo pipefail
 bin=$1
 scene=$2
@@ -59,7 +61,17 @@ if [ -n "${SERVER_PAUSE:-}" ]; then
   pause_pid=$!
 fi
 "${device_priority[@]}" "$bin/haptic-device" --server "127.0.0.1:$port" --device stylus --trajectory "$trajectory" \
-  --rate 1000 --duration "$seconds" --report "$work/device.json" --trace "$work/trace.csv"
+  --rate 1000 --duration "$seconds" --report "$work/device.json" --trace "$work/trace.csv" &
+device_pid=$!
+if [ -n "${MACHINE_PAUSE:-}" ]; then
+  (sleep "${MACHINE_PAUSE%%:*}" && kill -STOP "$server_pid" && sleep 0.003 && kill -STOP "$device_pid" &&
+    sleep "${MACHINE_PAUSE##*:}" && kill -CONT "$device_pid" "$server_pid") &
+  machine_pid=$!
+fi
+wait "$device_pid"
+if [ -n "${MACHINE_PAUSE:-}" ]; then
+  wait "$machine_pid" || { echo "could not pause hapticd and haptic-device"; exit 1; }
+fi
 if [ -n "${SERVER_PAUSE:-}" ]; then
   wait "$pause_pid" || { echo "could not pause hapticd"; exit 1; }
 fi
@@ -73,7 +85,7 @@ busy_pid=""
 kill -INT "$server_pid"
 wait "$server_pid"
 
-python3 - "$work/device.json" "$work/server.json" "$work/trace.csv" "$lift_end" "${#device_priority[@]}" "${SERVER_PAUSE:-}" <<'PY'
+python3 - "$work/device.json" "$work/server.json" "$work/trace.csv" "$lift_end" "${#device_priority[@]}" "${SERVER_PAUSE:-${MACHINE_PAUSE:-}}" <<'PY'
 import csv, json, sys
 d = json.load(open(sys.argv[1]))
 s = json.load(open(sys.argv[2]))
