@@ -60,6 +60,16 @@ struct OfflineOptions {
   // reads the queue and answers each sample in turn, then ticks late, as HapticServer::run does; the
   // device feels the answer to its newest. The visual loop runs on.
   std::vector<std::pair<double, double>> haptic_stalls_s;
+  // The whole machine stopped over [from, to) (a paused virtual machine: hapticd and the device's
+  // client together): the device's samples withheld, and hapticd's haptic and visual threads stopped
+  // from kMachineStopSocketWait_s before, so that the device's last sample before the gap waits unread
+  // in the socket and is read late, just before the first after it.
+  static constexpr double kMachineStopSocketWait_s = 0.0025;
+  void stop_machine(double from_s, double to_s) {
+    withheld_samples_s.emplace_back(from_s, to_s);
+    haptic_stalls_s.emplace_back(from_s - kMachineStopSocketWait_s, to_s);
+    visual_stalls_s.emplace_back(from_s - kMachineStopSocketWait_s, to_s);
+  }
   haptic::HandleModelKind model = haptic::HandleModelKind::linearized;
   int device = 0;  // the scene device served
   // Before the first tick, the scene's rigid bodies (ODE alone) settle this long

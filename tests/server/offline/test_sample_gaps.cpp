@@ -58,9 +58,8 @@ struct Gap {
 };
 
 // How a gap comes about: the device's samples are missing (its servo loop or link stalled), they
-// wait unread while hapticd's haptic thread is descheduled, or both (the machine stopped: the device's
-// samples missing and hapticd's threads stopped from 2.5 ms before, so that its last sample before the
-// gap waits unread too).
+// wait unread while hapticd's haptic thread is descheduled, or both (the machine stopped:
+// OfflineOptions::stop_machine).
 enum class Stall { device, server, machine };
 
 // Each gap spans ticks first - n .. first - 1 (half a period of margin each side), where `first` is
@@ -70,9 +69,9 @@ void open_gaps(Stall stall, const std::vector<Gap>& gaps, OfflineOptions& option
   for (const Gap& g : gaps) {
     const double a = (first_after(g) - std::lround(g.length_s / kPeriod) - 0.5) * kPeriod,
                  b = (first_after(g) - 0.5) * kPeriod;
-    if (stall != Stall::server) options.withheld_samples_s.emplace_back(a, b);
-    if (stall != Stall::device) options.haptic_stalls_s.emplace_back(stall == Stall::machine ? a - 0.0025 : a, b);
-    if (stall == Stall::machine) options.visual_stalls_s.emplace_back(a - 0.0025, b);
+    if (stall == Stall::device) options.withheld_samples_s.emplace_back(a, b);
+    if (stall == Stall::server) options.haptic_stalls_s.emplace_back(a, b);
+    if (stall == Stall::machine) options.stop_machine(a, b);
   }
 }
 

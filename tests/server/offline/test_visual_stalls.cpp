@@ -106,7 +106,6 @@ namespace {
 // the stretch grown through the stop was unfelt).
 const PressSchedule kStopSchedule(Press{0.02, 0.05, 0.08});
 constexpr double kVisualAfter_s = 0.03;
-constexpr double kSocketWait_s = 0.0025;  // Stop::machine: the server stops this long before the device
 
 struct Stopped {
   TouchRun run;
@@ -126,9 +125,7 @@ Stopped stop(const Stall& s, Stop what) {
   } else if (what == Stop::device) {
     options.withheld_samples_s = {{s.from_s, s.from_s + s.length_s}};
   } else {
-    options.withheld_samples_s = {{s.from_s, s.from_s + s.length_s}};
-    options.haptic_stalls_s = {{s.from_s - kSocketWait_s, s.from_s + s.length_s}};
-    options.visual_stalls_s = {{s.from_s - kSocketWait_s, s.from_s + s.length_s}};
+    options.stop_machine(s.from_s, s.from_s + s.length_s);
   }
   Stopped out{run_press_hold_lift(press_scene("movable_bunny"), kStopSchedule, options), {}};
   out.after = after_lift(out.run.trace, kStopSchedule, options);
