@@ -247,7 +247,7 @@ TEST(Issue17KnownFault, AToolStuckOnARigidBodyByRedundantContactsIsSolvedExactly
     std::vector<Eigen::Vector3d> at = {Eigen::Vector3d(aside, -0.5 * aside, -0.002)};
     double t = 0;
     rest_on_device(p, at, t);
-    // The least-norm solve of the singular rows allocates nothing either.
+    // Nor does the tick allocate on these rows.
     EXPECT_EQ(testing_util::allocations_in([&] { p.integrate(m, kPeriod, lookahead); }), 0);
     const DenseRows d = dense_rows(m, p, at, lookahead);
     const Eigen::VectorXd lambda = p.contact_impulses();
