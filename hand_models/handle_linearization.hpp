@@ -57,7 +57,9 @@ struct HandleLinearization {
   HandleContactModel contacts;  // empty unless linearized ContactLinearization::unilateral with constraint rows
 
   // F*(x, v) for end-of-step handle states (position difference and the
-  // rotation vector of q q0^-1 for the pose), contacts solved (to 1e-12) when the model has them.
+  // rotation vector of q q0^-1 for the pose), contacts solved when the model has them (up to 10000
+  // sweeps, to 1e-12 of the largest impulse where they get there: on the stylus bunny's press, 58
+  // of 473 evaluations; 40000 sweeps moved `haptic-bench world`'s force error by at most 0.03 N).
   Eigen::VectorXd evaluate(const std::vector<HandleState>& handles) const;
 };
 
