@@ -13,6 +13,7 @@
 
 #include "allocation_counter.hpp"
 #include "hand_models/contact_pgs.hpp"
+#include "hand_models/rigid_handle.hpp"
 #include "server/haptic/virtual_coupling.hpp"
 
 namespace hapticd::haptic {
@@ -188,10 +189,8 @@ HapticModel bare_stylus_model(double step_s) {
 // Rows of a rigid tool on a movable rigid body: the velocity of a point p of a body moving at (v, w)
 // is v - [p]x w; a row along direction d reads d^T [I, -[p]x].
 Eigen::Matrix<double, 1, 6> point_row(const Eigen::Vector3d& d, const Eigen::Vector3d& p) {
-  Eigen::Matrix3d px;
-  px << 0, -p.z(), p.y(), p.z(), 0, -p.x(), -p.y(), p.x(), 0;
   Eigen::Matrix<double, 1, 6> row;
-  row << d.transpose(), -d.transpose() * px;
+  row << d.transpose(), -d.transpose() * hand::skew(p);
   return row;
 }
 
