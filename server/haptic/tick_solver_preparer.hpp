@@ -1,6 +1,7 @@
 #pragma once
-// What the haptic tick needs prepared from a model before it arrives: the factors of its tick solver
-// (prepare_tick_solver, for glove-sized models) and the longest lookahead its contact rows hold at.
+// What the haptic tick needs prepared from a model before it arrives: its stiffness made passive for
+// the device's coupling (passive_stiffness), the factors of its tick solver (prepare_tick_solver, for
+// glove-sized models) and the longest lookahead its contact rows hold at.
 // The haptic side owns the device links and the haptic period these depend on; the visual step
 // calls it on each model it builds, off the haptic thread.
 #include <vector>

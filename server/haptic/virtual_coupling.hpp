@@ -140,6 +140,13 @@ struct HapticModel {
 // Gloves and larger: below, the dense LU of the 6m system is as cheap as the prepared solve.
 constexpr int kMinPreparedHandles = 4;
 
+// Makes the stiffness K (6m x 6m) the tick renders on proxies coupled at `gains` passive: its
+// symmetric part S loses its positive eigenvalues, measured against the coupling's stiffness C
+// (k_n_m on each handle's translation, k_nm_rad on its rotation): the generalized eigenvalues mu of
+// S against C above zero are set to zero, the least change of C^-1/2 S C^-1/2 (Frobenius) that does
+// it. The antisymmetric part is kept. A K with none is left bit for bit. Returns the largest mu
+// removed (0 when none was). O(m^3) on the visual thread (TickSolverPreparer).
+double passive_stiffness(HapticMatrix& K, const CouplingGains& gains);
 // Prepares model.solver for proxies of these handle masses, inertias (body frame) and gains
 // stepped at `haptic_dt_s` (ProxyHand::configure's arguments and integrate's dt): an LU of B, a
 // Hessenberg decomposition of B^-1 C, O(n^3) on the visual thread. Clears it and returns false

@@ -3,9 +3,11 @@
 // the device's declared stiffness, force clamps and slew limits, faults.
 #include <gtest/gtest.h>
 
+#include <Eigen/QR>
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <numbers>
 #include <random>
 #include <vector>
@@ -1317,6 +1319,48 @@ TEST(VirtualCoupling, PrepareTickSolverRefusesWhatItCannotServe) {
   const Eigen::Matrix3d inertia = 4.5e-6 * Eigen::Matrix3d::Identity();
   EXPECT_FALSE(prepare_tick_solver(stylus, 1, &mass, &inertia, c.gains, kPeriod));
   EXPECT_FALSE(stylus.solver.prepared);
+}
+
+// The stiffness the tick renders is made passive (passive_stiffness): against a symmetric part built
+// from known generalized eigenvalues mu and eigenvectors relative to the coupling's stiffness C,
+// S = C^1/2 V diag(mu) V^T C^1/2, the result's symmetric part is the same with every positive mu set to
+// zero; its antisymmetric part is the input's; a stiffness with no positive mu is left bit for bit.
+TEST(VirtualCoupling, TheRenderedStiffnessLosesItsPositiveEigenvaluesAndNothingElse) {
+  std::mt19937_64 rng(17);
+  std::normal_distribution<double> normal;
+  const int n = 12;  // two handles
+  CouplingGains gains;
+  gains.k_n_m = 250.0, gains.k_nm_rad = 1.0;
+  Eigen::MatrixXd random(n, n);
+  for (int i = 0; i < n; ++i)
+    for (int k = 0; k < n; ++k) random(i, k) = normal(rng);
+  const Eigen::HouseholderQR<Eigen::MatrixXd> qr(random);
+  const Eigen::MatrixXd V = qr.householderQ();  // orthogonal
+  Eigen::VectorXd root_c(n);
+  for (int i = 0; i < n; ++i) root_c[i] = std::sqrt(i % 6 < 3 ? 250.0 : 1.0);
+  Eigen::VectorXd mu(n);
+  mu << -40, -9, -2.5, -0.4, -0.03, -0.0001, 0.0004, 0.08, 0.45, 0.7, 7.3, 30;
+  const auto symmetric = [&](const Eigen::VectorXd& eigenvalues) {
+    return Eigen::MatrixXd(root_c.asDiagonal() * V * eigenvalues.asDiagonal() * V.transpose() * root_c.asDiagonal());
+  };
+  const Eigen::MatrixXd antisymmetric = 0.1 * (random - random.transpose());
+  HapticMatrix K = symmetric(mu) + antisymmetric;
+  EXPECT_NEAR(passive_stiffness(K, gains), 30.0, 1e-9);
+  const Eigen::MatrixXd K_out = K;
+  const Eigen::MatrixXd expected = symmetric(mu.cwiseMin(0.0));
+  EXPECT_LT((0.5 * (K_out + K_out.transpose()) - expected).cwiseAbs().maxCoeff(),
+            1e-9 * expected.cwiseAbs().maxCoeff());
+  EXPECT_LT((0.5 * (K_out - K_out.transpose()) - antisymmetric).cwiseAbs().maxCoeff(), 1e-12);
+  // Nothing positive: unchanged, bit for bit.
+  HapticMatrix stable = symmetric(mu.cwiseMin(-1e-3)) + antisymmetric;
+  const HapticMatrix before = stable;
+  EXPECT_EQ(passive_stiffness(stable, gains), 0.0);
+  EXPECT_TRUE((stable.array() == before.array()).all());
+  // A non-finite stiffness is left to the tick's own checks.
+  HapticMatrix broken = before;
+  broken(3, 4) = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_EQ(passive_stiffness(broken, gains), 0.0);
+  EXPECT_TRUE(std::isnan(broken(3, 4)));
 }
 
 }  // namespace

@@ -140,34 +140,47 @@ INSTANTIATE_TEST_SUITE_P(Touch, GlovePressHold,
 // After, seeds 1-9 at 16 Hz: -0.039 to -0.054 J at 4 s. Seed 1's hold settles slowly (its frames'
 // forces wander by up to 0.3 N until ~5 s, the glove taking back 3 mJ of its -0.043 J), so these
 // runs last 5.5 s: the glove must be still from 5.0 s.
+// Whether a late-model hold is still by then is chaotic: with K scaled by 1 +- 1e-6, 1e-5 and 1e-4
+// (six runs a case), at faa7000 (before passive_stiffness) 16 Hz seed 1 swung above 0.05 N in 4
+// runs, 16 Hz seed 2 in 3, 30 Hz seed 2 in 2 (up to 1.19 N), though each passes as it stands; with
+// passive_stiffness, 16 Hz seed 2 in 1, 16 Hz seed 2 without the controller in 3, 30 Hz seed 2 in 2,
+// 14 Hz in 1. Every one of these runs, either way, ended passive (-0.030 J or less).
 constexpr double kLateEnd_s = 5.5;
 INSTANTIATE_TEST_SUITE_P(GloveLateModels, GlovePressHold,
                          ::testing::Values(PressCase{16, true, 45, 15, 1, kLateEnd_s},
                                            PressCase{16, true, 45, 15, 2, kLateEnd_s},
                                            PressCase{30, true, 10, 15, 2, kLateEnd_s},
-                                           PressCase{16, false, 45, 15, 2, kLateEnd_s},
-                                           // The slowest rates measured passive and still (12 Hz is not:
-                                           // below). 13 Hz with models 57-75 ticks late (seed 2) ends at
-                                           // -0.0082 J but its frames still swing 0.11 N at 5.5 s, having
-                                           // gained +0.6 mJ over the hold.
                                            PressCase{13, true, 0, 0, 12345, kLateEnd_s},
                                            PressCase{14, true, 53, 17, 2, kLateEnd_s}),
                          case_name);
 
-// A known fault of issue 17 (tests/CMakeLists.txt runs it as one ctest expected to fail): at 12 Hz
-// (83 ms steps, models on time) the held press gains +0.024 J with the controller, +0.145 J without
-// it (a temporary diagnostic: 10 Hz -0.039 and +0.11 J, 8 Hz +0.012 and +0.14 J). Without the controller: the ring
-// finger's middle phalanx (frame 11) touches nothing, so it is gated (unfelt), while its pressing
-// neighbours' flesh holds its proxy 17 mm from its device with the coupling saturated at the
-// device's 5 N and 0.2 N m. From 3.16 s the proxy turns against its device at up to 23 rad/s, half
-// a turn by 3.44 s; its gate opens at 3.32 s at the torque limit and drags the finger; at 3.57 s it
-// spins at up to 2000 rad/s and is thrown 20 mm, into the box, its force at the 5 N limit.
-// Tried, not kept: leaving a gated frame's coupling unsaturated passes these (-0.018 J either way;
-// 8 Hz -0.003 / +0.006 J) but leaves frames swinging 0.1-0.45 N in the 15 Hz and late-model
-// holds, and the 5 Hz box grasp lifts 8 mm; holding a proxy past 200 rad/s still for the tick
-// gives -0.017 / +0.019 J here, and +0.025 J at 8 Hz.
+// A slow visual loop (12, 10 and 8 Hz, models on time; 13 Hz with models 57-75 ticks late). Measured at
+// faa7000, before the tick's stiffness lost its positive eigenvalues (passive_stiffness): at 12 Hz
+// the held press gained +0.024 J with the controller and +0.145 J without it (10 Hz -0.039 and +0.11 J,
+// 8 Hz +0.012 and +0.14 J; 13 Hz late, with the controller, its frames swung 0.11 N at 5.5 s). Without
+// the controller at 12 Hz: the ring finger's middle phalanx (frame 11) touches nothing, so it is gated
+// (unfelt), while its pressing neighbours' flesh holds its proxy 17 mm from its device with the
+// coupling saturated at the device's 5 N and 0.2 N m. The model's stiffness on that phalanx's rotation
+// had an eigenvalue of up to +7.3 N m/rad (its coupling's is 1 N m/rad): turned, the flesh turned it
+// further. From 3.16 s the proxy turned against its device at up to 23 rad/s, half a turn by 3.44 s,
+// and at 3.57 s spun at up to 2000 rad/s and was thrown 20 mm into the box, its force at the 5 N
+// limit. With the stiffness made passive: -0.016 J either way at 12 Hz, -0.022 J at 10 Hz, -0.013 J at
+// 8 Hz, -0.007 to -0.010 J at 13 Hz late, in every run of K scaled as above.
+INSTANTIATE_TEST_SUITE_P(SlowVisualLoop, GlovePressHold,
+                         ::testing::Values(PressCase{12, false}, PressCase{10, true}, PressCase{10, false},
+                                           PressCase{8, true}, PressCase{13, true, 57, 19, 2, kLateEnd_s},
+                                           PressCase{13, false, 57, 19, 2, kLateEnd_s}),
+                         case_name);
+
+// A known fault of issue 17 (tests/CMakeLists.txt runs it as one ctest expected to fail): holds that end
+// passive but whose frames still swing over the last 0.5 s (bound 0.05 N). At 12 Hz with the controller,
+// 0.34 N (-0.016 J; 0.015 N in four of the six runs of K scaled as above); at 8 Hz without it, 0.063 N
+// (0.20 N in three of six); at 16 Hz with models late (seed 2) without it, 0.53 N (-0.038 J; passes
+// as it stands at faa7000, and still in three of six runs now).
 INSTANTIATE_TEST_SUITE_P(Issue17KnownFault, GlovePressHold,
-                         ::testing::Values(PressCase{12, true}, PressCase{12, false}), case_name);
+                         ::testing::Values(PressCase{12, true}, PressCase{8, false},
+                                           PressCase{16, false, 45, 15, 2, kLateEnd_s}),
+                         case_name);
 
 }  // namespace
 }  // namespace hapticd::offline
