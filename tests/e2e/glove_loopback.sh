@@ -65,9 +65,11 @@ if not cols: failures.append("the trace has no per-frame forces")
 if worst > limit + 1e-3: failures.append(f"a frame felt {worst} N over the {limit} N limit")
 # The bound is asserted where the lockstep runner's held press is passive and comes to rest with its
 # models late as a busy machine delivers them: a visual loop at 14 Hz and up (GloveLateModels/
-# GlovePressHold, 14 and 16 Hz). At 13 Hz with late models it still swings after 5 s; at 12 Hz it is
-# a known fault (Issue17KnownFault/GlovePressHold: +0.024 J; a loaded host ran this busy run at
-# 9.3 Hz once and it gave +0.028 J): reported, not asserted. Under a sanitizer (the asan and tsan
+# GlovePressHold, 14 and 16 Hz). Below, the lockstep runner's hold ends passive down to 8 Hz since the
+# tick's stiffness is made passive (SlowVisualLoop/GlovePressHold; at 12 Hz it gained +0.024 J before,
+# and a loaded host ran this busy run at 9.3 Hz once and it gave +0.028 J), but some of those holds
+# still swing (Issue17KnownFault/GlovePressHold), and through this server it is not measured yet
+# there: reported, not asserted. Under a sanitizer (the asan and tsan
 # presets set these) the FEM hand steps several times slower: left to the Release run.
 rate = s["visual"]["rate_hz_achieved"]
 if any(k in os.environ for k in ("ASAN_OPTIONS", "TSAN_OPTIONS")):
