@@ -164,8 +164,8 @@ INSTANTIATE_TEST_SUITE_P(GloveLateModels, GlovePressHold,
 // had an eigenvalue of up to +7.3 N m/rad (its coupling's is 1 N m/rad): turned, the flesh turned it
 // further. From 3.16 s the proxy turned against its device at up to 23 rad/s, half a turn by 3.44 s,
 // and at 3.57 s spun at up to 2000 rad/s and was thrown 20 mm into the box, its force at the 5 N
-// limit. With the stiffness made passive: -0.016 J either way at 12 Hz, -0.022 J at 10 Hz, -0.013 J at
-// 8 Hz, -0.007 to -0.010 J at 13 Hz late, in every run of K scaled as above; the 13 Hz late holds,
+// limit. With the stiffness made passive, the most energy over six runs of K scaled as above: -0.016 J
+// at 12 Hz either way, -0.022 J at 10 Hz, -0.011 J at 8 Hz, -0.007 J at 13 Hz late; the 13 Hz late holds,
 // still as they stand, swung above 0.05 N in 2 (controller on, up to 1.09 N) and 1 (off) of those six.
 INSTANTIATE_TEST_SUITE_P(SlowVisualLoop, GlovePressHold,
                          ::testing::Values(PressCase{12, false}, PressCase{10, true}, PressCase{10, false},
@@ -175,7 +175,7 @@ INSTANTIATE_TEST_SUITE_P(SlowVisualLoop, GlovePressHold,
 
 // A known fault of issue 17 (tests/CMakeLists.txt runs it as one ctest expected to fail): holds that end
 // passive but whose frames still swing over the last 0.5 s (bound 0.05 N). At 12 Hz with the controller,
-// 0.34 N (-0.016 J; 0.015 N in four of the six runs of K scaled as above); at 8 Hz without it, 0.063 N
+// 0.34 N (-0.017 J; 0.015 N in four of the six runs of K scaled as above); at 8 Hz without it, 0.063 N
 // (0.20 N in three of six); at 16 Hz with models late (seed 2) without it, 0.53 N (-0.038 J; passes
 // as it stands at faa7000, and still in three of six runs now).
 INSTANTIATE_TEST_SUITE_P(Issue17KnownFault, GlovePressHold,

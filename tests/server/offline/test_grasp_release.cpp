@@ -122,9 +122,9 @@ INSTANTIATE_TEST_SUITE_P(Touch, GraspRelease, kGraspCases, case_name);
 // the tick's stiffness lost its positive eigenvalues (passive_stiffness), and two_hands.json at 5 Hz
 // did not (the tripod lifted the box 12.0 mm of the 20 asked; 11.7 to 37.0 mm with K scaled by
 // 1 +- 1e-6 .. 1e-4). Now two_hands lifts it 54.2 mm in each of those runs (-0.063 J), and:
-//   - glove_grasp at 5 Hz lifts it 9.6 mm (+2e-7 J), in each run: the box slips out of the hand as it
-//     rises (44.5 mm and -0.25 J before). Three models of the lift lost eigenvalues of 0.06, 0.05 and
-//     0.002 of the coupling's stiffness. At 200 ms steps (beyond the longest the server takes,
+//   - glove_grasp at 5 Hz lifts it 9.6 mm (+8.8e-6 J), in each run: the box slips out of the hand as it
+//     rises (44.5 mm and -0.25 J before). Five models of the lift lost eigenvalues of 0.063, 0.047 and
+//     0.0015-0.0023 of the coupling's stiffness. At 200 ms steps (beyond the longest the server takes,
 //     kMaxStep_s) the grasp was already chaotic in how deep it is commanded: with the thumb, index and
 //     middle curled 1.10, 1.12, 1.13 and 1.15 times box_grasp's posture, glove_grasp lifted 44.5, 10.0,
 //     52.2 and 39.3 mm (-0.25 J, +2.5e-7 J, -0.31 J, +0.0020 J with a reset), two_hands 12.0, 24.8,
