@@ -172,6 +172,8 @@ double passive_stiffness(HapticMatrix& K, const CouplingGains& gains) {
   // eigenvalues below half the coupling's instead (the proxy then still has a rest) left +0.052 J and
   // +0.0056 J there. Measured against the coupling (rather than in N/m and N m/rad mixed), the
   // change is the least in the force it makes for the proxies' displacement under a coupling force.
+  // Cost for a 16-handle glove (96 DOFs, this host): the Cholesky test 0.01-0.03 ms each model, the
+  // eigendecomposition, only for a model that has such an eigenvalue, 0.9 ms.
   const int n = static_cast<int>(K.rows());
   if (n == 0 || n % 6 != 0 || K.cols() != n || !K.allFinite() || !(gains.k_n_m > 0) || !(gains.k_nm_rad > 0)) return 0;
   Eigen::VectorXd root_c(n);  // C^1/2
