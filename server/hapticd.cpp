@@ -228,6 +228,8 @@ int main(int argc, char** argv) {
           {"rate_hz_achieved", vs.elapsed_s > 0 ? static_cast<double>(vs.steps) / vs.elapsed_s : 0.0},
           {"steps", vs.steps},
           {"late_steps", vs.late_steps},
+          {"stiffness_made_passive", preparer.stiffness_made_passive()},
+          {"stiffness_removed_max", preparer.stiffness_removed_max()},
           {"step_ms_median", 1e-3 * vs.step_us.percentile(50)},
           {"step_ms_p99", 1e-3 * vs.step_us.percentile(99)},
           {"world_step_ms_median", 1e-3 * vs.world_us.percentile(50)},

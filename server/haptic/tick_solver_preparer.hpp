@@ -18,10 +18,17 @@ class TickSolverPreparer {
   // false (model.solver.prepared cleared) when none does or the model is too small to need it (its
   // contact rows' lookahead bound is still set then: prepare_contact_lookahead).
   bool prepare(int h, HapticModel& model) const;
+  // The models whose stiffness passive_stiffness changed, and the largest (generalized) eigenvalue it
+  // removed, against the coupling's stiffness: hapticd's report (visual.stiffness_made_passive).
+  long stiffness_made_passive() const { return made_passive_; }
+  double stiffness_removed_max() const { return removed_max_; }
 
  private:
   std::vector<DeviceLink> links_;
   double haptic_dt_s_;
+  // Written by prepare (the visual thread only), read once the loops have stopped.
+  mutable long made_passive_ = 0;
+  mutable double removed_max_ = 0;
 };
 
 }  // namespace hapticd::haptic

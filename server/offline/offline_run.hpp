@@ -144,6 +144,8 @@ class OfflineLoops {
   double time_s() const { return static_cast<double>(ticks_) * options_.haptic_period_s; }
   world::World& world() { return *world_; }
   const world::World& world() const { return *world_; }
+  // What the models' preparation did (its stiffness counters: TickSolverPreparer).
+  const haptic::TickSolverPreparer& preparer() const { return *preparer_; }
   const haptic::DeviceLink& link() const { return link_; }
   // The session's proxies (as the haptic tick left them).
   const haptic::ProxyHand& proxy() const;

@@ -1363,5 +1363,33 @@ TEST(VirtualCoupling, TheRenderedStiffnessLosesItsPositiveEigenvaluesAndNothingE
   EXPECT_TRUE(std::isnan(broken(3, 4)));
 }
 
+// The preparer makes each model's stiffness passive for its link's coupling and counts what it changed
+// (hapticd's report: visual.stiffness_made_passive, stiffness_removed_max): a stylus model whose
+// rotational stiffness about x is +3 N m/rad against a coupling of 1 N m/rad (mu = 3) is changed, its
+// symmetric part left negative semidefinite; one without is not.
+TEST(VirtualCoupling, ThePreparerMakesEachModelsStiffnessPassiveAndCountsIt) {
+  DeviceLink link;
+  link.hand = 0, link.handles = 1;
+  link.mass_kg[0] = 0.05;
+  link.inertia_B[0] = 1e-5 * Eigen::Matrix3d::Identity();
+  link.gains.k_n_m = 250.0, link.gains.k_nm_rad = 1.0;
+  const TickSolverPreparer preparer({link}, 1e-3);
+  HapticModel model;
+  model.handles = 1;
+  model.F0.setZero(6);
+  model.D = -0.5 * HapticMatrix::Identity(6, 6);
+  model.K = -100.0 * HapticMatrix::Identity(6, 6);
+  model.K(3, 3) = 3.0;
+  preparer.prepare(0, model);
+  EXPECT_EQ(preparer.stiffness_made_passive(), 1);
+  EXPECT_NEAR(preparer.stiffness_removed_max(), 3.0, 1e-12);
+  EXPECT_NEAR(model.K(3, 3), 0.0, 1e-12);
+  EXPECT_EQ(model.K(0, 0), -100.0);
+  model.K = -100.0 * HapticMatrix::Identity(6, 6);
+  preparer.prepare(0, model);
+  EXPECT_EQ(preparer.stiffness_made_passive(), 1);
+  EXPECT_TRUE((model.K.array() == (-100.0 * HapticMatrix::Identity(6, 6)).array()).all());
+}
+
 }  // namespace
 }  // namespace hapticd::haptic

@@ -116,9 +116,10 @@ TEST_P(GlovePressHold, AStillHoldPutsNoEnergyIntoTheGloveAndHoldsStill) {
   std::printf(
       "glove press on the fixed box at %d Hz, models %d + 0..%d ticks late, controller %s: energy %+.4f J (%+.4f J "
       "at %.1f s, %+.4f J over the still hold), largest swing of a frame's force over the last %.1f s %.4f N, "
-      "resets %ld\n",
+      "resets %ld; %ld models' stiffness made passive (largest eigenvalue removed %.3g of the coupling's)\n",
       c.visual_hz, c.delay, std::max(c.late - 1, 0), c.passivity_control ? "on" : "off", energy, at_hold, kHoldFrom_s,
-      energy - at_hold, kStillFor_s, swing, trace.resets);
+      energy - at_hold, kStillFor_s, swing, trace.resets, loops.preparer().stiffness_made_passive(),
+      loops.preparer().stiffness_removed_max());
   EXPECT_EQ(trace.resets, 0);
   EXPECT_LE(energy, 0.0) << "the rendering put energy into the glove";
   EXPECT_LT(swing, kStillSwing_N) << "the glove does not hold still";
