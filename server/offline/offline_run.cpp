@@ -228,6 +228,8 @@ void OfflineLoops::visual_step() {
   visual_->advance_world(publish,
                          haptic::detail::world_step_for(static_cast<double>(since) * options_.haptic_period_s, dt, dt));
   visual_->build_models(options_.targets_one_tick_stale ? publish - period_ns_ : publish, dt);
+  if (options_.model_stiffness_scale != 1.0)
+    for (haptic::HapticModel& model : snapshots_->back().model) model.K *= options_.model_stiffness_scale;
   visual_->prepare_tick_solvers();
   pending_ = true;
   publish_at_ = ticks_ + options_.model_delay_ticks;

@@ -43,6 +43,10 @@ struct OfflineOptions {
   // late_model_max_ticks <= visual_every_ticks.
   int late_model_max_ticks = 0;
   std::uint64_t late_model_seed = 12345;
+  // Every model's stiffness K scaled by this before it is prepared: a perturbation far above rounding
+  // (1 +- 1e-6 .. 1e-4), to tell an outcome the rendering gives from one a run happens to give
+  // (tests/server/offline/test_glove_press_hold.cpp reads HAPTICD_STIFFNESS_SCALE into it).
+  double model_stiffness_scale = 1.0;
   // Windows [from, to) of simulated time, s, in which the device's samples never reach the server (a
   // device whose servo loop or link stalled): the core ticks on without them, and the device, sent
   // no reply, holds the last one it received. The first tick's sample always arrives.

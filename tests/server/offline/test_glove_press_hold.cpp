@@ -45,6 +45,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <cstdlib>
 #include <memory>
 #include <string>
 
@@ -93,6 +94,8 @@ TEST_P(GlovePressHold, AStillHoldPutsNoEnergyIntoTheGloveAndHoldsStill) {
   options.model_delay_ticks = c.delay;
   options.late_model_max_ticks = c.late;
   options.late_model_seed = c.seed;
+  // A perturbed run (OfflineOptions::model_stiffness_scale), as the comments' six runs a case were measured.
+  if (const char* scale = std::getenv("HAPTICD_STIFFNESS_SCALE")) options.model_stiffness_scale = std::atof(scale);
   OfflineLoops loops(press.scene, options);
   const std::unique_ptr<OfflineDevice> device = press.device(loops);
   const auto& glove = dynamic_cast<const SimulatedGlove&>(*device);
@@ -141,9 +144,10 @@ INSTANTIATE_TEST_SUITE_P(Touch, GlovePressHold,
 // After, seeds 1-9 at 16 Hz: -0.039 to -0.054 J at 4 s. Seed 1's hold settles slowly (its frames'
 // forces wander by up to 0.3 N until ~5 s, the glove taking back 3 mJ of its -0.043 J), so these
 // runs last 5.5 s: the glove must be still from 5.0 s.
-// Whether a late-model hold is still by then is chaotic: with K scaled by 1 +- 1e-6, 1e-5 and 1e-4
-// (six runs a case), at faa7000 (before passive_stiffness) 16 Hz seed 1 swung above 0.05 N in 4
-// runs, 16 Hz seed 2 in 3, 30 Hz seed 2 in 2 (up to 1.19 N), though each passes as it stands; with
+// Whether a late-model hold is still by then is chaotic: with K scaled by 1, 1 +- 1e-6, 1 +- 1e-5 and
+// 1 + 1e-4 (six runs a case: HAPTICD_STIFFNESS_SCALE=1.000001 offline_tests --gtest_filter=...), at
+// faa7000 (before passive_stiffness) 16 Hz seed 1 swung above 0.05 N in 4 runs, 16 Hz seed 2 in 3,
+// 30 Hz seed 2 in 2 (up to 1.19 N), though each passes as it stands; with
 // passive_stiffness, 16 Hz seed 2 in 1, 16 Hz seed 2 without the controller in 3, 30 Hz seed 2 in 2,
 // 14 Hz in 1. Every one of these runs, either way, ended passive (-0.030 J or less).
 constexpr double kLateEnd_s = 5.5;

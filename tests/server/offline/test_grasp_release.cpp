@@ -20,6 +20,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <string>
 
 #include "server/offline/touch.hpp"
@@ -51,6 +52,8 @@ GraspRun run_grasp(const GraspCase& c) {
   OfflineOptions options;
   options.visual_every_ticks = static_cast<int>(std::lround(1.0 / (c.visual_hz * kPeriod)));
   options.passivity_control = c.passivity_control;
+  // A perturbed run (OfflineOptions::model_stiffness_scale), as the known fault's figures were measured.
+  if (const char* scale = std::getenv("HAPTICD_STIFFNESS_SCALE")) options.model_stiffness_scale = std::atof(scale);
   world::SceneDesc scene =
       grasp_scene(world::load_scene(std::string(HAPTICD_SCENES_DIR) + "/" + c.scene + ".json"), c.kind);
   if (*c.model_name)
