@@ -29,6 +29,11 @@
 //   max_force_error_n   number  its largest value, N
 //   penetration_max_mm  number  the deepest skin point inside anything after any visual step, mm
 //   tick_us_p99         number  99th percentile of one haptic tick's wall time, us
+//   contact_solves      number  ticks that solved the model's contact rows (ProxyHand::contact_solves)
+//   contact_unexact     number  share of them that ended at the sweep limit without an exact answer
+//   contact_sweeps_mean number  Gauss-Seidel sweeps per contact solve, mean (at most 8): the tick's
+//                               contact work counted, reproducible where tick_us_p99 carries the
+//                               machine's noise
 //   visual_ms_median    number  median wall time of one visual step, ms
 //   resets              number  proxy and world resets
 //   lift_mm             number  grasp_release only: how high the box rose, mm (else 0)
@@ -112,6 +117,13 @@ Row grasp_row(const world::SceneDesc& scene, int every, haptic::HandleModelKind 
 // 15, 30, 60 Hz for 67, 33, 17 ticks (as multirate names them), 1000 for every tick.
 int nominal_hz(int every) { return every == 17 ? 60 : static_cast<int>(std::lround(1.0 / (every * kHapticPeriodS))); }
 
+double unexact_share(const offline::OfflineContactSolves& s) {
+  return s.solves > 0 ? static_cast<double>(s.unconverged) / static_cast<double>(s.solves) : 0.0;
+}
+double sweeps_mean(const offline::OfflineContactSolves& s) {
+  return s.solves > 0 ? static_cast<double>(s.sweeps) / static_cast<double>(s.solves) : 0.0;
+}
+
 nlohmann::json row_json(const Row& r) {
   return {{"interaction", r.interaction},
           {"visual_hz", nominal_hz(r.every)},
@@ -124,6 +136,9 @@ nlohmann::json row_json(const Row& r) {
           {"max_force_error_n", r.error.max_n},
           {"penetration_max_mm", 1e3 * r.run.penetration_max_m},
           {"tick_us_p99", r.run.trace.timings.haptic_us_p99},
+          {"contact_solves", r.run.trace.contact_solves.solves},
+          {"contact_unexact", unexact_share(r.run.trace.contact_solves)},
+          {"contact_sweeps_mean", sweeps_mean(r.run.trace.contact_solves)},
           {"visual_ms_median", r.run.trace.timings.visual_ms_median},
           {"resets", r.run.trace.resets},
           {"lift_mm", 1e3 * r.lift_m},
@@ -162,16 +177,17 @@ void run_touch_bench(const TouchSuiteArgs& a) {
       "into the movable bunny and lifted; grasp_release = the 16-frame glove lifting the box and opening. Error "
       "against the world stepped every tick (the reference, closed loop). release: force toward the object after "
       "the lift (stylus) / largest frame force after the opening (glove).\n");
-  std::printf("%-16s %7s %-11s %10s %9s %9s %10s %10s %8s %8s %8s %6s %7s\n", "interaction", "visual", "model",
-              "energy_J", "release_N", "after_N", "rms_err_N", "max_err_N", "pen_mm", "tick_p99", "vis_ms", "resets",
-              "lift_mm");
+  std::printf("%-16s %7s %-11s %10s %9s %9s %10s %10s %8s %8s %8s %7s %8s %6s %7s\n", "interaction", "visual", "model",
+              "energy_J", "release_N", "after_N", "rms_err_N", "max_err_N", "pen_mm", "tick_p99", "unexact", "sweeps",
+              "vis_ms", "resets", "lift_mm");
   nlohmann::json json_rows = nlohmann::json::array();
   for (const Row& r : rows) {
     char visual[32];
     std::snprintf(visual, sizeof visual, "%d Hz", nominal_hz(r.every));
-    std::printf("%-16s %7s %-11s %+10.4f %9.3f %9.4f %10.4f %10.4f %8.2f %8.1f %8.2f %6ld %7.1f%s\n",
+    std::printf("%-16s %7s %-11s %+10.4f %9.3f %9.4f %10.4f %10.4f %8.2f %8.1f %8.2f %7.2f %8.2f %6ld %7.1f%s\n",
                 r.interaction.c_str(), visual, haptic::to_string(r.model), r.run.energy_j, r.release_n, r.after_n,
                 r.error.rms_n, r.error.max_n, 1e3 * r.run.penetration_max_m, r.run.trace.timings.haptic_us_p99,
+                unexact_share(r.run.trace.contact_solves), sweeps_mean(r.run.trace.contact_solves),
                 r.run.trace.timings.visual_ms_median, r.run.trace.resets, 1e3 * r.lift_m,
                 r.reference ? "  (reference)" : "");
     json_rows.push_back(row_json(r));

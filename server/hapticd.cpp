@@ -213,6 +213,8 @@ int main(int argc, char** argv) {
           {"lookahead_fallbacks", st.lookahead_fallbacks},
           {"contact_holds", st.contact_holds},
           {"contact_unconverged", st.contact_unconverged},
+          {"contact_solves", st.contact_solves},
+          {"contact_sweeps", st.contact_sweeps},
           {"overdue_device_ticks", st.overdue_device_ticks},
           {"bridged_gaps", st.bridged_gaps},
           {"catch_up_ticks", st.catch_up_ticks},

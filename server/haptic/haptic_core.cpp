@@ -32,6 +32,8 @@ void add_proxy_counts(ServerStats& st, const ProxyHand& p) {
   st.lookahead_fallbacks += static_cast<std::uint64_t>(p.lookahead_fallbacks());
   st.contact_holds += static_cast<std::uint64_t>(p.contact_holds());
   st.contact_unconverged += static_cast<std::uint64_t>(p.contact_unconverged());
+  st.contact_solves += static_cast<std::uint64_t>(p.contact_solves());
+  st.contact_sweeps += static_cast<std::uint64_t>(p.contact_sweeps_total());
   st.overdue_device_ticks += static_cast<std::uint64_t>(p.overdue_device_ticks());
   st.bridged_gaps += static_cast<std::uint64_t>(p.bridged_gaps());
 }

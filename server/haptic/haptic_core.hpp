@@ -110,6 +110,8 @@ struct ServerStats {
   std::uint64_t lookahead_fallbacks = 0, contact_holds = 0;
   // Ticks whose contact solve stopped at its sweep limit without an exact answer (ProxyHand::contact_unconverged).
   std::uint64_t contact_unconverged = 0;
+  // The contact solves run and their sweeps summed (ProxyHand::contact_solves, contact_sweeps_total).
+  std::uint64_t contact_solves = 0, contact_sweeps = 0;
   // Ticks at which a session's device was overdue and followed along its velocity (ProxyHand::predict_device).
   std::uint64_t overdue_device_ticks = 0;
   // Gaps in a device's samples bridged by a clutch, not re-synced (ProxyHand::commit_sample).

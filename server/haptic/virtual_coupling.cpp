@@ -732,10 +732,14 @@ bool ProxyHand::solve_contacts(const HapticModel& model, double dt, double tau, 
   } else {
     u_.noalias() += c.W_proxy * lambda_;
   }
+  ++contact_solves_;
   contact_sweeps_ = sweeps(kTickContactFirstSweeps);
+  contact_sweeps_total_ += contact_sweeps_;
   if (!lambda_.allFinite()) return false;
   if (!polish_contacts(c) && !converged) {
-    contact_sweeps_ += sweeps(kTickContactSweeps - kTickContactFirstSweeps);
+    const int more = sweeps(kTickContactSweeps - kTickContactFirstSweeps);
+    contact_sweeps_ += more;
+    contact_sweeps_total_ += more;
     if (!lambda_.allFinite()) return false;
     if (!polish_contacts(c) && !converged) ++contact_unconverged_;
   }

@@ -363,6 +363,10 @@ class ProxyHand {
   const TickRowVector& contact_impulses() const { return lambda_; }
   int contact_sweeps() const { return contact_sweeps_; }
   long contact_unconverged() const { return contact_unconverged_; }
+  // The contact solves run (one a tick with contact rows, one more for a lookahead fallback) and
+  // their sweeps summed: the solve's work, counted, where its wall time is the machine's noise too.
+  long contact_solves() const { return contact_solves_; }
+  long contact_sweeps_total() const { return contact_sweeps_total_; }
   // Ticks whose solve with contacts failed (non-finite, or a proxy past kMaxProxySpeed_m_s) with the
   // lookahead to the model's step end and were solved again without it, and ticks at which the
   // proxies then held still instead, too fast still (integrate()).
@@ -473,6 +477,7 @@ class ProxyHand {
   int contact_sweeps_ = 0;
   long contact_unconverged_ = 0, lookahead_fallbacks_ = 0, contact_holds_ = 0, overdue_device_ticks_ = 0;
   long bridged_gaps_ = 0;
+  long contact_solves_ = 0, contact_sweeps_total_ = 0;
   // Workspace of the implicit step, sized once. The block diagonal part of A per handle:
   // translational (a multiple of the identity) and rotational.
   double a_lin_[kMaxHapticHandles]{};

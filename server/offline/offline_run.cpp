@@ -318,6 +318,8 @@ OfflineTrace run_offline(OfflineLoops& loops, OfflineDevice& device, long ticks,
   }
   trace.timings = loops.timings();
   trace.resets = loops.resets();
+  const haptic::ProxyHand& proxy = loops.proxy();
+  trace.contact_solves = {proxy.contact_solves(), proxy.contact_unconverged(), proxy.contact_sweeps_total()};
   return trace;
 }
 

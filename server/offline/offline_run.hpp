@@ -267,10 +267,19 @@ class RecordedDevice final : public OfflineDevice {
 // --- Whole runs ----------------------------------------------------------------------------------
 
 // A run's per-tick record: the device's poses and what it received.
+// The haptic tick's contact solves over a run (ProxyHand's counters, read at its end): the work,
+// counted, that the tick's wall time measures with the machine's noise in it.
+struct OfflineContactSolves {
+  long solves = 0;       // ticks that solved contact rows (and lookahead fallbacks)
+  long unconverged = 0;  // of them, those that ended at the sweep limit without an exact answer
+  long sweeps = 0;       // Gauss-Seidel sweeps, summed
+};
+
 struct OfflineTrace {
   std::vector<DeviceFrames> poses;
   std::vector<DeviceReply> replies;
   OfflineTimings timings;
+  OfflineContactSolves contact_solves;
   long resets = 0;
 };
 

@@ -293,13 +293,22 @@ TEST(TickContacts, AContactReleasesWithinOneTickWhenTheDeviceLiftsAway) {
   std::vector<Eigen::Vector3d> at = {Eigen::Vector3d(0, 0, -0.002)};
   rest_on_device(p, at, t);
   ReplyWrench pressed;
+  const long solves_before = p.contact_solves(), sweeps_before = p.contact_sweeps_total();
+  long sweeps = 0;
   for (int k = 0; k < 300; ++k) {
     t += kPeriod;
     p.set_device_pose(0, at[0], Eigen::Quaterniond::Identity());
     p.commit_sample(t, 0.05);
     pressed = p.reply(0, 1.0, kPeriod);
     p.integrate(floor, kPeriod, 0.01);
+    sweeps += p.contact_sweeps();
   }
+  // The counters hapticd --stats and haptic-bench touch report: one solve a tick, its sweeps summed,
+  // and on one row every tick's answer exact.
+  EXPECT_EQ(p.contact_solves() - solves_before, 300);
+  EXPECT_EQ(p.contact_sweeps_total() - sweeps_before, sweeps);
+  EXPECT_GE(sweeps, 300);
+  EXPECT_EQ(p.contact_unconverged(), 0);
   EXPECT_NEAR(p.proxy(0).p_W.z(), 0.0, 5e-5) << "the proxy rests on the floor";
   EXPECT_NEAR(pressed.f_D.z(), 1000.0 * 0.002, 0.1) << "the device feels the coupling's 2 mm";
   EXPECT_GT(p.contact_impulses()[0], 0.0);
@@ -312,8 +321,10 @@ TEST(TickContacts, AContactReleasesWithinOneTickWhenTheDeviceLiftsAway) {
     x->set_device_pose(0, at[0], Eigen::Quaterniond::Identity());
     x->commit_sample(t, 0.05);
   }
+  const long q_solves = q.contact_solves();
   p.integrate(floor, kPeriod, 0.01);
   q.integrate(free_space, kPeriod, 0.01);
+  EXPECT_EQ(q.contact_solves(), q_solves) << "no rows, no solve";
   EXPECT_EQ(p.contact_impulses()[0], 0.0) << "released within the tick";
   EXPECT_LT((p.proxy_velocity(0) - q.proxy_velocity(0)).norm(), 1e-12);
   EXPECT_GT(p.proxy_velocity(0).z(), 0.0) << "the proxy follows the device up";
