@@ -181,14 +181,14 @@ INSTANTIATE_TEST_SUITE_P(SlowVisualLoop, GlovePressHold,
                          case_name);
 
 // A known fault of issue 17 (tests/CMakeLists.txt runs it as one ctest expected to fail): holds that end
-// passive but whose frames still swing over the last 0.5 s (bound 0.05 N). At 12 Hz with the controller,
-// 0.34 N (-0.017 J; 0.015 N in four of the six runs of K scaled as above); at 8 Hz without it, 0.063 N
-// (0.20 N in three of six); at 16 Hz with models late (seed 2) without it, 0.53 N (-0.038 J; passes
-// as it stands at faa7000, and still in three of six runs now). The same with the controller: swing
-// 0.514 N, -0.0384 J with OpenBLAS's AVX2 kernels, which the tests pin (tests/CMakeLists.txt); it held
-// still with its AVX-512 ones (0.0001 N, -0.0305 J) and with its AVX ones (0.0018 N, -0.0400 J), the
-// same build on the same AMD EPYC (OPENBLAS_CORETYPE=SkylakeX, Sandybridge): the factorizations' last
-// bits decide it, as the perturbed runs above.
+// passive but whose frames still swing over the last 0.5 s (bound 0.05 N). With OpenBLAS's AVX2 kernels,
+// which the tests pin (tests/CMakeLists.txt): at 12 Hz with the controller 0.342 N (-0.0171 J); at 8 Hz
+// without it 0.197 N (-0.0119 J); at 16 Hz with models late (seed 2) 0.605 N without it (-0.0399 J) and
+// 0.514 N with it (-0.0384 J). Measured on an Intel Xeon before the pin (the perturbed runs above):
+// 0.34 N (0.015 N in four of the six runs of K scaled), 0.063 N (0.20 N in three of six), 0.53 N (passed
+// as it stood at faa7000, and in three of six runs), and the last held still. On one AMD EPYC, the same
+// build: with the AVX-512 kernels (OPENBLAS_CORETYPE=SkylakeX) that last hold swung 0.0001 N (-0.0305 J),
+// with the AVX ones (Sandybridge) 0.0018 N (-0.0400 J): the factorizations' last bits decide it.
 INSTANTIATE_TEST_SUITE_P(Issue17KnownFault, GlovePressHold,
                          ::testing::Values(PressCase{12, true}, PressCase{8, false},
                                            PressCase{16, false, 45, 15, 2, kLateEnd_s},
