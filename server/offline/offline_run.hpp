@@ -45,7 +45,7 @@ struct OfflineOptions {
   std::uint64_t late_model_seed = 12345;
   // Every model's stiffness K scaled by this before it is prepared: a perturbation far above rounding
   // (1 +- 1e-6 .. 1e-4), to tell an outcome the rendering gives from one a run happens to give
-  // (tests/server/offline/test_glove_press_hold.cpp reads HAPTICD_STIFFNESS_SCALE into it).
+  // (the glove tests read HAPTICD_STIFFNESS_SCALE into it: tests/server/offline/stiffness_scale.hpp).
   double model_stiffness_scale = 1.0;
   // Windows [from, to) of simulated time, s, in which the device's samples never reach the server (a
   // device whose servo loop or link stalled): the core ticks on without them, and the device, sent
@@ -266,7 +266,6 @@ class RecordedDevice final : public OfflineDevice {
 
 // --- Whole runs ----------------------------------------------------------------------------------
 
-// A run's per-tick record: the device's poses and what it received.
 // The haptic tick's contact solves over a run (ProxyHand's counters, read at its end): the work,
 // counted, that the tick's wall time measures with the machine's noise in it.
 struct OfflineContactSolves {
@@ -275,6 +274,7 @@ struct OfflineContactSolves {
   long sweeps = 0;       // Gauss-Seidel sweeps, summed
 };
 
+// A run's per-tick record: the device's poses and what it received.
 struct OfflineTrace {
   std::vector<DeviceFrames> poses;
   std::vector<DeviceReply> replies;

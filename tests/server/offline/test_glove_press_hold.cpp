@@ -45,13 +45,13 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
-#include <cstdlib>
 #include <memory>
 #include <string>
 
 #include "server/offline/multirate.hpp"
 #include "server/offline/offline_run.hpp"
 #include "server/world/scene_loader.hpp"
+#include "stiffness_scale.hpp"
 
 namespace hapticd::offline {
 namespace {
@@ -95,10 +95,7 @@ TEST_P(GlovePressHold, AStillHoldPutsNoEnergyIntoTheGloveAndHoldsStill) {
   options.late_model_max_ticks = c.late;
   options.late_model_seed = c.seed;
   // A perturbed run (OfflineOptions::model_stiffness_scale), as the comments' six runs a case were measured.
-  if (const char* scale = std::getenv("HAPTICD_STIFFNESS_SCALE")) {
-    options.model_stiffness_scale = std::strtod(scale, nullptr);
-    EXPECT_GT(options.model_stiffness_scale, 0.0) << "HAPTICD_STIFFNESS_SCALE=" << scale << " is not a scale";
-  }
+  apply_stiffness_scale_from_env(options);
   OfflineLoops loops(press.scene, options);
   const std::unique_ptr<OfflineDevice> device = press.device(loops);
   const auto& glove = dynamic_cast<const SimulatedGlove&>(*device);

@@ -20,11 +20,11 @@
 
 #include <cmath>
 #include <cstdio>
-#include <cstdlib>
 #include <string>
 
 #include "server/offline/touch.hpp"
 #include "server/world/scene_loader.hpp"
+#include "stiffness_scale.hpp"
 
 namespace hapticd::offline {
 namespace {
@@ -53,10 +53,7 @@ GraspRun run_grasp(const GraspCase& c) {
   options.visual_every_ticks = static_cast<int>(std::lround(1.0 / (c.visual_hz * kPeriod)));
   options.passivity_control = c.passivity_control;
   // A perturbed run (OfflineOptions::model_stiffness_scale), as the known fault's figures were measured.
-  if (const char* scale = std::getenv("HAPTICD_STIFFNESS_SCALE")) {
-    options.model_stiffness_scale = std::strtod(scale, nullptr);
-    EXPECT_GT(options.model_stiffness_scale, 0.0) << "HAPTICD_STIFFNESS_SCALE=" << scale << " is not a scale";
-  }
+  apply_stiffness_scale_from_env(options);
   world::SceneDesc scene =
       grasp_scene(world::load_scene(std::string(HAPTICD_SCENES_DIR) + "/" + c.scene + ".json"), c.kind);
   if (*c.model_name)
