@@ -25,6 +25,12 @@ constexpr int kMaxRefinements = 6;
 // The tick's contact solve (TickContacts): projected Gauss-Seidel sweeps, at most this many, until no
 // impulse changes by more than this fraction of the largest.
 constexpr int kTickContactSweeps = 8, kTickContactFirstSweeps = 2;
+// Redundant rows (ProxyHand::redistribute): W_AA's reciprocal condition number below this, and its
+// singular values below this share of the largest; at most this many alternating projections, onto
+// cones this much narrower than the contacts'.
+constexpr double kRedundantRank = 1e-10;
+constexpr int kRedistributeIterations = 50;
+constexpr double kRedistributeMargin = 1e-3;
 constexpr double kTickContactTolerance = 1e-10;
 
 // The time since the last reply the passivity controller divides by, s: from a tick at 10 kHz (the
@@ -766,7 +772,6 @@ bool ProxyHand::polish_contacts(const TickContacts& c) {
   // problem is linear, W_AA lambda_A = target_A - (u - W lambda)_A, solved exactly; the answer
   // replaces the sweeps' if it keeps every condition (PGS converges linearly, and slowly where the
   // proxies' response makes the rows stiff).
-  const int r = 3 * c.count;
   int a = 0;
   for (int i = 0; i < c.count; ++i) {
     const double ln = lambda_[3 * i];
@@ -777,23 +782,35 @@ bool ProxyHand::polish_contacts(const TickContacts& c) {
   }
   if (a == 0) return false;
   // The rows' velocities now, every row (the low-rank operator keeps them in two parts).
-  u_candidate_ = u_;
-  if (low_rank_) u_candidate_.noalias() += P_ * y_;
+  u_now_ = u_;
+  if (low_rank_) u_now_.noalias() += P_ * y_;
   W_aa_.resize(a, a);
   rhs_a_.resize(a);
   for (int i = 0; i < a; ++i) {
     const int row = active_[i];
     // The target: the bias on a normal row, no slip on a tangent row.
-    rhs_a_[i] = (row % 3 == 0 ? c.bias[row / 3] : 0.0) - u_candidate_[row];
+    rhs_a_[i] = (row % 3 == 0 ? c.bias[row / 3] : 0.0) - u_now_[row];
     for (int k = 0; k < a; ++k) W_aa_(i, k) = delassus(c, row, active_[k]);
   }
   // rhs_a_ = target - u now; the correction d of the active impulses solves W_AA d = rhs_a_.
   lu_rows_.compute(W_aa_);
   delta_a_.noalias() = lu_rows_.solve(rhs_a_);
-  if (!delta_a_.allFinite()) return false;
+  Correction result = delta_a_.allFinite() ? try_correction(c, a) : Correction::breaks_active;
+  // An active row broke a condition: redundant rows give W_AA a vanishing pivot (rcond ~1e-17 for
+  // the tool on three points), a wrong set does not. (An inactive row pushed in: the set is wrong,
+  // whatever impulses the active rows pass among themselves.)
+  if (result == Correction::breaks_active && lu_rows_.rcond() < kRedundantRank && redistribute(c, a))
+    result = try_correction(c, a);
+  return result == Correction::solution;
+}
+
+ProxyHand::Correction ProxyHand::try_correction(const TickContacts& c, int a) {
+  // lambda_ + delta_a_ on the active rows, kept if it keeps every condition.
+  const int r = 3 * c.count;
   candidate_ = lambda_;
   for (int i = 0; i < a; ++i) candidate_[active_[i]] += delta_a_[i];
   // u += (W + P Q) d over the active columns.
+  u_candidate_ = u_now_;
   const TickRowMatrix& W = low_rank_ ? c.W : c.W_proxy;
   dy_.setZero(6 * handles_);
   for (int i = 0; i < a; ++i) {
@@ -804,12 +821,68 @@ bool ProxyHand::polish_contacts(const TickContacts& c) {
   constexpr double kSlack = 1e-12;
   for (int i = 0; i < c.count; ++i) {
     const double ln = candidate_[3 * i];
-    if (ln < 0 || u_candidate_[3 * i] - c.bias[i] < -kSlack * (1 + std::abs(c.bias[i]))) return false;
-    if (candidate_.segment<2>(3 * i + 1).norm() > c.mu[i] * ln * (1 + 1e-9) + 1e-300) return false;
+    if (ln < 0 || candidate_.segment<2>(3 * i + 1).norm() > c.mu[i] * ln * (1 + 1e-9) + 1e-300)
+      return Correction::breaks_active;
+    if (u_candidate_[3 * i] - c.bias[i] < -kSlack * (1 + std::abs(c.bias[i]))) return Correction::breaks_inactive;
   }
   // The answer; the rows' velocities are not needed past it (the next tick starts them afresh).
   lambda_ = candidate_;
-  return true;
+  return Correction::solution;
+}
+
+bool ProxyHand::redistribute(const TickContacts& c, int a) {
+  // Redundant rows (more of them on a rigid body than it has DOFs: a tool resting on a body at three
+  // points, nine rows of rank six) make W_AA singular. Its answers then form an affine set, the
+  // least-norm correction plus any impulses the rows pass among themselves without moving anything
+  // (its null space), and partial pivoting picks one of 1e4-1e8 N s that fails every check. The
+  // one kept is found by alternating projections between that set and the conditions on the active
+  // rows (normals >= 0, a sticking contact's impulse in its cone, a sliding one's normal at least its
+  // fixed tangent over mu): both convex, so they converge to a point of both where one exists.
+  cod_.setThreshold(kRedundantRank);
+  cod_.compute(W_aa_);
+  if (cod_.rank() == a) return false;  // not redundant: the set itself is wrong
+  // x: the active impulses; b: W_AA x = b on the set (lambda_A + d for the d of W_AA d = rhs_a_).
+  x_a_.resize(a);
+  for (int i = 0; i < a; ++i) x_a_[i] = lambda_[active_[i]];
+  b_a_.noalias() = W_aa_ * x_a_;
+  b_a_ += rhs_a_;
+  const auto onto_set = [&] {
+    r_a_.noalias() = W_aa_ * x_a_;
+    r_a_ -= b_a_;
+    x_a_.noalias() -= cod_.solve(r_a_);
+  };
+  onto_set();
+  for (int iteration = 0; iteration < kRedistributeIterations; ++iteration) {
+    bool inside = true;
+    for (int k = 0; k < a;) {
+      const int i = active_[k] / 3;
+      const bool sticking = k + 2 < a && active_[k + 1] == 3 * i + 1;
+      if (sticking) {
+        // Onto the cone |t| <= mu n (Euclidean), narrowed by kRedistributeMargin so that a contact the
+        // redundancy lets stick is left inside it: along its edge through (n, |t|) where outside.
+        const double n = x_a_[k], t = std::hypot(x_a_[k + 1], x_a_[k + 2]), mu = (1 - kRedistributeMargin) * c.mu[i];
+        if (t > mu * n * (1 + 1e-12)) {
+          inside = false;
+          if (mu * t <= -n) {
+            x_a_.segment<3>(k).setZero();
+          } else {
+            const double n_edge = (n + mu * t) / (1 + mu * mu);
+            x_a_[k] = n_edge;
+            x_a_.segment<2>(k + 1) *= t > 0 ? mu * n_edge / t : 0.0;
+          }
+        }
+        k += 3;
+      } else {
+        const double least = c.mu[i] > 0 ? lambda_.segment<2>(3 * i + 1).norm() / c.mu[i] : 0.0;
+        if (x_a_[k] < least) inside = false, x_a_[k] = least;
+        k += 1;
+      }
+    }
+    if (inside) break;
+    onto_set();
+  }
+  for (int i = 0; i < a; ++i) delta_a_[i] = x_a_[i] - lambda_[active_[i]];
+  return delta_a_.allFinite();
 }
 
 bool ProxyHand::solver_matches(const TickSolver& s, double dt) const {

@@ -9,6 +9,7 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include <Eigen/LU>
+#include <Eigen/QR>
 #include <cstdint>
 #include <limits>
 
@@ -456,6 +457,12 @@ class ProxyHand {
   // The active set of the sweeps' answer solved exactly, kept if it is a solution (solve_contacts):
   // true then.
   bool polish_contacts(const TickContacts& c);
+  // lambda_ + delta_a_ over the a active rows of polish_contacts, into lambda_ if it is a solution;
+  // else which rows broke a condition (an active row's impulse, an inactive row's separation).
+  enum class Correction { solution, breaks_active, breaks_inactive };
+  Correction try_correction(const TickContacts& c, int a);
+  // delta_a_ for redundant active rows (W_AA singular): the one that keeps the conditions.
+  bool redistribute(const TickContacts& c, int a);
   // Entry (row, col) of the tick's Delassus operator (solve_contacts).
   double delassus(const TickContacts& c, int row, int col) const;
   // The rows' velocities: u_ = u_free + W lambda_, plus P_ y_ in the low-rank form (low_rank_:
@@ -466,6 +473,8 @@ class ProxyHand {
   int active_[kMaxTickRows]{};
   TickRowMatrix W_aa_;
   Eigen::PartialPivLU<TickRowMatrix> lu_rows_;
+  Eigen::CompleteOrthogonalDecomposition<TickRowMatrix> cod_;
+  TickRowVector u_now_, x_a_, b_a_, r_a_;
   HapticVector x_look_, rhs_;
   TickDofByRow Q_;
   TickRowByDof P_;

@@ -228,13 +228,11 @@ HapticModel tool_on_body(double step_s) {
   return m;
 }
 
-// A known fault of issue 17 (run as a test expected to fail, tests/CMakeLists.txt): the tick's exact
-// solve of the sweeps' active set (ProxyHand::polish_contacts) factors W_AA by partial pivoting, whose
-// answer to redundant rows is impulses of 1e4-1e8 N s that fail every check, so such a tick ends on
-// its 8 sweeps: the third case here (the tool 0.6 mm aside, one contact at its cone's edge) ends
-// unconverged, residual 2.1e-3 m/s; the stylus pressing the movable bunny through hapticd ends every
-// one of its ~2700 contact ticks a run so (contact_unconverged 2704-2749 of ~7000 ticks).
-TEST(Issue17KnownFault, AToolStuckOnARigidBodyByRedundantContactsIsSolvedExactly) {
+// Partial pivoting answers such rows with impulses of 1e4-1e8 N s that fail every check; the tick's
+// exact solve (ProxyHand::polish_contacts) passes the impulses among the redundant rows instead
+// (ProxyHand::redistribute). Before it, the third case here (the tool 0.6 mm aside, one contact at
+// its cone's edge) ended on its 8 sweeps, residual 2.1e-3 m/s.
+TEST(TickContacts, AToolStuckOnARigidBodyByRedundantContactsIsSolvedExactly) {
   const HapticModel m = tool_on_body(1.0 / 30);
   const Eigen::JacobiSVD<Eigen::MatrixXd> svd(Eigen::MatrixXd(m.contacts.W));
   ASSERT_LT(svd.singularValues()[6], 1e-12 * svd.singularValues()[0]) << "the body's rows are redundant";
