@@ -26,10 +26,10 @@ constexpr int kMaxRefinements = 6;
 // impulse changes by more than this fraction of the largest.
 constexpr int kTickContactSweeps = 8, kTickContactFirstSweeps = 2;
 // Redundant rows (ProxyHand::redistribute): W_AA's reciprocal condition number below this, and its
-// singular values below this share of the largest; at most this many alternating projections, onto
-// cones this much narrower than the contacts'.
+// singular values below this share of the largest; sets of at most this many rows; at most this many
+// alternating projections, onto cones this much narrower than the contacts'.
 constexpr double kRedundantRank = 1e-10;
-constexpr int kRedistributeIterations = 50;
+constexpr int kMaxRedundantRows = 8, kRedistributeIterations = 200;
 constexpr double kRedistributeMargin = 1e-3;
 constexpr double kTickContactTolerance = 1e-10;
 
@@ -819,11 +819,13 @@ ProxyHand::Correction ProxyHand::try_correction(const TickContacts& c, int a) {
   }
   if (low_rank_) u_candidate_.noalias() += P_ * dy_;
   constexpr double kSlack = 1e-12;
+  const auto pushed_in = [&](int i) { return u_candidate_[3 * i] - c.bias[i] < -kSlack * (1 + std::abs(c.bias[i])); };
+  for (int i = 0; i < c.count; ++i)  // the rows out of the set first (their impulses stay 0)
+    if (lambda_[3 * i] <= 0 && pushed_in(i)) return Correction::breaks_inactive;
   for (int i = 0; i < c.count; ++i) {
     const double ln = candidate_[3 * i];
-    if (ln < 0 || candidate_.segment<2>(3 * i + 1).norm() > c.mu[i] * ln * (1 + 1e-9) + 1e-300)
+    if (ln < 0 || candidate_.segment<2>(3 * i + 1).norm() > c.mu[i] * ln * (1 + 1e-9) + 1e-300 || pushed_in(i))
       return Correction::breaks_active;
-    if (u_candidate_[3 * i] - c.bias[i] < -kSlack * (1 + std::abs(c.bias[i]))) return Correction::breaks_inactive;
   }
   // The answer; the rows' velocities are not needed past it (the next tick starts them afresh).
   lambda_ = candidate_;
@@ -834,52 +836,69 @@ bool ProxyHand::redistribute(const TickContacts& c, int a) {
   // Redundant rows (more of them on a rigid body than it has DOFs: a tool resting on a body at three
   // points, nine rows of rank six) make W_AA singular. Its answers then form an affine set, the
   // least-norm correction plus any impulses the rows pass among themselves without moving anything
-  // (its null space), and partial pivoting picks one of 1e4-1e8 N s that fails every check. The
-  // one kept is found by alternating projections between that set and the conditions on the active
-  // rows (normals >= 0, a sticking contact's impulse in its cone, a sliding one's normal at least its
-  // fixed tangent over mu): both convex, so they converge to a point of both where one exists.
+  // (W_AA's null space, of a few dimensions), and partial pivoting picks one of 1e4-1e8 N s that
+  // fails every check. The one kept is found by alternating projections between that set and the
+  // conditions on the active rows (normals >= 0, a sticking contact's impulse in its cone, a sliding
+  // one's normal at least its fixed tangent over mu), both convex, so that they converge to a point
+  // of both where one exists; run in the null space's coordinates, each costs O(a) per dimension.
+  if (a > kMaxRedundantRows) return false;
   cod_.setThreshold(kRedundantRank);
   cod_.compute(W_aa_);
-  if (cod_.rank() == a) return false;  // not redundant: the set itself is wrong
-  // x: the active impulses; b: W_AA x = b on the set (lambda_A + d for the d of W_AA d = rhs_a_).
-  x_a_.resize(a);
-  for (int i = 0; i < a; ++i) x_a_[i] = lambda_[active_[i]];
-  b_a_.noalias() = W_aa_ * x_a_;
-  b_a_ += rhs_a_;
-  const auto onto_set = [&] {
-    r_a_.noalias() = W_aa_ * x_a_;
-    r_a_ -= b_a_;
-    x_a_.noalias() -= cod_.solve(r_a_);
-  };
-  onto_set();
+  const int k = a - static_cast<int>(cod_.rank());
+  if (k == 0) return false;  // not redundant: the set itself is wrong
+  // An orthonormal basis N of the null space: unit vectors less their least-norm images
+  // (I - W^+ W) e_j, by Gram-Schmidt.
+  null_.resize(a, k);
+  int found = 0;
+  for (int j = 0; j < a && found < k; ++j) {
+    r_a_.setZero(a);
+    r_a_[j] = 1;
+    b_a_ = W_aa_.col(j);
+    r_a_.noalias() -= cod_.solve(b_a_);
+    for (int q = 0; q < found; ++q) r_a_ -= null_.col(q).dot(r_a_) * null_.col(q);
+    const double norm = r_a_.norm();
+    if (norm > 1e-6) null_.col(found++) = r_a_ / norm;
+  }
+  if (found < k) return false;
+  // x0 = lambda_A + the least-norm correction; x = x0 + N z.
+  x0_a_.resize(a);
+  for (int i = 0; i < a; ++i) x0_a_[i] = lambda_[active_[i]];
+  x0_a_.noalias() += cod_.solve(rhs_a_);
+  z_.setZero(k);
+  x_a_ = x0_a_;
   for (int iteration = 0; iteration < kRedistributeIterations; ++iteration) {
     bool inside = true;
-    for (int k = 0; k < a;) {
-      const int i = active_[k] / 3;
-      const bool sticking = k + 2 < a && active_[k + 1] == 3 * i + 1;
+    for (int q = 0; q < a;) {
+      const int i = active_[q] / 3;
+      const bool sticking = q + 2 < a && active_[q + 1] == 3 * i + 1;
       if (sticking) {
         // Onto the cone |t| <= mu n (Euclidean), narrowed by kRedistributeMargin so that a contact the
         // redundancy lets stick is left inside it: along its edge through (n, |t|) where outside.
-        const double n = x_a_[k], t = std::hypot(x_a_[k + 1], x_a_[k + 2]), mu = (1 - kRedistributeMargin) * c.mu[i];
+        const double n = x_a_[q], t = std::hypot(x_a_[q + 1], x_a_[q + 2]);
+        const double mu = (1 - kRedistributeMargin) * c.mu[i];
         if (t > mu * n * (1 + 1e-12)) {
           inside = false;
           if (mu * t <= -n) {
-            x_a_.segment<3>(k).setZero();
+            x_a_.segment<3>(q).setZero();
           } else {
             const double n_edge = (n + mu * t) / (1 + mu * mu);
-            x_a_[k] = n_edge;
-            x_a_.segment<2>(k + 1) *= t > 0 ? mu * n_edge / t : 0.0;
+            x_a_[q] = n_edge;
+            x_a_.segment<2>(q + 1) *= t > 0 ? mu * n_edge / t : 0.0;
           }
         }
-        k += 3;
+        q += 3;
       } else {
         const double least = c.mu[i] > 0 ? lambda_.segment<2>(3 * i + 1).norm() / c.mu[i] : 0.0;
-        if (x_a_[k] < least) inside = false, x_a_[k] = least;
-        k += 1;
+        if (x_a_[q] < least) inside = false, x_a_[q] = least;
+        q += 1;
       }
     }
     if (inside) break;
-    onto_set();
+    // Back onto the set: the nearest x0 + N z.
+    r_a_ = x_a_ - x0_a_;
+    z_.noalias() = null_.transpose() * r_a_;
+    x_a_ = x0_a_;
+    x_a_.noalias() += null_ * z_;
   }
   for (int i = 0; i < a; ++i) delta_a_[i] = x_a_[i] - lambda_[active_[i]];
   return delta_a_.allFinite();

@@ -474,7 +474,8 @@ class ProxyHand {
   TickRowMatrix W_aa_;
   Eigen::PartialPivLU<TickRowMatrix> lu_rows_;
   Eigen::CompleteOrthogonalDecomposition<TickRowMatrix> cod_;
-  TickRowVector u_now_, x_a_, b_a_, r_a_;
+  TickRowVector u_now_, x_a_, x0_a_, b_a_, r_a_, z_;
+  TickRowMatrix null_;  // redistribute's null-space basis (a x k)
   HapticVector x_look_, rhs_;
   TickDofByRow Q_;
   TickRowByDof P_;
