@@ -1,4 +1,4 @@
-// `haptic-bench hands [--size tiny|default] [--json FILE]`
+// `haptic-bench hands [--size tiny|default] [--json FILE] [--tick-sweeps N]`
 //
 // Every hand model on the same scripted interactions (issue 18), closed loop through the lockstep
 // runner (hapticd's haptic tick and visual step, the passivity controller on as in hapticd), each
@@ -17,7 +17,7 @@
 // the multi-rate split, so the error is the rendering's (the linearized model between visual steps),
 // not the hand model's.
 //
-// JSON (--json FILE): {"suite": "hands", "size", "haptic_hz": 1000, "method", "rows": [...], "wall_s",
+// JSON (--json FILE): {"suite": "hands", "size", "tick_contact_sweeps", "haptic_hz": 1000, "method", "rows": [...], "wall_s",
 // "threads": 1, "machine": {...}}. One row per (interaction, model, visual rate):
 //   interaction         string  "table_press" | "bunny_press" | "grasp_box" | "grasp_ball" | "pinch_plate"
 //   model               string  "fem" | "spring" | "contact_point"
@@ -88,8 +88,9 @@ struct Row : TouchOutcome {
   bool reference = false;
 };
 
-offline::OfflineOptions options_for(int every) {
+offline::OfflineOptions options_for(int every, int tick_sweeps) {
   offline::OfflineOptions o;
+  o.tick_contact_sweeps = tick_sweeps;
   o.haptic_period_s = 1e-3;
   o.visual_every_ticks = every;
   return o;
@@ -102,12 +103,12 @@ Row row_of(const TouchOutcome& outcome, int every) {
   return r;
 }
 
-Row press_row(const world::SceneDesc& scene, int every) {
-  return row_of(bench_press(scene, options_for(every)), every);
+Row press_row(const world::SceneDesc& scene, int every, int tick_sweeps) {
+  return row_of(bench_press(scene, options_for(every, tick_sweeps)), every);
 }
 
-Row grasp_row(const world::SceneDesc& scene, int every, offline::GraspKind kind) {
-  return row_of(bench_grasp(scene, options_for(every), kind), every);
+Row grasp_row(const world::SceneDesc& scene, int every, offline::GraspKind kind, int tick_sweeps) {
+  return row_of(bench_grasp(scene, options_for(every, tick_sweeps), kind), every);
 }
 
 world::SceneDesc with_model(world::SceneDesc scene, world::HandModelKind kind, int fem_tets) {
@@ -232,10 +233,11 @@ void run_hands_bench(const TouchSuiteArgs& a) {
       auto run = [&](int every) {
         spdlog::info("hands: {} with the {} hand at {} ticks", name, m.name, every);
         Row r = in.press_place == nullptr
-                    ? grasp_row(with_model(offline::grasp_scene(glove, in.grasp), m.kind, fem_tets), every, in.grasp)
+                    ? grasp_row(with_model(offline::grasp_scene(glove, in.grasp), m.kind, fem_tets), every, in.grasp,
+                                a.tick_sweeps)
                     : press_row(with_model(offline::press_scene(std::string(m.press_prefix) + in.press_place), m.kind,
                                            fem_tets),
-                                every);
+                                every, a.tick_sweeps);
         r.interaction = name;
         r.model = m.name;
         r.grasp = in.press_place == nullptr;
@@ -293,6 +295,7 @@ void run_hands_bench(const TouchSuiteArgs& a) {
     write_json(a.json,
                {{"suite", "hands"},
                 {"size", a.size},
+                {"tick_contact_sweeps", a.tick_sweeps},
                 {"haptic_hz", 1000},
                 {"method",
                  "closed loop through the lockstep runner, passivity controller on, 30 Hz visual step; "

@@ -1,4 +1,4 @@
-// `haptic-bench touch [--size tiny|default] [--json FILE]`
+// `haptic-bench touch [--size tiny|default] [--json FILE] [--tick-sweeps N]`
 //
 // Contacts that make and break (issue 17), closed loop through the lockstep runner (hapticd's haptic
 // tick and visual step, the passivity controller on as in hapticd), each interaction scripted as its
@@ -11,7 +11,7 @@
 // rows) and the bilateral baseline (the last step's pushing contacts held both ways), and once with
 // the world stepped at every haptic tick (the reference).
 //
-// JSON (--json FILE): {"suite": "touch", "size", "haptic_hz": 1000, "method", "rows": [...],
+// JSON (--json FILE): {"suite": "touch", "size", "tick_contact_sweeps", "haptic_hz": 1000, "method", "rows": [...],
 // "wall_s", "threads": 1, "machine": {...}}. One row per (interaction, visual rate, model):
 //   interaction         string  "press_hold_lift" | "grasp_release"
 //   visual_hz           number  nominal visual rate (15, 30, 60; 1000 = every tick, the reference)
@@ -88,26 +88,27 @@ world::SceneDesc with_hand_tets(world::SceneDesc scene, int tets) {
   return scene;
 }
 
-offline::OfflineOptions options_for(int every, haptic::HandleModelKind model) {
+offline::OfflineOptions options_for(int every, haptic::HandleModelKind model, int tick_sweeps) {
   offline::OfflineOptions o;
+  o.tick_contact_sweeps = tick_sweeps;
   o.haptic_period_s = kHapticPeriodS;
   o.visual_every_ticks = every;
   o.model = model;
   return o;
 }
 
-Row press_row(const world::SceneDesc& scene, int every, haptic::HandleModelKind model) {
+Row press_row(const world::SceneDesc& scene, int every, haptic::HandleModelKind model, int tick_sweeps) {
   Row r;
-  static_cast<TouchOutcome&>(r) = bench_press(scene, options_for(every, model));
+  static_cast<TouchOutcome&>(r) = bench_press(scene, options_for(every, model, tick_sweeps));
   r.interaction = "press_hold_lift";
   r.every = every;
   r.model = model;
   return r;
 }
 
-Row grasp_row(const world::SceneDesc& scene, int every, haptic::HandleModelKind model) {
+Row grasp_row(const world::SceneDesc& scene, int every, haptic::HandleModelKind model, int tick_sweeps) {
   Row r;
-  static_cast<TouchOutcome&>(r) = bench_grasp(scene, options_for(every, model));
+  static_cast<TouchOutcome&>(r) = bench_grasp(scene, options_for(every, model, tick_sweeps));
   r.interaction = "grasp_release";
   r.every = every;
   r.model = model;
@@ -158,7 +159,8 @@ void run_touch_bench(const TouchSuiteArgs& a) {
     if (!press && !size.grasp) continue;
     auto run = [&](int every, haptic::HandleModelKind model) {
       spdlog::info("touch: {} at {} ticks, {}", interaction, every, haptic::to_string(model));
-      return press ? press_row(press_scene, every, model) : grasp_row(grasp_scene, every, model);
+      return press ? press_row(press_scene, every, model, a.tick_sweeps)
+                   : grasp_row(grasp_scene, every, model, a.tick_sweeps);
     };
     Row reference = run(1, haptic::HandleModelKind::linearized);
     reference.reference = true;
@@ -192,12 +194,15 @@ void run_touch_bench(const TouchSuiteArgs& a) {
                 r.reference ? "  (reference)" : "");
     json_rows.push_back(row_json(r));
   }
-  std::printf("%.1f s wall (all runs); machine: %s, %d cores, BLAS %s, revision %s (one thread)\n", wall_s,
-              machine.cpu.c_str(), machine.cores, machine.blas.c_str(), machine.git_revision.c_str());
+  std::printf(
+      "%.1f s wall (all runs); machine: %s, %d cores, BLAS %s, revision %s (one thread); tick contact sweeps "
+      "at most %d\n",
+      wall_s, machine.cpu.c_str(), machine.cores, machine.blas.c_str(), machine.git_revision.c_str(), a.tick_sweeps);
   if (!a.json.empty())
     write_json(a.json,
                {{"suite", "touch"},
                 {"size", a.size},
+                {"tick_contact_sweeps", a.tick_sweeps},
                 {"haptic_hz", 1000},
                 {"method",
                  "closed loop through the lockstep runner, passivity controller on; press_hold_lift: "

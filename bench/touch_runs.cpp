@@ -11,6 +11,9 @@ void add_touch_suite_command(CLI::App& app, const char* name, const char* help,
   CLI::App* sub = app.add_subcommand(name, help);
   sub->add_option("--size", args->size, "tiny (a smoke run) | default")->check(CLI::IsMember({"tiny", "default"}));
   sub->add_option("--json", args->json, "write the results as JSON to this file");
+  sub->add_option("--tick-sweeps", args->tick_sweeps,
+                  "the haptic tick's contact solve: at most this many Gauss-Seidel sweeps (hapticd: 8)")
+      ->check(CLI::Range(1, haptic::kMaxTickContactSweeps));
   sub->callback([args, run = std::move(run)] { run(*args); });
 }
 

@@ -13,6 +13,7 @@ namespace hapticd::bench {
 struct TouchSuiteArgs {
   std::string size = "default";
   std::string json;
+  int tick_sweeps = haptic::kDefaultTickContactSweeps;  // the tick contact solve's sweeps at most
 };
 // Registers suite `name` (`help`) with those options; `run` runs it.
 void add_touch_suite_command(CLI::App& app, const char* name, const char* help,

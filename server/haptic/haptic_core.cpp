@@ -540,6 +540,7 @@ void HapticCore::on_hello(const protocol::Hello& hello, const protocol::Nonce* c
   for (int j = 0; j < s.frames; ++j) s.frame_id[j] = hello.frames[j].id;
   s.proxy.configure(link.handles, link.mass_kg, link.inertia_B, link.gains, link.limits, link.map);
   s.proxy.set_passivity_control(options_.passivity_control);
+  s.proxy.set_contact_sweeps(options_.tick_contact_sweeps);
   s.proxy.set_fingers_grounded_on_palm(link.kind == protocol::DeviceKind::kGlove && link.handles > 1);
   s.last_seen_ns = now;
   ++stats_->sessions_opened;

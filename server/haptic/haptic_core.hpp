@@ -86,6 +86,8 @@ struct ServerOptions {
   // on: VisualStalls).
   // Every session's passivity controller (ProxyHand::set_passivity_control, kPassivityBudget_J).
   bool passivity_control = true;
+  // Every session's tick contact solve: at most this many sweeps (ProxyHand::set_contact_sweeps).
+  int tick_contact_sweeps = kDefaultTickContactSweeps;
   double model_stale_after_s = 0.1;
   double model_fade_s = 0.1;
   double model_contacts_hold_s = 0.5;

@@ -22,9 +22,10 @@ constexpr double kVelocityFilter = 0.6;
 constexpr double kRefineTolerance = 1e-12;
 constexpr int kMaxRefinements = 6;
 
-// The tick's contact solve (TickContacts): projected Gauss-Seidel sweeps, at most this many, until no
-// impulse changes by more than this fraction of the largest.
-constexpr int kTickContactSweeps = 8, kTickContactFirstSweeps = 2;
+// The tick's contact solve (TickContacts): projected Gauss-Seidel sweeps, at most
+// kDefaultTickContactSweeps (ProxyHand::set_contact_sweeps), this many before the first exact solve,
+// until no impulse changes by more than this fraction of the largest.
+constexpr int kTickContactFirstSweeps = 2;
 // Redundant rows (ProxyHand::redistribute): W_AA's reciprocal condition number below this, and its
 // singular values below this share of the largest; sets of at most this many rows; at most this many
 // alternating projections, onto cones this much narrower than the contacts'.
@@ -739,15 +740,19 @@ bool ProxyHand::solve_contacts(const HapticModel& model, double dt, double tau, 
     u_.noalias() += c.W_proxy * lambda_;
   }
   ++contact_solves_;
-  contact_sweeps_ = sweeps(kTickContactFirstSweeps);
+  const int first = std::min(kTickContactFirstSweeps, contact_sweeps_limit_);
+  contact_sweeps_ = sweeps(first);
   contact_sweeps_total_ += contact_sweeps_;
   if (!lambda_.allFinite()) return false;
-  if (!polish_contacts(c) && !converged) {
-    const int more = sweeps(kTickContactSweeps - kTickContactFirstSweeps);
+  const bool exact = polish_contacts(c) || converged;
+  if (!exact && contact_sweeps_limit_ > first) {
+    const int more = sweeps(contact_sweeps_limit_ - first);
     contact_sweeps_ += more;
     contact_sweeps_total_ += more;
     if (!lambda_.allFinite()) return false;
     if (!polish_contacts(c) && !converged) ++contact_unconverged_;
+  } else if (!exact) {
+    ++contact_unconverged_;
   }
   lambda_t_end_ns_ = model.t_end_ns;
   lambda_resyncs_ = model.resyncs;

@@ -10,6 +10,7 @@
 #include <Eigen/Geometry>
 #include <Eigen/LU>
 #include <Eigen/QR>
+#include <algorithm>
 #include <cstdint>
 #include <limits>
 
@@ -74,6 +75,8 @@ struct TickSolver {
 // Each tick solves that complementarity problem together with the proxies' own implicit step
 // (ProxyHand::integrate), so a contact that would pull releases within the tick.
 constexpr int kMaxTickContacts = 24;
+// The Gauss-Seidel sweeps a tick's contact solve runs at most (ProxyHand::set_contact_sweeps).
+constexpr int kDefaultTickContactSweeps = 8, kMaxTickContactSweeps = 10000;
 constexpr int kMaxTickRows = 3 * kMaxTickContacts;
 using TickRowVector = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, kMaxTickRows, 1>;
 using TickRowMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kMaxTickRows, kMaxTickRows>;
@@ -257,6 +260,9 @@ class ProxyHand {
   // The passivity controller of reply(), on by default (kPassivityBudget_J). Off: the rendering's
   // own passivity, unguarded (the tests of the model switch it off).
   void set_passivity_control(bool on) { passivity_control_ = on; }
+  // At most this many Gauss-Seidel sweeps in a tick's contact solve (clamped to 1..kMaxTickContactSweeps);
+  // kDefaultTickContactSweeps in hapticd. A benchmark's knob: the solve's cost against its exactness.
+  void set_contact_sweeps(int sweeps) { contact_sweeps_limit_ = std::clamp(sweeps, 1, kMaxTickContactSweeps); }
   // Frames after the first are driven by actuators that push against the first (a glove's finger
   // actuators on its palm): their ports move at their velocity relative to the first frame's body,
   // which is what those actuators do work through; the first frame's port stays absolute.
@@ -434,6 +440,7 @@ class ProxyHand {
   double damped_j_[kMaxHapticHandles]{};
   double passivity_b_[kMaxHapticHandles]{};  // the controller's last damping, device units N s/m
   bool passivity_control_ = true;
+  int contact_sweeps_limit_ = kDefaultTickContactSweeps;
   bool fingers_on_palm_ = false;
   long resets_ = 0, clamps_ = 0, passivity_actions_ = 0, solver_fallbacks_ = 0, solver_refinements_ = 0;
   long clearance_limits_ = 0, travel_limits_ = 0;

@@ -84,6 +84,7 @@ OfflineLoops::OfflineLoops(world::SceneDesc scene, const OfflineOptions& options
   haptic::ServerOptions server;  // hapticd's defaults at this haptic rate
   server.haptic_rate_hz = 1.0 / options_.haptic_period_s;
   server.passivity_control = options_.passivity_control;
+  server.tick_contact_sweeps = options_.tick_contact_sweeps;
   core_ = std::make_unique<haptic::HapticCore>(std::vector<haptic::DeviceLink>{link_}, server, *snapshots_, *targets_,
                                                *wire_);
   preparer_ =

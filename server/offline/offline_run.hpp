@@ -92,6 +92,8 @@ struct OfflineOptions {
   bool targets_one_tick_stale = false;
   // The sessions' passivity controller (ServerOptions::passivity_control), on as in hapticd.
   bool passivity_control = true;
+  // The tick contact solve's sweeps at most (HapticCoreOptions::tick_contact_sweeps), as in hapticd.
+  int tick_contact_sweeps = haptic::kDefaultTickContactSweeps;
   // The hands' contact model (WorldOptions::contact; unset: the scene's, as hapticd).
   std::optional<world::ContactModel> contact;
   // A palm-driven hand's mass as a share of its material's (WorldOptions::palm_hand_mass_scale;

@@ -194,6 +194,33 @@ Eigen::Matrix<double, 1, 6> point_row(const Eigen::Vector3d& d, const Eigen::Vec
   return row;
 }
 
+// ProxyHand::set_contact_sweeps (haptic-bench touch --tick-sweeps): a tick's contact solve runs at
+// most the sweeps it is given, at least one, and the default's share of them on rows that need more.
+TEST(TickContacts, ATicksContactSolveRunsAtMostTheSweepsItIsGiven) {
+  std::mt19937 rng(7);
+  const HapticModel m = random_model(1, 8, rng, 1.0 / 30);
+  int most_by_default = 0;
+  for (const int limit : {0, 1, 2, 5, kDefaultTickContactSweeps}) {
+    ProxyHand p = make_proxy(1);
+    if (limit != kDefaultTickContactSweeps) p.set_contact_sweeps(limit);
+    double t = 0;
+    rest_on_device(p, {Eigen::Vector3d(0.001, -0.002, -0.003)}, t);
+    int most = 0;
+    long sweeps = 0;
+    for (int k = 0; k < 20; ++k) {
+      p.integrate(m, kPeriod, 0.02 - k * kPeriod);
+      most = std::max(most, p.contact_sweeps());
+      sweeps += p.contact_sweeps();
+    }
+    EXPECT_EQ(p.contact_solves(), 20) << limit;
+    EXPECT_EQ(p.contact_sweeps_total(), sweeps) << limit;
+    EXPECT_GE(most, 1) << limit;
+    EXPECT_LE(most, std::max(limit, 1)) << limit;
+    if (limit == kDefaultTickContactSweeps) most_by_default = most;
+  }
+  EXPECT_GT(most_by_default, 5) << "the rows need more sweeps than the smaller limits give";
+}
+
 // A stylus's tool resting on a 0.2 kg rigid body at three points, mu 0.6: the rows' Delassus
 // operator is the body's J_b M_b^-1 J_b^T plus the proxy's own response, both rigid, so three sticking
 // contacts give nine rows of rank six (each pair's distance is fixed on both bodies). That is what the
