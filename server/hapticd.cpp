@@ -84,6 +84,10 @@ int main(int argc, char** argv) {
   app.add_flag("--no-passivity-control", [&options](std::int64_t) { options.passivity_control = false; },
                "switch off the passivity controller of every device (on by default: it damps a device's frame "
                "once the rendering has given it more than its share of 0.1 mJ a device)");
+  app.add_option("--tick-contact-sweeps", options.tick_contact_sweeps,
+                 "the haptic tick's contact solve: at most this many Gauss-Seidel sweeps before it keeps its answer "
+                 "(default 8; fewer cost less, more rarely change the force)")
+      ->check(CLI::Range(1, haptic::kMaxTickContactSweeps));
   app.add_flag("--busy-poll", options.busy_poll, "spin on the socket instead of sleeping (for a dedicated core)");
   app.add_option("--session-timeout", options.session_timeout_s, "drop a silent session after this many seconds")
       ->check(CLI::Range(0.2, 3600.0));

@@ -81,5 +81,13 @@ TEST(HapticdCli, BadKeyFilesAndAnUnprotectedBindAreRefusedWithTheReason) {
   std::filesystem::remove(short_key);
 }
 
+TEST(HapticdCli, ATickContactSweepsOutOfItsRangeIsRefused) {
+  for (const char* value : {"0", "10001", "eight"}) {
+    const auto [status, out] = run({"--tick-contact-sweeps", value});
+    EXPECT_NE(status, 0) << value;
+    EXPECT_NE(out.find("--tick-contact-sweeps"), std::string::npos) << value << ":\n" << out;
+  }
+}
+
 }  // namespace
 }  // namespace hapticd::haptic

@@ -201,5 +201,17 @@ INSTANTIATE_TEST_SUITE_P(SpringTouch, PressHoldLiftForces, ::testing::ValuesIn(s
 INSTANTIATE_TEST_SUITE_P(ContactPointTouch, PressHoldLift, ::testing::ValuesIn(contact_point_cases()), case_name);
 INSTANTIATE_TEST_SUITE_P(ContactPointTouch, PressHoldLiftForces, ::testing::ValuesIn(contact_point_cases()), case_name);
 
+// The tick's contact sweeps at most (OfflineOptions::tick_contact_sweeps, hapticd's
+// --tick-contact-sweeps, haptic-bench touch --tick-sweeps) reach every session's tick: at one, each
+// contact solve of a press on the movable bunny runs one sweep (8 by default, nearly all of them 8).
+TEST(TickContactSweeps, TheOptionReachesTheTicksOfThePress) {
+  OfflineOptions options = movable_bunny_press_options();
+  options.tick_contact_sweeps = 1;
+  const TouchRun run =
+      run_press_hold_lift(press_scene("movable_bunny"), PressSchedule(Press{0.02, 0.02, 0.05}), options);
+  EXPECT_GT(run.trace.contact_solves.solves, 100);
+  EXPECT_EQ(run.trace.contact_solves.sweeps, run.trace.contact_solves.solves);
+}
+
 }  // namespace
 }  // namespace hapticd::offline
