@@ -327,6 +327,21 @@ void SpringHand::probe_rows(double reach, bool touching, std::vector<Row>& rows)
       auto add = [&](const Eigen::Vector3d& p, const Eigen::Vector3d& n, double depth) {
         if (!(touching && depth > 0)) rows.push_back({p, n, depth, mu, g});  // ODE's contacts have the touching parts
       };
+      // A point inside one of the palm's flat faces, outside the object, is held apart along the face's
+      // normal by its gap along it (ODE's ray from the point): a flat face meets a peak, a ridge or a
+      // curved flank there as ODE's box contacts take it once it touches, along the face's normal,
+      // whatever the object's own normal at the point's nearest. That one, at a grid point beside the
+      // bunny's top peak, stood 56 degrees from ODE's: the model let the stylus slide down the flank,
+      // 5 mm deeper at a third of the force, and ODE's contact then pushed it back out (+8.5e-4 J,
+      // LateModelsPressHoldLift spring_movable_bunny). Nothing under the point within reach: no row
+      // (the face's point over what it would meet has it). A point inside the object, or on the
+      // face's border (the palm's edge), is held along the object's normal.
+      const auto add_on_face = [&](int face, const Eigen::Vector3d& p, const Eigen::Vector3d& n, double depth) {
+        if (depth > 0) return add(p, n, depth);
+        const Eigen::Vector3d n_face = (face % 2 ? -1.0 : 1.0) * R_W.col(face / 2);
+        Eigen::Vector3d hit, m;
+        if (objects_->ray_hit(i, p, p - reach * n_face, hit, m)) add(p, n_face, -(hit - p).norm());
+      };
       std::array<int, 6> best_on_face;
       std::array<double, 6> best_depth{};
       best_on_face.fill(-1);
@@ -336,8 +351,12 @@ void SpringHand::probe_rows(double reach, bool touching, std::vector<Row>& rows)
         double depth;
         Eigen::Vector3d n;
         if (!objects_->surface_near(i, centre, reach + probe.radius, depth, n)) continue;
-        // A sphere's point nearest the surface, and how deep that is.
-        add(centre - probe.radius * n, n, depth + probe.radius);
+        // A sphere's point nearest the surface, and how deep that is; a face's point (its grid lies
+        // inside it).
+        if (probe.face >= 0)
+          add_on_face(probe.face, centre, n, depth);
+        else
+          add(centre - probe.radius * n, n, depth + probe.radius);
         if (probe.face >= 0 && (best_on_face[probe.face] < 0 || depth > best_depth[probe.face]))
           best_on_face[probe.face] = static_cast<int>(k), best_depth[probe.face] = depth;
       }
@@ -345,7 +364,14 @@ void SpringHand::probe_rows(double reach, bool touching, std::vector<Row>& rows)
         if (best_on_face[f] < 0) continue;
         Eigen::Vector3d q = probes_G_[g][best_on_face[f]].q_G, n;
         double depth;
-        if (deepest_on_face(f, o, R_W, i, reach, q, depth, n)) add(o + R_W * q, n, depth);
+        if (!deepest_on_face(f, o, R_W, i, reach, q, depth, n)) continue;
+        bool inside = true;
+        for (int a = 0; a < 3; ++a)
+          if (a != f / 2 && std::abs(q[a]) >= palm_half_[a]) inside = false;
+        if (inside)
+          add_on_face(f, o + R_W * q, n, depth);
+        else
+          add(o + R_W * q, n, depth);
       }
     }
   }

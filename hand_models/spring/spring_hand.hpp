@@ -150,7 +150,8 @@ class SpringHand : public OdeHand {
   // through the distal's end, its fingertip's spring (seed 002 sections 4.2 and 4.4, the palm held).
   void finger_joints(const std::vector<Row>& rows, Eigen::MatrixXd& J_q, Eigen::MatrixXd& C_q) const;
   // The probes' rows (speculative ones outside the objects, and inside ones unless `touching`) for
-  // objects within `reach` of the shapes, appended to rows.
+  // objects within `reach` of the shapes, appended to rows; a speculative row inside a palm face along
+  // the face's normal.
   void probe_rows(double reach, bool touching, std::vector<Row>& rows) const;
   // The deepest point q (box frame, from the grid's deepest) of the palm box's `face` in `object`, its
   // depth and the object's normal there; the box stands at o, R_W. False when the object is out of reach.

@@ -199,6 +199,62 @@ TEST(WorldSpringHand, AStylussModelPressesAMasslessCopyOfTheHandAgainstTheObject
   EXPECT_LT(w.hand(0).coupling_wrench().z(), -10.0);
 }
 
+// The same over a peak: a static 4 cm box standing on a corner, its top corner 2 mm under the palm
+// and off its centre, between the palm's probe points. A flat palm meets a peak along the palm's own
+// normal (ODE's box contacts take it so); the object's normal at a probe point beside the peak is the
+// direction from the corner, up to ~70 degrees from it, and a model that held the palm apart along
+// those let the massless hand slide down the corner's flank: measured before the palm's points took
+// their face's normal, the model 3 mm past the gap gave 0.63 N up and 0.58 N sideways where the world
+// at rest gives 5.4 N up and none sideways. Reference: the world's spring hand at rest there.
+TEST(WorldSpringHand, AStylussModelHoldsAFlatPalmOnAPeakAlongThePalmsNormal) {
+  SceneDesc scene = floor_scene();
+  scene.objects.clear();
+  const double palm_bottom = 0.05 - 0.0125, gap = 0.002, half_diagonal = 0.02 * std::sqrt(3.0);
+  ObjectDesc peak;
+  peak.name = "peak";
+  peak.kind = BodyKind::static_body;
+  peak.shape.type = ShapeType::box;
+  peak.shape.size = {0.04, 0.04, 0.04};
+  // The box's diagonal (1, 1, 1) turned onto +z.
+  peak.pose.q_W = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d(1, 1, 1), Eigen::Vector3d::UnitZ());
+  const Eigen::Vector2d off(0.0041, 0.0027);  // from the palm's centre: 4-5 mm from the nearest probe points
+  peak.pose.p_W = {off.x(), off.y(), palm_bottom - gap - half_diagonal};
+  scene.objects.push_back(peak);
+  WorldOptions options;
+  options.hand_gravity = false;
+  World w(scene, options);
+  const hand::spring::SpringHand& hand = spring_of(w);
+  auto settle_at = [&](const Eigen::Vector3d& p) {
+    for (int k = 0; k < 120; ++k) {
+      ASSERT_TRUE(w.hand(0).set_target(0, palm_at(p)));
+      w.step();
+    }
+  };
+  auto model_at = [&](const hand::HandleLinearization& model, const Eigen::Vector3d& p) {
+    EXPECT_TRUE(w.hand(0).set_target(0, palm_at(p)));
+    return Eigen::VectorXd(model.evaluate(w.hand(0).handles()));
+  };
+  settle_at({0, 0, 0.05});
+  const dReal* palm = dGeomGetPosition(hand.geom(0));
+  ASSERT_NEAR(palm[2] - 0.0125, palm_bottom, 0.5e-3);
+  ASSERT_LT(Eigen::Vector2d(palm[0], palm[1]).norm(), 0.5e-3);
+  ASSERT_LT(w.hand(0).coupling_wrench().norm(), 1e-9) << "hovering";
+  const Eigen::Vector3d x0 = w.hand(0).handles()[0].p_WH;
+  hand::HandleLinearization hover;
+  ASSERT_TRUE(w.hand(0).linearize_next_step(hover, hand::ContactLinearization::unilateral));
+  ASSERT_GT(hover.contacts.count(), 0) << "the peak is within the probes' reach";
+  EXPECT_EQ(model_at(hover, x0 - Eigen::Vector3d(0, 0, gap - 0.001)).norm(), 0.0) << "1 mm short of the peak";
+  const Eigen::Vector3d pressed = x0 - Eigen::Vector3d(0, 0, gap + 0.003);
+  const Eigen::VectorXd predicted = model_at(hover, pressed);
+  settle_at(pressed);
+  const Eigen::VectorXd law = w.hand(0).coupling_wrench();
+  std::printf("3 mm past the peak: model force %.3f %.3f %.3f N, the world at rest %.3f %.3f %.3f N\n", predicted[0],
+              predicted[1], predicted[2], law[0], law[1], law[2]);
+  ASSERT_GT(law.z(), 1.0);
+  EXPECT_LT(law.head<2>().norm(), 0.05 * law.z()) << "the world's palm rests on the peak";
+  EXPECT_LT((predicted.head<3>() - law.head<3>()).norm(), 0.15 * law.z());
+}
+
 TEST(WorldSpringHand, ItsBodyStepModelPredictsTheStepsForceInFreeSpacePressingAndLifting) {
   WorldOptions options;
   options.spring_body_step_model = true;
