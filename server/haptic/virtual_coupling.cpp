@@ -57,8 +57,7 @@ struct LowRankDelassus {
   Eigen::Matrix3d block(int i) const { return blocks[i]; }
   Eigen::Vector3d velocity(int i) const { return u_m.segment<3>(3 * i) + P.middleRows<3>(3 * i) * y; }
   void add(int i, const Eigen::Vector3d& delta) {
-    for (int d = 0; d < 3; ++d)
-      if (delta[d] != 0) u_m.head(3 * c) += W.col(3 * i + d).head(3 * c) * delta[d];
+    hand::add_columns(W, 3 * i, delta, u_m.head(3 * c));
     y.noalias() += Q.middleCols<3>(3 * i) * delta;
   }
 };
@@ -637,7 +636,14 @@ ProxyHand::TickSolve ProxyHand::solve_velocities(const HapticModel& model, doubl
       A_.noalias() -= (h * tau) * model.K;
     }
     ok = A_.allFinite();
-    if (ok) {
+    if (ok && handles_ == 1) {
+      // A stylus's 6 x 6 system at fixed size, and the rows' Q = A^-1 G by its inverse: Eigen's
+      // dynamic-size LU and its blocked triangular solves of G (6 x 3c) took 17 % of the ticks'
+      // instructions on a stylus press (callgrind, Touch/SlowVisualPress at 60 Hz).
+      lu6_.compute(A_.topLeftCorner<6, 6>());
+      v_next_.noalias() = lu6_.solve(b_.head<6>());
+      dense = true;
+    } else if (ok) {
       lu_.compute(A_);
       v_next_.noalias() = lu_.solve(b_);
       dense = true;
@@ -694,11 +700,16 @@ bool ProxyHand::solve_contacts(const HapticModel& model, double dt, double tau, 
   u_.noalias() += c.U_D * dv_;
   // Impulses lambda change the proxies' velocities by A^-1 dt G lambda, and the rows' by that through
   // tau U_K + U_D besides the flesh's W lambda: the Delassus operator of the proxies and the flesh,
-  // W + P Q (LowRankDelassus) when lu_ holds A, the prepared W_proxy otherwise.
+  // W + P Q (LowRankDelassus) when lu_ (a stylus: lu6_) holds A, the prepared W_proxy otherwise.
   // A fading model's contacts hold at full strength (integrate).
   low_rank_ = dense;
   if (dense) {
-    Q_.noalias() = lu_.solve(c.G);
+    if (handles_ == 1) {
+      a_inv6_ = lu6_.inverse();
+      Q_.noalias() = a_inv6_.lazyProduct(c.G);
+    } else {
+      Q_.noalias() = lu_.solve(c.G);
+    }
     P_.noalias() = (dt * tau) * c.U_K;
     P_.noalias() += dt * c.U_D;
     for (int i = 0; i < c.count; ++i) {
@@ -740,6 +751,7 @@ bool ProxyHand::solve_contacts(const HapticModel& model, double dt, double tau, 
     u_.noalias() += c.W_proxy * lambda_;
   }
   ++contact_solves_;
+  failed_a_ = 0;
   const int first = std::min(kTickContactFirstSweeps, contact_sweeps_limit_);
   contact_sweeps_ = sweeps(first);
   contact_sweeps_total_ += contact_sweeps_;
@@ -778,14 +790,22 @@ bool ProxyHand::polish_contacts(const TickContacts& c) {
   // replaces the sweeps' if it keeps every condition (PGS converges linearly, and slowly where the
   // proxies' response makes the rows stiff).
   int a = 0;
+  bool sliding = false;
   for (int i = 0; i < c.count; ++i) {
     const double ln = lambda_[3 * i];
     if (ln <= 0) continue;
     active_[a++] = 3 * i;
     if (lambda_.segment<2>(3 * i + 1).norm() < (1 - 1e-9) * c.mu[i] * ln)
       active_[a++] = 3 * i + 1, active_[a++] = 3 * i + 2;
+    else
+      sliding = true;
   }
   if (a == 0) return false;
+  // The set this tick's first polish failed on, too large to redistribute, with no sliding contact
+  // (whose fixed tangent impulses the sweeps move): its linear system and so its answer are the same.
+  // On the stylus press on the movable bunny (sets of ~10 of 24 rows, the bunny's redundant supports
+  // among them) nearly every polish failed, and the second one took 12 % of the ticks' instructions.
+  if (!sliding && a == failed_a_ && std::equal(active_, active_ + a, failed_active_)) return false;
   // The rows' velocities now, every row (the low-rank operator keeps them in two parts).
   u_now_ = u_;
   if (low_rank_) u_now_.noalias() += P_ * y_;
@@ -804,8 +824,13 @@ bool ProxyHand::polish_contacts(const TickContacts& c) {
   // An active row broke a condition: redundant rows give W_AA a vanishing pivot (rcond ~1e-17 for
   // the tool on three points), a wrong set does not. (An inactive row pushed in: the set is wrong,
   // whatever impulses the active rows pass among themselves.)
-  if (result == Correction::breaks_active && lu_rows_.rcond() < kRedundantRank && redistribute(c, a))
+  if (result == Correction::breaks_active && a <= kMaxRedundantRows && lu_rows_.rcond() < kRedundantRank &&
+      redistribute(c, a))
     result = try_correction(c, a);
+  if (result != Correction::solution && !sliding && a > kMaxRedundantRows) {
+    failed_a_ = a;
+    std::copy(active_, active_ + a, failed_active_);
+  }
   return result == Correction::solution;
 }
 
@@ -846,7 +871,6 @@ bool ProxyHand::redistribute(const TickContacts& c, int a) {
   // conditions on the active rows (normals >= 0, a sticking contact's impulse in its cone, a sliding
   // one's normal at least its fixed tangent over mu), both convex, so that they converge to a point
   // of both where one exists; run in the null space's coordinates, each costs O(a) per dimension.
-  if (a > kMaxRedundantRows) return false;
   cod_.setThreshold(kRedundantRank);
   cod_.compute(W_aa_);
   const int k = a - static_cast<int>(cod_.rank());

@@ -454,7 +454,7 @@ class ProxyHand {
   // (HapticModel::clearance): a handle already past one may only come back.
   void limit_to_clearance(const HapticModel& model, double dt);
   // The model's contacts (TickContacts) on the contact-free answer v_next_: the impulses of this
-  // tick into lambda_, v_next_ updated by weight times their effect; `dense`: lu_ holds A(tau).
+  // tick into lambda_, v_next_ updated by weight times their effect; `dense`: lu_ (one handle: lu6_) holds A(tau).
   // False on a failure.
   bool solve_contacts(const HapticModel& model, double dt, double tau, bool dense);
   // integrate()'s implicit step into v_next_ with lookahead tau.
@@ -468,7 +468,8 @@ class ProxyHand {
   // else which rows broke a condition (an active row's impulse, an inactive row's separation).
   enum class Correction { solution, breaks_active, breaks_inactive };
   Correction try_correction(const TickContacts& c, int a);
-  // delta_a_ for redundant active rows (W_AA singular): the one that keeps the conditions.
+  // delta_a_ for redundant active rows (W_AA singular; a <= kMaxRedundantRows): the one that keeps the
+  // conditions.
   bool redistribute(const TickContacts& c, int a);
   // Entry (row, col) of the tick's Delassus operator (solve_contacts).
   double delassus(const TickContacts& c, int row, int col) const;
@@ -478,6 +479,9 @@ class ProxyHand {
   HapticVector y_, dy_;
   bool low_rank_ = false;
   int active_[kMaxTickRows]{};
+  // The active set of this tick's polish that failed (polish_contacts), failed_a_ rows; 0: none.
+  int failed_active_[kMaxTickRows]{};
+  int failed_a_ = 0;
   TickRowMatrix W_aa_;
   Eigen::PartialPivLU<TickRowMatrix> lu_rows_;
   Eigen::CompleteOrthogonalDecomposition<TickRowMatrix> cod_;
@@ -510,6 +514,9 @@ class ProxyHand {
   HapticVector column_, multiplier_;
   bool swapped_[kMaxHapticDofs]{};
   Eigen::PartialPivLU<HapticMatrix> lu_;
+  // One handle's (a stylus's) A and its inverse, at fixed size (solve_velocities).
+  Eigen::PartialPivLU<Eigen::Matrix<double, 6, 6>> lu6_;
+  Eigen::Matrix<double, 6, 6> a_inv6_;
 };
 
 }  // namespace hapticd::haptic
