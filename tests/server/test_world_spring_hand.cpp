@@ -148,6 +148,20 @@ double lowest_point_z(const hand::spring::SpringHand& hand) {
   return lowest;
 }
 
+// The world stepped `steps` times with the palm's handle held at p.
+void settle_palm_at(World& w, const Eigen::Vector3d& p, int steps) {
+  for (int k = 0; k < steps; ++k) {
+    ASSERT_TRUE(w.hand(0).set_target(0, palm_at(p)));
+    w.step();
+  }
+}
+
+// `model` evaluated with the palm's handle at p (the hand's handles are set there, not stepped).
+Eigen::VectorXd model_at_palm(World& w, const hand::HandleLinearization& model, const Eigen::Vector3d& p) {
+  EXPECT_TRUE(w.hand(0).set_target(0, palm_at(p)));
+  return model.evaluate(w.hand(0).handles());
+}
+
 // A stylus's model: the springs pressing a massless copy of the hand, held at the handle, against
 // the objects (seed 002 section 4.6.2: no force in free motion). References: the world's own law, the
 // springs' reaction once the spring hand has come to rest on the floor, and the hand's geometry.
@@ -156,15 +170,9 @@ TEST(WorldSpringHand, AStylussModelPressesAMasslessCopyOfTheHandAgainstTheObject
   options.hand_gravity = false;  // the springs carry nothing but what the floor pushes
   World w(floor_scene(), options);
   const hand::spring::SpringHand& hand = spring_of(w);
-  auto settle_at = [&](const Eigen::Vector3d& p) {
-    for (int k = 0; k < 90; ++k) {
-      ASSERT_TRUE(w.hand(0).set_target(0, palm_at(p)));
-      w.step();
-    }
-  };
+  auto settle_at = [&](const Eigen::Vector3d& p) { settle_palm_at(w, p, 90); };
   auto model_at = [&](const hand::HandleLinearization& model, const Eigen::Vector3d& p) {
-    EXPECT_TRUE(w.hand(0).set_target(0, palm_at(p)));
-    return Eigen::VectorXd(model.evaluate(w.hand(0).handles()));
+    return model_at_palm(w, model, p);
   };
   // Hovering with the hand's lowest point 6 mm above the floor, within the probes' reach.
   settle_at({0, 0, 0.05});
@@ -224,15 +232,9 @@ TEST(WorldSpringHand, AStylussModelHoldsAFlatPalmOnAPeakAlongThePalmsNormal) {
   options.hand_gravity = false;
   World w(scene, options);
   const hand::spring::SpringHand& hand = spring_of(w);
-  auto settle_at = [&](const Eigen::Vector3d& p) {
-    for (int k = 0; k < 120; ++k) {
-      ASSERT_TRUE(w.hand(0).set_target(0, palm_at(p)));
-      w.step();
-    }
-  };
+  auto settle_at = [&](const Eigen::Vector3d& p) { settle_palm_at(w, p, 120); };
   auto model_at = [&](const hand::HandleLinearization& model, const Eigen::Vector3d& p) {
-    EXPECT_TRUE(w.hand(0).set_target(0, palm_at(p)));
-    return Eigen::VectorXd(model.evaluate(w.hand(0).handles()));
+    return model_at_palm(w, model, p);
   };
   settle_at({0, 0, 0.05});
   const dReal* palm = dGeomGetPosition(hand.geom(0));
