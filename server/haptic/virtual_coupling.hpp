@@ -454,8 +454,8 @@ class ProxyHand {
   // (HapticModel::clearance): a handle already past one may only come back.
   void limit_to_clearance(const HapticModel& model, double dt);
   // The model's contacts (TickContacts) on the contact-free answer v_next_: the impulses of this
-  // tick into lambda_, v_next_ updated by weight times their effect; `dense`: lu_ (one handle: lu6_) holds A(tau).
-  // False on a failure.
+  // tick into lambda_, v_next_ updated by weight times their effect; `dense`: lu_ (one handle: lu6_)
+  // holds A(tau). False on a failure.
   bool solve_contacts(const HapticModel& model, double dt, double tau, bool dense);
   // integrate()'s implicit step into v_next_ with lookahead tau.
   enum class TickSolve { solved, too_fast, failed };  // too_fast: a proxy past kMaxProxySpeed_m_s

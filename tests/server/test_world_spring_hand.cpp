@@ -210,10 +210,11 @@ TEST(WorldSpringHand, AStylussModelPressesAMasslessCopyOfTheHandAgainstTheObject
 // The same over a peak: a static 4 cm box standing on a corner, its top corner 2 mm under the palm
 // and off its centre, between the palm's probe points. A flat palm meets a peak along the palm's own
 // normal (ODE's box contacts take it so); the object's normal at a probe point beside the peak is the
-// direction from the corner, up to ~70 degrees from it, and a model that held the palm apart along
-// those let the massless hand slide down the corner's flank: measured before the palm's points took
-// their face's normal, the model 3 mm past the gap gave 0.63 N up and 0.58 N sideways where the world
-// at rest gives 5.4 N up and none sideways. Reference: the world's spring hand at rest there.
+// direction from the corner, ~65 degrees from it, and a model that held the palm apart along those
+// let the massless hand slide down the corner's flank: measured before the palm's points took their
+// face's normal, the model 3 mm past the gap gave 3.38 N up and 1.81 N sideways where the world at
+// rest gives 6.29 N up and 0.09 N sideways (after: 6.01 N up, 0.11 N sideways). Reference: the
+// world's spring hand at rest there.
 TEST(WorldSpringHand, AStylussModelHoldsAFlatPalmOnAPeakAlongThePalmsNormal) {
   SceneDesc scene = floor_scene();
   scene.objects.clear();
