@@ -387,7 +387,8 @@ bool ProxyHand::commit_sample(double t_s, double resync_gap_s, double sample_int
   // midway, a busy machine): the rest of it, read at once a few milliseconds later, left the proxies
   // behind the device by their count of samples' motion (0.84-2.54 N in 16 of 120 runs of
   // HapticServer.AQueueReadAfterAGapResyncsOnceOntoItsNewestPose with both cores busy, none in 100
-  // since).
+  // since; at b2c11d4, with two `yes` loops on the 2 cores, 1.0-1.8 N in 5 of 20 runs again, as at
+  // b137ceb: not traced yet).
   const bool read_at_once = has_interval ? dt < 0.5 * sample_interval_s : dt < kMinSampleInterval_s;
   const bool waited = has_interval && std::isfinite(waited_s) && waited_s > 0.5 * sample_interval_s;
   if (resync_now || bridge) gap_t_s_ = t_s;
