@@ -386,13 +386,16 @@ bool ProxyHand::commit_sample(double t_s, double resync_gap_s, double sample_int
   // Read times alone miss a queue whose reading was interrupted (the server descheduled again
   // midway, a busy machine): the rest of it, read at once a few milliseconds later, left the proxies
   // behind the device by their count of samples' motion (0.84-2.54 N in 16 of 120 runs of
-  // HapticServer.AQueueReadAfterAGapResyncsOnceOntoItsNewestPose with both cores busy, none in 100
-  // since; at b2c11d4, with two `yes` loops on the 2 cores, 1.0-1.8 N in 5 of 20 runs again, as at
-  // b137ceb: not traced yet).
+  // HapticServer.AQueueReadAfterAGapResyncsOnceOntoItsNewestPose with both cores busy). A sample
+  // read about one interval after the one before (an interruption of 0.5-1.5 intervals) neither was
+  // read at once nor waited longer: one such sample inside a queue does not end it, two in a row
+  // do. Ended at the first, the rest of the queue's slide was felt: 1.5-3.0 N in 11 of 20 runs with
+  // two `yes` loops on the 2 cores (the sample read 0.97 ms after the one before, its interval 1 ms).
   const bool read_at_once = has_interval ? dt < 0.5 * sample_interval_s : dt < kMinSampleInterval_s;
   const bool waited = has_interval && std::isfinite(waited_s) && waited_s > 0.5 * sample_interval_s;
   if (resync_now || bridge) gap_t_s_ = t_s;
-  const bool queued = (read_at_once || waited) && t_s - gap_t_s_ <= resync_gap_s;
+  queue_paced_ = resync_now || bridge ? 1 : read_at_once || waited ? 0 : queue_paced_ + 1;
+  const bool queued = queue_paced_ <= 1 && t_s - gap_t_s_ <= resync_gap_s;
   bridging_ = !resync_now && (bridge || (bridging_ && queued));
   if (bridge) ++bridged_gaps_;
   bridged_now_ = bridge;

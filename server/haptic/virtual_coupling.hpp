@@ -419,6 +419,7 @@ class ProxyHand {
   bool bridging_ = false;          // bridged a gap, and every sample since came from a queue
   bool bridged_now_ = false;       // the last sample committed bridged a gap
   double gap_t_s_ = 0;             // the last gap, re-synced or bridged (commit_sample's clock)
+  int queue_paced_ = 0;            // samples in a row read at the device's pace (commit_sample)
   // The last integrate()'s model had the hand touching something or contact rows near it (a bridged
   // gap's clutch drifts out only when not).
   bool near_contact_ = false;
