@@ -71,18 +71,27 @@ Interaction glove_grasp(world::SceneDesc scene, double seconds, int frames) {
   return in;
 }
 
-ForceError force_error(const OfflineTrace& run, const OfflineTrace& reference) {
+ForceError force_error(const OfflineTrace& run, const OfflineTrace& reference, int visual_ticks) {
   ForceError e;
   const std::size_t n = std::min(run.replies.size(), reference.replies.size());
-  double sum2 = 0;
+  // The visual steps come at ticks 0, P, 2P, ... (OfflineLoops::tick).
+  const long period = visual_ticks, eighth = period / 8;
+  double sum2 = 0, near2 = 0, mid2 = 0;
+  long near = 0, mid = 0;
   for (std::size_t k = 0; k < n; ++k) {
     const DeviceReply &a = run.replies[k], &b = reference.replies[k];
     double e2 = 0;
     for (int j = 0; j < std::min(a.frames, b.frames); ++j) e2 += (a.wrench[j].f_D - b.wrench[j].f_D).squaredNorm();
     sum2 += e2;
     e.max_n = std::max(e.max_n, std::sqrt(e2));
+    if (period < 4) continue;
+    const long phase = static_cast<long>(k) % period, from_step = std::min(phase, period - phase);
+    if (from_step <= eighth) near2 += e2, ++near;
+    if (std::abs(2 * phase - period) <= 2 * eighth) mid2 += e2, ++mid;
   }
   e.rms_n = n ? std::sqrt(sum2 / static_cast<double>(n)) : 0.0;
+  if (near) e.rms_near_steps_n = std::sqrt(near2 / static_cast<double>(near));
+  if (mid) e.rms_mid_period_n = std::sqrt(mid2 / static_cast<double>(mid));
   return e;
 }
 
@@ -123,7 +132,7 @@ MultirateRuns run_multirate(const Interaction& interaction, const std::vector<in
         OfflineLoops loops(interaction.scene, options);
         RecordedDevice replay(out.reference.poses);
         const OfflineTrace trace = run_offline(loops, replay, ticks);
-        row.error = force_error(trace, out.reference);
+        row.error = force_error(trace, out.reference, k);
         row.timings = trace.timings;
         row.resets = trace.resets;
       }

@@ -5,6 +5,7 @@
 // closed loop (the simulated stylus feels what is rendered).
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <cstdio>
 
 #include "server/offline/multirate.hpp"
@@ -14,6 +15,31 @@ namespace hapticd::offline {
 namespace {
 
 world::SceneDesc stylus_scene() { return world::load_scene(std::string(HAPTICD_SCENES_DIR) + "/stylus_bunny.json"); }
+
+TEST(Multirate, TheForceErrorIsSplitIntoTheTicksNearTheVisualStepsAndAtMidPeriod) {
+  // Synthetic traces with a visual step every 8 ticks: the error is 1 N at the ticks within an eighth
+  // of the period of a step (phases 7, 0, 1), 2 N within an eighth of mid-period (3, 4, 5), 0.5 N at
+  // the others (2, 6), along x on one frame of two, for 10 periods.
+  OfflineTrace run, reference;
+  for (int k = 0; k < 80; ++k) {
+    DeviceReply r;
+    r.frames = 2;
+    const int phase = k % 8;
+    reference.replies.push_back(r);
+    r.wrench[1].f_D.x() = phase == 7 || phase <= 1 ? 1.0 : (phase >= 3 && phase <= 5 ? -2.0 : 0.5);
+    run.replies.push_back(r);
+  }
+  const ForceError e = force_error(run, reference, 8);
+  EXPECT_DOUBLE_EQ(e.rms_near_steps_n, 1.0);
+  EXPECT_DOUBLE_EQ(e.rms_mid_period_n, 2.0);
+  EXPECT_DOUBLE_EQ(e.rms_n, std::sqrt((3 * 1.0 + 3 * 4.0 + 2 * 0.25) / 8));
+  EXPECT_DOUBLE_EQ(e.max_n, 2.0);
+  // Below 4 ticks a period has no such parts.
+  const ForceError every_tick = force_error(run, reference, 1);
+  EXPECT_TRUE(std::isnan(every_tick.rms_near_steps_n));
+  EXPECT_TRUE(std::isnan(every_tick.rms_mid_period_n));
+  EXPECT_DOUBLE_EQ(every_tick.rms_n, e.rms_n);
+}
 
 // The press at 30 Hz, open loop, with the linearized model and the zero-order hold: the ratio of
 // their RMS force errors against the every-tick world, after the checks that the runs mean
