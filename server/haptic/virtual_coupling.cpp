@@ -388,13 +388,19 @@ bool ProxyHand::commit_sample(double t_s, double resync_gap_s, double sample_int
   // behind the device by their count of samples' motion (0.84-2.54 N in 16 of 120 runs of
   // HapticServer.AQueueReadAfterAGapResyncsOnceOntoItsNewestPose with both cores busy). A sample
   // read about one interval after the one before (an interruption of 0.5-1.5 intervals) neither was
-  // read at once nor waited longer: one such sample inside a queue does not end it, two in a row
-  // do. Ended at the first, the rest of the queue's slide was felt: 1.5-3.0 N in 11 of 20 runs with
-  // two `yes` loops on the 2 cores (the sample read 0.97 ms after the one before, its interval 1 ms).
+  // read at once nor waited longer: one such sample inside a queue, or right after its gap, does not
+  // end it, two in a row do (a device that resumes at its pace after a gap has its first sample's
+  // motion re-synced onto or put into the clutch too). Ended at the first, the rest of the queue's
+  // slide was felt: 1.5-3.0 N in 11 of 20 runs with two `yes` loops on the 2 cores (the sample read
+  // 0.97 ms after the one before, its interval 1 ms), and under ASan 2.4-2.7 N in 3 of 20 where the
+  // gap's own sample was followed by such a one (0.66 ms).
   const bool read_at_once = has_interval ? dt < 0.5 * sample_interval_s : dt < kMinSampleInterval_s;
   const bool waited = has_interval && std::isfinite(waited_s) && waited_s > 0.5 * sample_interval_s;
   if (resync_now || bridge) gap_t_s_ = t_s;
-  queue_paced_ = resync_now || bridge ? 1 : read_at_once || waited ? 0 : queue_paced_ + 1;
+  // A gap's sample is a queue's oldest (its reading may be interrupted right after it); a session's
+  // first sample, or one from a clock set back, starts none.
+  const bool restart = !have_device_ || dt < 0;
+  queue_paced_ = restart ? 1 : resync_now || bridge || read_at_once || waited ? 0 : queue_paced_ + 1;
   const bool queued = queue_paced_ <= 1 && t_s - gap_t_s_ <= resync_gap_s;
   bridging_ = !resync_now && (bridge || (bridging_ && queued));
   if (bridge) ++bridged_gaps_;
