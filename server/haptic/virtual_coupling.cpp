@@ -33,6 +33,11 @@ constexpr double kRedundantRank = 1e-10;
 constexpr int kMaxRedundantRows = 8, kRedistributeIterations = 200;
 constexpr double kRedistributeMargin = 1e-3;
 constexpr double kTickContactTolerance = 1e-10;
+// How far a contact's normal velocity may fall short of its target in an answer the polish keeps,
+// m/s: 0.1 nm of penetration over a 1 ms tick. The least-norm answer on a set of redundant rows
+// misses targets that are not all reachable at once, mostly by 1e-12 to 1e-7 m/s (the stylus on the
+// movable bunny: median 1.3e-9), where the sweeps' answer the tick would keep instead is further off.
+constexpr double kRowVelocityTolerance = 1e-7;
 
 // The time since the last reply the passivity controller divides by, s: from a tick at 10 kHz (the
 // fastest haptic rate hapticd accepts) to 100 ms (a reply after a pause is not a long tick).
@@ -828,15 +833,27 @@ bool ProxyHand::polish_contacts(const TickContacts& c) {
     for (int k = 0; k < a; ++k) W_aa_(i, k) = delassus(c, row, active_[k]);
   }
   // rhs_a_ = target - u now; the correction d of the active impulses solves W_AA d = rhs_a_.
-  lu_rows_.compute(W_aa_);
-  delta_a_.noalias() = lu_rows_.solve(rhs_a_);
-  Correction result = delta_a_.allFinite() ? try_correction(c, a) : Correction::breaks_active;
-  // An active row broke a condition: redundant rows give W_AA a vanishing pivot (rcond ~1e-17 for
-  // the tool on three points), a wrong set does not. (An inactive row pushed in: the set is wrong,
-  // whatever impulses the active rows pass among themselves.)
-  if (result == Correction::breaks_active && a <= kMaxRedundantRows && lu_rows_.rcond() < kRedundantRank &&
-      redistribute(c, a))
-    result = try_correction(c, a);
+  Correction result = Correction::breaks_active;
+  if (a <= kMaxRedundantRows) {
+    lu_rows_.compute(W_aa_);
+    delta_a_.noalias() = lu_rows_.solve(rhs_a_);
+    if (delta_a_.allFinite()) result = try_correction(c, a);
+    // An active row broke a condition: redundant rows give W_AA a vanishing pivot (rcond ~1e-17 for
+    // the tool on three points), a wrong set does not. (An inactive row pushed in: the set is wrong,
+    // whatever impulses the active rows pass among themselves.)
+    if (result == Correction::breaks_active && lu_rows_.rcond() < kRedundantRank && redistribute(c, a))
+      result = try_correction(c, a);
+  } else {
+    // A larger set takes its least-norm correction. Of the stylus's sets on the movable bunny (10-15
+    // rows, its redundant supports among them) partial pivoting answered 1 in 1550; the least-norm
+    // correction answers half, the others being wrong sets (a normal it makes pull, a contact it
+    // pushes out of its cone). Not redistributed: that costs O(a) per null-space dimension per
+    // projection, and these sets have several.
+    cod_.setThreshold(kRedundantRank);
+    cod_.compute(W_aa_);
+    delta_a_.noalias() = cod_.solve(rhs_a_);
+    if (delta_a_.allFinite()) result = try_correction(c, a);
+  }
   if (result != Correction::solution && !sliding && a > kMaxRedundantRows) {
     failed_a_ = a;
     std::copy(active_, active_ + a, failed_active_);
@@ -858,8 +875,7 @@ ProxyHand::Correction ProxyHand::try_correction(const TickContacts& c, int a) {
     if (low_rank_) dy_.noalias() += Q_.col(active_[i]) * delta_a_[i];
   }
   if (low_rank_) u_candidate_.noalias() += P_ * dy_;
-  constexpr double kSlack = 1e-12;
-  const auto pushed_in = [&](int i) { return u_candidate_[3 * i] - c.bias[i] < -kSlack * (1 + std::abs(c.bias[i])); };
+  const auto pushed_in = [&](int i) { return u_candidate_[3 * i] - c.bias[i] < -kRowVelocityTolerance; };
   for (int i = 0; i < c.count; ++i)  // the rows out of the set first (their impulses stay 0)
     if (lambda_[3 * i] <= 0 && pushed_in(i)) return Correction::breaks_inactive;
   for (int i = 0; i < c.count; ++i) {
