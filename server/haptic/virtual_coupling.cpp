@@ -36,7 +36,7 @@ constexpr double kTickContactTolerance = 1e-10;
 // How far a contact's normal velocity may fall short of its target in an answer the polish keeps,
 // m/s: 0.1 nm of penetration over a 1 ms tick. The least-norm answer on a set of redundant rows
 // misses targets that are not all reachable at once, mostly by 1e-12 to 1e-7 m/s (the stylus on the
-// movable bunny: median 1.3e-9), where the sweeps' answer the tick would keep instead is further off.
+// movable bunny: median 1.3e-9); refused, the tick keeps its sweeps' unconverged answer instead.
 constexpr double kRowVelocityTolerance = 1e-7;
 
 // The time since the last reply the passivity controller divides by, s: from a tick at 10 kHz (the
@@ -845,7 +845,7 @@ bool ProxyHand::polish_contacts(const TickContacts& c) {
       result = try_correction(c, a);
   } else {
     // A larger set takes its least-norm correction. Of the stylus's sets on the movable bunny (10-15
-    // rows, its redundant supports among them) partial pivoting answered 1 in 1550; the least-norm
+    // rows, its redundant supports among them) partial pivoting answered 1 of 1551; the least-norm
     // correction answers half, the others being wrong sets (a normal it makes pull, a contact it
     // pushes out of its cone). Not redistributed: that costs O(a) per null-space dimension per
     // projection, and these sets have several.
