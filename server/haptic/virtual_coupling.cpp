@@ -851,7 +851,7 @@ bool ProxyHand::polish_contacts(const TickContacts& c) {
     // projection, and these sets have several.
     cod_.setThreshold(kRedundantRank);
     cod_.compute(W_aa_);
-    delta_a_.noalias() = cod_.solve(rhs_a_);
+    delta_a_ = least_norm_solve(rhs_a_);
     if (delta_a_.allFinite()) result = try_correction(c, a);
   }
   if (result != Correction::solution && !sliding && a > kMaxRedundantRows) {
@@ -859,6 +859,29 @@ bool ProxyHand::polish_contacts(const TickContacts& c) {
     std::copy(active_, active_ + a, failed_active_);
   }
   return result == Correction::solution;
+}
+
+const TickRowVector& ProxyHand::least_norm_solve(const TickRowVector& b) {
+  // As Eigen's CompleteOrthogonalDecomposition::solve (A P = Q [T 0; 0 0] Z): c = Q^* b, T z = c's
+  // first rank rows, y = Z^* [z; 0], x = P y; Z^*'s reflections applied with a workspace of ours,
+  // where Eigen's allocates one on the heap.
+  const Eigen::Index rank = cod_.rank(), cols = cod_.cols();
+  cod_solved_.setZero(cols);
+  if (rank == 0) return cod_solved_;
+  cod_c_ = b;
+  cod_c_.applyOnTheLeft(cod_.householderQ().setLength(rank).adjoint());
+  cod_y_.setZero(cols);
+  cod_y_.head(rank) = cod_c_.head(rank);
+  cod_.matrixQTZ().topLeftCorner(rank, rank).triangularView<Eigen::Upper>().solveInPlace(cod_y_.head(rank));
+  if (rank < cols)
+    for (Eigen::Index k = 0; k < rank; ++k) {
+      if (k != rank - 1) cod_y_.row(k).swap(cod_y_.row(rank - 1));
+      cod_y_.segment(rank - 1, cols - rank + 1)
+          .applyHouseholderOnTheLeft(cod_.matrixQTZ().row(k).tail(cols - rank).adjoint(), cod_.zCoeffs()(k), cod_work_);
+      if (k != rank - 1) cod_y_.row(k).swap(cod_y_.row(rank - 1));
+    }
+  cod_solved_.noalias() = cod_.colsPermutation() * cod_y_;
+  return cod_solved_;
 }
 
 ProxyHand::Correction ProxyHand::try_correction(const TickContacts& c, int a) {
@@ -909,7 +932,7 @@ bool ProxyHand::redistribute(const TickContacts& c, int a) {
     r_a_.setZero(a);
     r_a_[j] = 1;
     b_a_ = W_aa_.col(j);
-    r_a_.noalias() -= cod_.solve(b_a_);
+    r_a_ -= least_norm_solve(b_a_);
     for (int q = 0; q < found; ++q) r_a_ -= null_.col(q).dot(r_a_) * null_.col(q);
     const double norm = r_a_.norm();
     if (norm > 1e-6) null_.col(found++) = r_a_ / norm;
@@ -918,7 +941,7 @@ bool ProxyHand::redistribute(const TickContacts& c, int a) {
   // x0 = lambda_A + the least-norm correction; x = x0 + N z.
   x0_a_.resize(a);
   for (int i = 0; i < a; ++i) x0_a_[i] = lambda_[active_[i]];
-  x0_a_.noalias() += cod_.solve(rhs_a_);
+  x0_a_ += least_norm_solve(rhs_a_);
   z_.setZero(k);
   x_a_ = x0_a_;
   for (int iteration = 0; iteration < kRedistributeIterations; ++iteration) {

@@ -469,6 +469,8 @@ class ProxyHand {
   // else which rows broke a condition (an active row's impulse, an inactive row's separation).
   enum class Correction { solution, breaks_active, breaks_inactive };
   Correction try_correction(const TickContacts& c, int a);
+  // cod_'s least-norm solution of b (its solve(), which allocates a temporary, without the heap).
+  const TickRowVector& least_norm_solve(const TickRowVector& b);
   // delta_a_ for redundant active rows (W_AA singular; a <= kMaxRedundantRows): the one that keeps the
   // conditions.
   bool redistribute(const TickContacts& c, int a);
@@ -487,6 +489,9 @@ class ProxyHand {
   Eigen::PartialPivLU<TickRowMatrix> lu_rows_;
   Eigen::CompleteOrthogonalDecomposition<TickRowMatrix> cod_;
   TickRowVector u_now_, x_a_, x0_a_, b_a_, r_a_, z_;
+  // least_norm_solve's workspace.
+  TickRowVector cod_c_, cod_y_, cod_solved_;
+  double cod_work_[kMaxTickRows]{};
   TickRowMatrix null_;  // redistribute's null-space basis (a x k)
   HapticVector x_look_, rhs_;
   TickDofByRow Q_;
